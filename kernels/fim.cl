@@ -1,0 +1,30 @@
+/* One Fast Iterative Method relaxation over the work box (the dissertation's
+ * Algorithm 5): every non-solid voxel takes the least of its six face
+ * neighbours plus one. Updates are in place and monotone (values only fall),
+ * so reading a neighbour that another work-item is rewriting is harmless; a
+ * pass in which nothing changes proves the fixed point, which is the exact
+ * distance. Voxels outside the work box do not exist here. */
+#include "sdf_common.h"
+
+__kernel void fim_pass(__global uchar *work, int4 w_n, __global int *changed, int iteration)
+{
+    const int x = get_global_id(0), y = get_global_id(1), z = get_global_id(2);
+    if (x >= w_n.x || y >= w_n.y || z >= w_n.z)
+        return;
+    const size_t i = box_index(x, y, z, w_n);
+    const uint here = work[i];
+    if (here == 0)
+        return;
+    const size_t sy = (size_t)w_n.x, sz = (size_t)w_n.x * (size_t)w_n.y;
+    uint best = here;
+    if (x > 0) best = min(best, (uint)work[i - 1] + 1);
+    if (x + 1 < w_n.x) best = min(best, (uint)work[i + 1] + 1);
+    if (y > 0) best = min(best, (uint)work[i - sy] + 1);
+    if (y + 1 < w_n.y) best = min(best, (uint)work[i + sy] + 1);
+    if (z > 0) best = min(best, (uint)work[i - sz] + 1);
+    if (z + 1 < w_n.z) best = min(best, (uint)work[i + sz] + 1);
+    if (best < here) {
+        work[i] = (uchar)best;
+        changed[iteration] = 1;
+    }
+}

@@ -1,0 +1,100 @@
+"""What every distance-field algorithm is given and returns.
+
+An algorithm computes distances over a region R of one world and writes the
+packed field there. It reads a work box W around R: either R plus a one-voxel
+*seed shell* whose distances are taken from the current field (``seeded``;
+exact because any shortest path from R to a solid outside W crosses the
+shell), or R plus a *halo* of ``cap`` voxels computed from voxels alone (not
+seeded; needed where the surrounding field is approximate). Outside the world
+is air.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.cltypes as cltypes
+
+from sdfserver.geometry import Box
+from sdfserver.gpu import GpuContext
+
+
+def int4(v: tuple[int, int, int], w: int = 0):
+    return cltypes.make_int4(int(v[0]), int(v[1]), int(v[2]), int(w))
+
+
+def grid(shape_xyz: tuple[int, int, int], local: tuple[int, int, int] = (8, 4, 4)):
+    """A 3-D global size rounded up to whole work-groups."""
+    return tuple(-(-max(1, n) // l) * l for n, l in zip(shape_xyz, local)), local
+
+
+@dataclass
+class WorldBuffers:
+    """The device buffers of one world, owned by World."""
+
+    dims: tuple[int, int, int]  # (sx, sy, sz)
+    voxels: cl.Buffer  # uchar, world-sized
+    field: cl.Buffer  # ushort, world-sized
+    work: cl.Buffer  # uchar, world-sized scratch
+    work2: cl.Buffer  # uchar, world-sized scratch (ping-pong, brute output)
+
+
+@dataclass
+class RegionJob:
+    buffers: WorldBuffers
+    region: Box  # R: written
+    work_box: Box  # W: read, contains R
+    seeded: bool
+    cap: int
+
+    @classmethod
+    def seeded_region(cls, buffers: WorldBuffers, region: Box, cap: int) -> "RegionJob":
+        world = Box.of_size(buffers.dims)
+        return cls(buffers, region, region.grow(1).intersect(world), True, cap)
+
+    @classmethod
+    def halo_region(cls, buffers: WorldBuffers, region: Box, cap: int) -> "RegionJob":
+        world = Box.of_size(buffers.dims)
+        return cls(buffers, region, region.grow(cap).intersect(world), False, cap)
+
+    @property
+    def region_offset(self) -> tuple[int, int, int]:
+        return tuple(r - w for r, w in zip(self.region.lo, self.work_box.lo))
+
+
+@dataclass
+class AlgorithmRun:
+    events: list[cl.Event] = field(default_factory=list)
+    iterations: int = 0  # FIM passes that changed something; JFA passes
+
+
+class Algorithm(Protocol):
+    name: str
+    exact: bool
+
+    def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun: ...
+
+
+def init_work(gpu: GpuContext, job: RegionJob, target: cl.Buffer) -> cl.Event:
+    w = job.work_box
+    gsize, lsize = grid(w.shape_xyz)
+    return gpu.programs.kernel("region.cl", "init_work")(
+        gpu.queue, gsize, lsize,
+        job.buffers.voxels, job.buffers.field, target,
+        int4(job.buffers.dims), int4(w.lo), int4(w.shape_xyz),
+        int4(job.region.lo), int4(job.region.hi), np.int32(job.seeded), np.int32(job.cap),
+    )
+
+
+def pack_region(gpu: GpuContext, job: RegionJob, source: cl.Buffer) -> cl.Event:
+    r = job.region
+    gsize, lsize = grid(r.shape_xyz)
+    return gpu.programs.kernel("region.cl", "pack_region")(
+        gpu.queue, gsize, lsize,
+        source, job.buffers.voxels, job.buffers.field,
+        int4(job.buffers.dims), int4(job.work_box.lo), int4(job.work_box.shape_xyz),
+        int4(r.lo), int4(r.shape_xyz), np.int32(job.cap),
+    )

@@ -1,0 +1,191 @@
+"""Edit operations and their validation.
+
+An edit batch is a list of operations applied in order: explicit voxels,
+axis-aligned boxes (half-open, ``min <= p < max``) and spheres (voxel ``p``
+is inside when ``|p - center| <= radius``). Colour 0 erases. Brushes (boxes
+and spheres) are clipped to the world; explicit voxels out of bounds reject
+the whole batch. Everything is checked here, on the host, before the device
+is touched: a batch applies whole or not at all.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from numbers import Integral, Real
+from typing import Any, Union
+
+import numpy as np
+
+from sdfserver.errors import InvalidEdit, TooLarge
+from sdfserver.geometry import Box
+
+Vec3 = tuple[int, int, int]
+
+
+@dataclass(frozen=True)
+class EditLimits:
+    max_ops_per_batch: int = 1024
+    max_voxels_per_batch: int = 1 << 20
+    max_brush_radius_vox: float = 256.0
+
+
+@dataclass(frozen=True)
+class VoxelsEdit:
+    voxels: np.ndarray  # (N, 4) int64: x, y, z, colour
+
+
+@dataclass(frozen=True)
+class BoxEdit:
+    min: Vec3
+    max: Vec3
+    colour: int
+
+
+@dataclass(frozen=True)
+class SphereEdit:
+    center: tuple[float, float, float]
+    radius: float
+    colour: int
+
+
+Edit = Union[VoxelsEdit, BoxEdit, SphereEdit]
+
+
+def _colour(value: Any, where: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, Integral):
+        raise InvalidEdit(f"{where}: colour must be an integer 0..255, got {value!r}")
+    if not 0 <= int(value) <= 255:
+        raise InvalidEdit(f"{where}: colour must be 0..255, got {value}")
+    return int(value)
+
+
+def _int3(value: Any, where: str) -> Vec3:
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
+        raise InvalidEdit(f"{where}: expected three integers [x, y, z], got {value!r}")
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, Integral):
+            raise InvalidEdit(f"{where}: expected integers, got {v!r}")
+    return tuple(int(v) for v in value)
+
+
+def _real3(value: Any, where: str) -> tuple[float, float, float]:
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
+        raise InvalidEdit(f"{where}: expected three numbers [x, y, z], got {value!r}")
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, Real) or not math.isfinite(v):
+            raise InvalidEdit(f"{where}: expected finite numbers, got {v!r}")
+    return tuple(float(v) for v in value)
+
+
+def _voxel_array(value: Any, where: str) -> np.ndarray:
+    """Accept an (N, 4) integer array or a list of [x, y, z, colour] lists."""
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in "iu":
+            raise InvalidEdit(f"{where}: voxel array must be integer, got {value.dtype}")
+        array = value
+    elif isinstance(value, (list, tuple)):
+        for row in value:
+            if not isinstance(row, (list, tuple)) or len(row) != 4 or any(
+                isinstance(v, bool) or not isinstance(v, Integral) for v in row
+            ):
+                raise InvalidEdit(f"{where}: each voxel must be [x, y, z, colour] integers, got {row!r}")
+        array = np.asarray(value, dtype=np.int64).reshape(-1, 4)
+    else:
+        raise InvalidEdit(f"{where}: voxels must be an N x 4 array or a list, got {type(value).__name__}")
+    if array.ndim != 2 or array.shape[1] != 4:
+        raise InvalidEdit(f"{where}: voxel array must have shape (N, 4), got {array.shape}")
+    return array.astype(np.int64, copy=False)
+
+
+def parse_edit(raw: Any, index: int) -> Edit:
+    """One operation from its wire form (a dict with ``op``)."""
+    where = f"edits[{index}]"
+    if not isinstance(raw, dict):
+        raise InvalidEdit(f"{where}: expected an object with 'op', got {type(raw).__name__}")
+    op = raw.get("op")
+    try:
+        if op == "voxels":
+            return VoxelsEdit(_voxel_array(raw["voxels"], where))
+        if op == "box":
+            return BoxEdit(_int3(raw["min"], where + ".min"), _int3(raw["max"], where + ".max"),
+                           _colour(raw["colour"], where))
+        if op == "sphere":
+            radius = raw["radius"]
+            if isinstance(radius, bool) or not isinstance(radius, Real) or not math.isfinite(radius):
+                raise InvalidEdit(f"{where}.radius: expected a finite number, got {radius!r}")
+            return SphereEdit(_real3(raw["center"], where + ".center"), float(radius),
+                              _colour(raw["colour"], where))
+    except KeyError as exc:
+        raise InvalidEdit(f"{where}: missing field {exc.args[0]!r} for op {op!r}") from None
+    raise InvalidEdit(f"{where}: unknown op {op!r}; expected 'voxels', 'box' or 'sphere'")
+
+
+def parse_edits(raw: Any) -> list[Edit]:
+    if not isinstance(raw, (list, tuple)):
+        raise InvalidEdit(f"edits must be a list, got {type(raw).__name__}")
+    return [parse_edit(item, i) for i, item in enumerate(raw)]
+
+
+def validate_batch(edits: list[Edit], dims: Vec3, limits: EditLimits) -> None:
+    """Raise InvalidEdit / TooLarge for anything that cannot apply; change nothing."""
+    if not edits:
+        raise InvalidEdit("empty edit batch")
+    if len(edits) > limits.max_ops_per_batch:
+        raise TooLarge(f"{len(edits)} operations in one batch; the limit is {limits.max_ops_per_batch}")
+    total_voxels = sum(len(e.voxels) for e in edits if isinstance(e, VoxelsEdit))
+    if total_voxels > limits.max_voxels_per_batch:
+        raise TooLarge(f"{total_voxels} voxels in one batch; the limit is {limits.max_voxels_per_batch}")
+    upper = np.array(dims, dtype=np.int64)
+    for i, e in enumerate(edits):
+        where = f"edits[{i}]"
+        if isinstance(e, VoxelsEdit):
+            if len(e.voxels) == 0:
+                raise InvalidEdit(f"{where}: empty voxel list")
+            xyz, colour = e.voxels[:, :3], e.voxels[:, 3]
+            bad = np.flatnonzero(((xyz < 0) | (xyz >= upper)).any(axis=1))
+            if bad.size:
+                raise InvalidEdit(
+                    f"{where}: voxel {e.voxels[bad[0], :3].tolist()} is outside the world "
+                    f"{list(dims)} ({bad.size} out of bounds)"
+                )
+            if ((colour < 0) | (colour > 255)).any():
+                raise InvalidEdit(f"{where}: colours must be 0..255")
+        elif isinstance(e, BoxEdit):
+            if any(lo > hi for lo, hi in zip(e.min, e.max)):
+                raise InvalidEdit(f"{where}: box min {list(e.min)} exceeds max {list(e.max)}")
+            _colour(e.colour, where)
+        elif isinstance(e, SphereEdit):
+            if not 0 <= e.radius <= limits.max_brush_radius_vox:
+                raise InvalidEdit(
+                    f"{where}: radius must be 0..{limits.max_brush_radius_vox:g}, got {e.radius:g}"
+                )
+            _colour(e.colour, where)
+        else:
+            raise InvalidEdit(f"{where}: not an edit: {e!r}")
+
+
+def edit_bounds(edit: Edit, dims: Vec3, chunk_size_vox: int) -> list[Box]:
+    """World-clipped boxes covering what an edit may change (empty list: nothing).
+
+    Explicit voxels give one tight box per touched chunk, so scattered voxels
+    do not turn into one world-sized box.
+    """
+    world = Box.of_size(dims)
+    if isinstance(edit, BoxEdit):
+        box = Box(edit.min, edit.max).intersect(world)
+        return [] if box.empty else [box]
+    if isinstance(edit, SphereEdit):
+        lo = tuple(math.ceil(c - edit.radius) for c in edit.center)
+        hi = tuple(math.floor(c + edit.radius) + 1 for c in edit.center)
+        box = Box(lo, hi).intersect(world)
+        return [] if box.empty else [box]
+    xyz = edit.voxels[:, :3]
+    _, group = np.unique(xyz // chunk_size_vox, axis=0, return_inverse=True)
+    group = group.reshape(-1)
+    count = int(group.max()) + 1
+    lo = np.full((count, 3), np.iinfo(np.int64).max, dtype=np.int64)
+    hi = np.full((count, 3), np.iinfo(np.int64).min, dtype=np.int64)
+    np.minimum.at(lo, group, xyz)
+    np.maximum.at(hi, group, xyz + 1)
+    return [Box(tuple(map(int, a)), tuple(map(int, b))) for a, b in zip(lo, hi)]

@@ -1,0 +1,65 @@
+"""The project's exception tree.
+
+    SdfServerError
+    ├── InvalidInput            bad request data; nothing was changed        (HTTP 422)
+    │   └── InvalidEdit         an edit batch that cannot be applied
+    ├── NotFound                an unknown world                              (HTTP 404)
+    ├── TooLarge                a body, batch or region over a limit          (HTTP 413)
+    ├── DeviceMemoryExceeded    a world that does not fit the memory budget   (HTTP 507)
+    ├── NotReady                the device cannot serve requests now          (HTTP 503)
+    │   └── NoOpenCLDevice      no OpenCL platform or no matching device
+    └── KernelBuildError        an OpenCL program failed to build             (HTTP 500)
+
+The mapping to HTTP status codes lives in the API layer, in one place; the
+engine raises these and knows nothing of HTTP.
+"""
+
+from __future__ import annotations
+
+
+class SdfServerError(Exception):
+    """Base of every error the project raises on purpose."""
+
+    code = "internal_error"
+
+
+class InvalidInput(SdfServerError):
+    code = "invalid_input"
+
+
+class InvalidEdit(InvalidInput):
+    code = "invalid_edit"
+
+
+class NotFound(SdfServerError):
+    code = "not_found"
+
+
+class TooLarge(SdfServerError):
+    code = "too_large"
+
+
+class DeviceMemoryExceeded(SdfServerError):
+    code = "device_memory_exceeded"
+
+
+class NotReady(SdfServerError):
+    code = "not_ready"
+
+
+class NoOpenCLDevice(NotReady):
+    code = "no_opencl_device"
+
+
+class KernelBuildError(SdfServerError):
+    """Carries what is needed to reproduce a failed build: file, options and the build log."""
+
+    code = "kernel_build_error"
+
+    def __init__(self, path: str, options: list[str], log: str):
+        self.path = path
+        self.options = list(options)
+        self.log = log
+        super().__init__(
+            f"OpenCL build of {path} failed with options {' '.join(options)}:\n{log}"
+        )

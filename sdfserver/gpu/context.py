@@ -1,0 +1,84 @@
+"""GpuContext: the single owner of an OpenCL context, its queue and its device memory.
+
+Whoever holds a GpuContext owns the device: the engine thread in the server,
+the test or the benchmark otherwise. Buffers are allocated through
+``allocate`` so that every byte is counted against the memory budget before
+the driver is asked for it.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pyopencl as cl
+
+from sdfserver.errors import DeviceMemoryExceeded
+from sdfserver.gpu.device import choose_device
+from sdfserver.gpu.programs import ProgramCache
+
+# Leave room for the driver, programs and transient transfers.
+DEFAULT_BUDGET_FRACTION = 0.85
+
+
+class GpuContext:
+    def __init__(self, device: cl.Device, memory_budget_bytes: int | None = None):
+        self.device = device
+        self.context = cl.Context([device])
+        self.queue = cl.CommandQueue(
+            self.context, properties=cl.command_queue_properties.PROFILING_ENABLE
+        )
+        self.programs = ProgramCache(self.context)
+        device_bytes = int(device.global_mem_size)
+        if memory_budget_bytes is None:
+            memory_budget_bytes = int(device_bytes * DEFAULT_BUDGET_FRACTION)
+        self.memory_budget_bytes = int(memory_budget_bytes)
+        self.max_allocation_bytes = int(device.max_mem_alloc_size)
+        self._allocated_bytes = 0
+        self._lock = threading.Lock()
+
+    @classmethod
+    def create(cls, device_spec: str | None = None, memory_budget_bytes: int | None = None):
+        return cls(choose_device(device_spec), memory_budget_bytes)
+
+    @property
+    def device_name(self) -> str:
+        return f"{self.device.platform.name.strip()} / {self.device.name.strip()}"
+
+    @property
+    def allocated_bytes(self) -> int:
+        return self._allocated_bytes
+
+    def check_fits(self, sizes_bytes: list[int], what: str) -> None:
+        """Raise DeviceMemoryExceeded unless all of ``sizes_bytes`` fit now."""
+        total = sum(sizes_bytes)
+        largest = max(sizes_bytes, default=0)
+        if largest > self.max_allocation_bytes:
+            raise DeviceMemoryExceeded(
+                f"{what} needs a {largest / 2**20:.0f} MiB buffer; the device allows at most "
+                f"{self.max_allocation_bytes / 2**20:.0f} MiB in one buffer"
+            )
+        free = self.memory_budget_bytes - self._allocated_bytes
+        if total > free:
+            raise DeviceMemoryExceeded(
+                f"{what} needs {total / 2**20:.0f} MiB of device memory; "
+                f"{free / 2**20:.0f} MiB of the {self.memory_budget_bytes / 2**20:.0f} MiB "
+                f"budget is free"
+            )
+
+    def allocate(self, nbytes: int) -> cl.Buffer:
+        with self._lock:
+            self.check_fits([nbytes], "buffer")
+            buffer = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=max(1, nbytes))
+            self._allocated_bytes += nbytes
+            return buffer
+
+    def release(self, buffer: cl.Buffer, nbytes: int) -> None:
+        with self._lock:
+            buffer.release()
+            self._allocated_bytes -= nbytes
+
+    def upload(self, array: np.ndarray) -> cl.Buffer:
+        """A short-lived read-only buffer (edit lists); not counted against the budget."""
+        flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
+        return cl.Buffer(self.context, flags, hostbuf=np.ascontiguousarray(array))

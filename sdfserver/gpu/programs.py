@@ -1,0 +1,67 @@
+"""The one loader of device code.
+
+Every kernel lives in ``kernels/*.cl`` with shared definitions in
+``kernels/include``. Programs are built with ``-I kernels/include`` and
+``-D NAME=value`` options, memoized per (context, file, options), and left to
+pyopencl's disk cache, which follows ``#include``. A failed build raises
+KernelBuildError with the file, the options and the build log.
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import pyopencl as cl
+
+from sdfserver.errors import KernelBuildError
+
+KERNEL_DIR = Path(__file__).resolve().parents[2] / "kernels"
+INCLUDE_DIR = KERNEL_DIR / "include"
+
+
+def _define(name: str, value: int | str) -> str:
+    if not name.isidentifier():
+        raise ValueError(f"bad macro name {name!r}")
+    if isinstance(value, bool) or not isinstance(value, (int, str)):
+        raise TypeError(f"macro {name} must be int or str, got {type(value).__name__}")
+    return f"-D{name}={value}"
+
+
+class ProgramCache:
+    """Builds and memoizes programs for one OpenCL context."""
+
+    def __init__(self, context: cl.Context):
+        self._context = context
+        self._programs: dict[tuple[str, tuple[str, ...]], cl.Program] = {}
+        self._kernels: dict[tuple[str, tuple[str, ...], str], cl.Kernel] = {}
+        self._lock = threading.Lock()
+
+    def get(self, filename: str, **defines: int | str) -> cl.Program:
+        options = tuple(sorted(_define(k, v) for k, v in defines.items()))
+        key = (filename, options)
+        with self._lock:
+            program = self._programs.get(key)
+            if program is None:
+                program = self._build(filename, options)
+                self._programs[key] = program
+            return program
+
+    def kernel(self, filename: str, name: str, **defines: int | str) -> cl.Kernel:
+        """A memoized kernel object; only the thread that owns the device may call it."""
+        options = tuple(sorted(_define(k, v) for k, v in defines.items()))
+        key = (filename, options, name)
+        kernel = self._kernels.get(key)
+        if kernel is None:
+            kernel = cl.Kernel(self.get(filename, **defines), name)
+            self._kernels[key] = kernel
+        return kernel
+
+    def _build(self, filename: str, defines: tuple[str, ...]) -> cl.Program:
+        path = KERNEL_DIR / filename
+        source = path.read_text()
+        options = [f"-I{INCLUDE_DIR}", *defines]
+        try:
+            return cl.Program(self._context, source).build(options=options)
+        except cl.RuntimeError as exc:
+            raise KernelBuildError(str(path), options, str(exc)) from exc

@@ -1,0 +1,308 @@
+"""World: one chunked voxel world resident on the device.
+
+A world owns four device buffers for its lifetime: voxels (uchar), the packed
+field (ushort), and two uchar scratch boxes the algorithms work in — 5 bytes
+per voxel, checked against the memory budget before anything is allocated.
+
+The life of an edit: ``apply_edits`` validates a whole batch on the host,
+writes it on the device and records the boxes it may have changed (the dirty
+set); ``recompute`` consumes the dirty set — each box grown by the cap and
+snapped to chunks, touching boxes merged — runs the world's algorithm over
+each region, seeded from the unchanged field around it, and returns exactly
+the chunks it rewrote. A voxel farther than the cap from every change keeps
+its capped distance, so the result equals a full recompute.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pyopencl as cl
+
+from sdfserver.algorithms import ALGORITHMS, RegionJob, WorldBuffers, get_algorithm
+from sdfserver.algorithms.base import grid, int4
+from sdfserver.edits import BoxEdit, Edit, EditLimits, SphereEdit, VoxelsEdit, edit_bounds, validate_batch
+from sdfserver.errors import InvalidInput
+from sdfserver.geometry import Box, Vec3, merge_regions
+from sdfserver.gpu import GpuContext
+
+CHUNK_SIZES = (8, 16, 32, 64, 128)
+MAX_SIDE_VOX = 2048  # exact.cl: 32 work-items x 64 elements per line
+BYTES_PER_VOXEL = 1 + 2 + 1 + 1  # voxels, field, work, work2
+
+
+@dataclass(frozen=True)
+class Focus:
+    """A box of chunks: ``center - size // 2 <= c < center - size // 2 + size``."""
+
+    center: Vec3
+    size: Vec3
+
+    def chunk_box(self) -> Box:
+        lo = tuple(c - s // 2 for c, s in zip(self.center, self.size))
+        return Box(lo, tuple(l + s for l, s in zip(lo, self.size)))
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    size: Vec3  # (sx, sy, sz) voxels
+    chunk_size: int = 16
+    max_distance: int = 255
+    algorithm: str = "exact"
+    focus: Focus | None = None
+    lod_algorithm: str = "jfa"
+
+    def validated(self) -> "WorldConfig":
+        size = self.size
+        if (not isinstance(size, (tuple, list)) or len(size) != 3
+                or any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) for v in size)):
+            raise InvalidInput(f"size must be three integers [sx, sy, sz], got {size!r}")
+        if self.chunk_size not in CHUNK_SIZES:
+            raise InvalidInput(f"chunk_size must be one of {CHUNK_SIZES}, got {self.chunk_size!r}")
+        for v in size:
+            if v <= 0 or v % self.chunk_size:
+                raise InvalidInput(
+                    f"size {list(size)} must be positive whole multiples of chunk_size {self.chunk_size}"
+                )
+            if v > MAX_SIDE_VOX:
+                raise InvalidInput(f"each side must be at most {MAX_SIDE_VOX} voxels, got {list(size)}")
+        if (isinstance(self.max_distance, bool) or not isinstance(self.max_distance, (int, np.integer))
+                or not 1 <= self.max_distance <= 255):
+            raise InvalidInput(f"max_distance must be an integer 1..255, got {self.max_distance!r}")
+        get_algorithm(self.algorithm)
+        get_algorithm(self.lod_algorithm)
+        if self.focus is not None:
+            for name, v in (("center", self.focus.center), ("size", self.focus.size)):
+                if len(v) != 3 or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) for c in v):
+                    raise InvalidInput(f"focus {name} must be three integers (chunks), got {v!r}")
+            if any(s <= 0 for s in self.focus.size):
+                raise InvalidInput(f"focus size must be positive, got {list(self.focus.size)}")
+        return replace(self, size=tuple(int(v) for v in size))
+
+    @property
+    def chunks(self) -> Vec3:
+        return tuple(v // self.chunk_size for v in self.size)
+
+
+@dataclass
+class RecomputeResult:
+    changed_chunks: np.ndarray  # (N, 3) int32 chunk coordinates (x, y, z)
+    regions: list[Box] = field(default_factory=list)
+    device_ms: float = 0.0  # summed kernel time from profiling events
+    wall_ms: float = 0.0
+    iterations: int = 0
+
+
+def _kernel_ms(events: list[cl.Event]) -> float:
+    return sum((e.profile.end - e.profile.start) for e in events) * 1e-6
+
+
+class World:
+    def __init__(self, gpu: GpuContext, config: WorldConfig, limits: EditLimits = EditLimits()):
+        self.config = config = config.validated()
+        self.gpu = gpu
+        self.limits = limits
+        sx, sy, sz = config.size
+        self.voxel_count = sx * sy * sz
+        sizes = [self.voxel_count, 2 * self.voxel_count, self.voxel_count, self.voxel_count]
+        gpu.check_fits(sizes, f"a {sx}x{sy}x{sz} world")
+        self._sizes = sizes
+        allocated = []
+        try:
+            for n in sizes:
+                allocated.append(gpu.allocate(n))
+        except BaseException:
+            for buf, n in zip(allocated, sizes):
+                gpu.release(buf, n)
+            raise
+        self.buffers = WorldBuffers(config.size, *allocated)
+        cl.enqueue_fill_buffer(gpu.queue, self.buffers.voxels, np.uint8(0), 0, self.voxel_count)
+        # An empty world: every voxel at the cap.
+        cl.enqueue_fill_buffer(gpu.queue, self.buffers.field, np.uint16(config.max_distance << 8),
+                               0, 2 * self.voxel_count)
+        gpu.queue.finish()
+        self._dirty: list[Box] = []
+        self._dirty_all = False
+        self.version = 0  # edit batches applied
+        self.field_version = 0  # the version the field reflects
+
+    # -- lifetime -----------------------------------------------------------------------------
+
+    def release(self) -> None:
+        b = self.buffers
+        if b is None:
+            return
+        for buf, n in zip((b.voxels, b.field, b.work, b.work2), self._sizes):
+            self.gpu.release(buf, n)
+        self.buffers = None
+
+    @property
+    def device_bytes(self) -> int:
+        return sum(self._sizes)
+
+    # -- edits ----------------------------------------------------------------------------------
+
+    def apply_edits(self, edits: list[Edit]) -> int:
+        """Validate and apply one batch atomically; returns the new version."""
+        validate_batch(edits, self.config.size, self.limits)
+        dims = self.config.size
+        cs = self.config.chunk_size
+        dirty = [box for e in edits for box in edit_bounds(e, dims, cs)]
+        for e in edits:
+            self._enqueue_edit(e)
+        self._dirty.extend(dirty)
+        self.version += 1
+        return self.version
+
+    def _enqueue_edit(self, e: Edit) -> None:
+        q, kernels, b = self.gpu.queue, self.gpu.programs, self.buffers
+        dims = int4(self.config.size)
+        if isinstance(e, VoxelsEdit):
+            # Later duplicates win: keep the last occurrence of each position.
+            flat = np.ravel_multi_index(e.voxels[::-1, 2::-1].T, self.config.size[::-1])
+            _, first = np.unique(flat, return_index=True)
+            rows = e.voxels[::-1][first].astype(np.uint16)
+            list_buf = self.gpu.upload(rows)
+            n = len(rows)
+            kernels.kernel("edits.cl", "set_voxels")(q, (-(-n // 64) * 64,), (64,), b.voxels, dims, list_buf, np.int32(n))
+            list_buf.release()  # pyopencl keeps it alive until the kernel has run
+            return
+        boxes = edit_bounds(e, self.config.size, self.config.chunk_size)
+        if not boxes:
+            return
+        box = boxes[0]
+        gsize, lsize = grid(box.shape_xyz)
+        if isinstance(e, BoxEdit):
+            kernels.kernel("edits.cl", "fill_box")(q, gsize, lsize, b.voxels, dims, int4(box.lo), int4(box.shape_xyz),
+                             np.uint32(e.colour))
+        elif isinstance(e, SphereEdit):
+            center = np.array([*e.center, 0], dtype=np.float32).view(cl.cltypes.float4)[0]
+            kernels.kernel("edits.cl", "fill_sphere")(q, gsize, lsize, b.voxels, dims, int4(box.lo), int4(box.shape_xyz),
+                                center, np.float32(e.radius * e.radius), np.uint32(e.colour))
+
+    def load_voxels(self, voxels: np.ndarray) -> int:
+        """Replace every voxel (restore, import); the whole field becomes dirty."""
+        expected = self.config.size[::-1]
+        if voxels.shape != expected or voxels.dtype != np.uint8:
+            raise InvalidInput(f"voxels must be uint8 with shape {expected} (z, y, x), "
+                               f"got {voxels.dtype} {voxels.shape}")
+        cl.enqueue_copy(self.gpu.queue, self.buffers.voxels, np.ascontiguousarray(voxels))
+        self._dirty_all = True
+        self.version += 1
+        return self.version
+
+    def reconfigure(self, *, algorithm: str | None = None, focus: Focus | None | str = "keep",
+                    max_distance: int | None = None, lod_algorithm: str | None = None) -> None:
+        """Change how the field is computed; the next recompute rebuilds all of it."""
+        changes = {}
+        if algorithm is not None:
+            changes["algorithm"] = algorithm
+        if focus != "keep":
+            changes["focus"] = focus
+        if max_distance is not None:
+            changes["max_distance"] = max_distance
+        if lod_algorithm is not None:
+            changes["lod_algorithm"] = lod_algorithm
+        self.config = replace(self.config, **changes).validated()
+        self._dirty_all = True
+
+    # -- the dirty set ----------------------------------------------------------------------------
+
+    @property
+    def world_box(self) -> Box:
+        return Box.of_size(self.config.size)
+
+    def dirty_regions(self) -> list[Box]:
+        """The regions the next recompute will rewrite."""
+        if self._dirty_all:
+            return [self.world_box]
+        cap, cs = self.config.max_distance, self.config.chunk_size
+        grown = [b.grow(cap).snap(cs).intersect(self.world_box) for b in self._dirty]
+        return merge_regions(grown)
+
+    @property
+    def dirty_chunk_count(self) -> int:
+        if self._dirty_all:
+            return int(np.prod(self.config.chunks))
+        return int(self._chunk_mask([b.snap(self.config.chunk_size) for b in self._dirty]).sum())
+
+    def _chunk_mask(self, boxes: list[Box]) -> np.ndarray:
+        mask = np.zeros(self.config.chunks[::-1], dtype=bool)
+        for box in boxes:  # one loop over boxes, never over voxels
+            mask[box.chunk_range(self.config.chunk_size).slices_zyx()] = True
+        return mask
+
+    # -- recompute ----------------------------------------------------------------------------------
+
+    def recompute(self) -> RecomputeResult:
+        """Bring the field up to date with the voxels; returns the chunks rewritten."""
+        start = time.perf_counter()
+        regions = self.dirty_regions() if (self._dirty or self._dirty_all) else []
+        events: list[cl.Event] = []
+        iterations = 0
+        for region in regions:
+            for run in self._compute_region(region):
+                events.extend(run.events)
+                iterations += run.iterations
+        self.gpu.queue.finish()
+        self._dirty.clear()
+        self._dirty_all = False
+        self.field_version = self.version
+        changed = np.argwhere(self._chunk_mask(regions))[:, ::-1].astype(np.int32)
+        return RecomputeResult(changed, regions, _kernel_ms(events),
+                               (time.perf_counter() - start) * 1e3, iterations)
+
+    def _compute_region(self, region: Box):
+        cfg, b = self.config, self.buffers
+        focus = None
+        if cfg.focus is not None:
+            focus = Box(*(tuple(c * cfg.chunk_size for c in v) for v in
+                          (cfg.focus.chunk_box().lo, cfg.focus.chunk_box().hi))).intersect(self.world_box)
+            if focus.contains(self.world_box):
+                focus = None
+        algorithm = get_algorithm(cfg.algorithm)
+        if focus is None:
+            yield algorithm.run(self.gpu, RegionJob.seeded_region(b, region, cfg.max_distance))
+            return
+        # Level of detail (the dissertation's Algorithm 7): the cheap algorithm everywhere,
+        # then the world's algorithm inside the focus, from voxels alone so that the
+        # approximate field around it cannot leak in.
+        yield get_algorithm(cfg.lod_algorithm).run(
+            self.gpu, RegionJob.seeded_region(b, region, cfg.max_distance))
+        inner = region.intersect(focus)
+        if not inner.empty:
+            yield algorithm.run(self.gpu, RegionJob.halo_region(b, inner, cfg.max_distance))
+
+    # -- reads ------------------------------------------------------------------------------------
+
+    def _read(self, buffer: cl.Buffer, itemsize: int, dtype, box: Box | None) -> np.ndarray:
+        box = self.world_box if box is None else box
+        if box.empty or not self.world_box.contains(box):
+            raise InvalidInput(f"box {list(box.lo)}..{list(box.hi)} is empty or outside the world "
+                               f"{list(self.config.size)}")
+        out = np.empty(box.shape_zyx, dtype=dtype)
+        sx, sy, _ = self.config.size
+        (x0, y0, z0), (nx, ny, nz) = box.lo, box.shape_xyz
+        cl.enqueue_copy(
+            self.gpu.queue, out, buffer,
+            buffer_origin=(x0 * itemsize, y0, z0), host_origin=(0, 0, 0),
+            region=(nx * itemsize, ny, nz),
+            buffer_pitches=(sx * itemsize, sx * sy * itemsize),
+            host_pitches=(nx * itemsize, nx * ny * itemsize),
+        )
+        return out
+
+    def read_field(self, box: Box | None = None) -> np.ndarray:
+        """Packed field, uint16 ``(distance << 8) | colour``, shape (z, y, x)."""
+        return self._read(self.buffers.field, 2, np.uint16, box)
+
+    def read_distance(self, box: Box | None = None) -> np.ndarray:
+        return (self.read_field(box) >> 8).astype(np.uint8)
+
+    def read_voxels(self, box: Box | None = None) -> np.ndarray:
+        return self._read(self.buffers.voxels, 1, np.uint8, box)
+
+
+__all__ = ["ALGORITHMS", "Focus", "RecomputeResult", "World", "WorldConfig"]

@@ -1,0 +1,3 @@
+from sdfserver.cli import main
+
+raise SystemExit(main())

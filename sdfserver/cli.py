@@ -1,0 +1,37 @@
+"""The `sdfserver` command: `serve` runs the server, `bench` the benchmark.
+
+Each subcommand parses its own arguments, so `sdfserver serve --help` and
+`sdfserver bench --help` list them.
+"""
+
+from __future__ import annotations
+
+import sys
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    commands = {
+        "serve": "sdfserver.api.server",
+        "bench": "sdfserver.bench",
+        "devices": None,
+    }
+    if not argv or argv[0] in ("-h", "--help") or argv[0] not in commands:
+        print("usage: sdfserver {serve,bench,devices} [options]\n"
+              "  serve    run the HTTP/WebSocket server\n"
+              "  bench    run the benchmark tables\n"
+              "  devices  list the OpenCL devices sdfserver can use", file=sys.stderr)
+        return 0 if argv and argv[0] in ("-h", "--help") else 2
+    if argv[0] == "devices":
+        from sdfserver.gpu import describe_devices
+
+        print("\n".join(describe_devices()))
+        return 0
+    import importlib
+
+    module = importlib.import_module(commands[argv[0]])
+    return int(module.main(argv[1:]) or 0)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -93,10 +93,7 @@ class RecomputeResult:
     device_ms: float = 0.0  # summed kernel time from profiling events
     wall_ms: float = 0.0
     iterations: int = 0
-
-
-def _kernel_ms(events: list[cl.Event]) -> float:
-    return sum((e.profile.end - e.profile.start) for e in events) * 1e-6
+    kernel_ms: list[float] = field(default_factory=list)  # each launch, in order
 
 
 class World:
@@ -208,6 +205,10 @@ class World:
         self.config = replace(self.config, **changes).validated()
         self._dirty_all = True
 
+    def mark_all_dirty(self) -> None:
+        """Make the next recompute rebuild the whole field (benchmarks, restores)."""
+        self._dirty_all = True
+
     # -- the dirty set ----------------------------------------------------------------------------
 
     @property
@@ -251,8 +252,9 @@ class World:
         self._dirty_all = False
         self.field_version = self.version
         changed = np.argwhere(self._chunk_mask(regions))[:, ::-1].astype(np.int32)
-        return RecomputeResult(changed, regions, _kernel_ms(events),
-                               (time.perf_counter() - start) * 1e3, iterations)
+        each = [(e.profile.end - e.profile.start) * 1e-6 for e in events]
+        return RecomputeResult(changed, regions, sum(each),
+                               (time.perf_counter() - start) * 1e3, iterations, each)
 
     def _compute_region(self, region: Box):
         cfg, b = self.config, self.buffers

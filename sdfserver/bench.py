@@ -1,0 +1,306 @@
+"""`sdfserver bench`: the dissertation's Tables 4.2, 4.4, 4.5 and 4.6, side by side, plus more.
+
+Sections, each on any OpenCL device:
+  chunks    one world of one chunk (8^3 .. 128^3) per algorithm: time of a full
+            regeneration after random brush edits (mean, std, 95% CI) and FIM passes
+  worlds    full-regeneration time per algorithm for worlds 64^3 .. 1024^3
+  update    a radius-8 brush edit in the largest world: incremental device time per cap
+  accuracy  each algorithm against `exact`: share of exact voxels, max/mean error, underestimates
+  anchors   scipy's distance_transform_cdt (CPU) and cupyx's distance_transform_edt (GPU), if installed
+Device times come from OpenCL profiling events (sum of kernel durations). A
+progress line runs on stderr; the tables go to stdout, everything to --json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import sys
+import time
+from datetime import datetime, timezone
+
+import numpy as np
+from scipy import stats
+
+from sdfserver.algorithms import ALGORITHMS
+from sdfserver.edits import EditLimits, SphereEdit
+from sdfserver.errors import DeviceMemoryExceeded
+from sdfserver.gpu import GpuContext
+from sdfserver.world import World, WorldConfig
+
+ALL_ALGORITHMS = ["exact", "jfa", "jfa_fim", "fim", "brute"]
+# Brute force is O(n^6) on one chunk: beyond these sizes a single run takes minutes.
+BRUTE_MAX_CHUNK = 64
+BRUTE_MAX_WORLD = 64
+
+
+def progress(message: str) -> None:
+    print(f"\r\033[K[bench] {message}", end="", file=sys.stderr, flush=True)
+
+
+def summarize(samples_ms: list[float]) -> dict:
+    a = np.asarray(samples_ms, dtype=np.float64)
+    n = len(a)
+    mean = float(a.mean())
+    std = float(a.std(ddof=1)) if n > 1 else 0.0
+    half = float(stats.t.ppf(0.975, n - 1) * std / math.sqrt(n)) if n > 1 else 0.0
+    return {"n": n, "mean_ms": mean, "std_ms": std, "ci95_ms": [mean - half, mean + half],
+            "median_ms": float(np.median(a)), "min_ms": float(a.min())}
+
+
+def random_brushes(rng: np.random.Generator, size, count: int, max_radius: float) -> list[SphereEdit]:
+    """The dissertation's benchmark mode: brushes at random places and sizes, most placing, some erasing."""
+    centers = rng.uniform(0, 1, (count, 3)) * np.asarray(size)
+    radii = rng.uniform(1, max(1.5, max_radius), count)
+    colours = np.where(rng.random(count) < 0.8, rng.integers(1, 256, count), 0)
+    return [SphereEdit(tuple(map(float, c)), float(r), int(k)) for c, r, k in zip(centers, radii, colours)]
+
+
+def populate(world: World, rng: np.random.Generator, brushes_per_chunk: float = 0.5) -> None:
+    size = world.config.size
+    chunks = int(np.prod(world.config.chunks))
+    count = max(4, int(chunks * brushes_per_chunk))
+    brushes = random_brushes(rng, size, count, world.config.chunk_size / 2)
+    step = world.limits.max_ops_per_batch
+    for i in range(0, len(brushes), step):
+        world.apply_edits(brushes[i:i + step])
+
+
+def time_full(world: World, reps: int, rng: np.random.Generator | None = None) -> tuple[list[float], list[int]]:
+    times, iterations = [], []
+    world.recompute()  # warm-up: builds the programs
+    for _ in range(reps):
+        if rng is not None:
+            world.apply_edits(random_brushes(rng, world.config.size, 2, world.config.chunk_size / 2))
+        world.mark_all_dirty()
+        result = world.recompute()
+        times.append(result.device_ms)
+        iterations.append(result.iterations)
+    return times, iterations
+
+
+def bench_chunks(gpu, args, rng) -> list[dict]:
+    rows = []
+    for algorithm in args.algorithms:
+        for cs in args.chunk_sizes:
+            if algorithm == "brute" and cs > args.brute_max_chunk:
+                continue
+            progress(f"chunks: {algorithm} {cs}^3")
+            world = World(gpu, WorldConfig((cs, cs, cs), cs, args.max_distance, algorithm), args.limits)
+            try:
+                populate(world, rng, brushes_per_chunk=4)
+                reps = args.reps if algorithm != "brute" or cs <= 32 else max(2, args.reps // 10)
+                times, iters = time_full(world, reps, rng)
+            finally:
+                world.release()
+            rows.append({"algorithm": algorithm, "chunk_size": cs, **summarize(times),
+                         "iterations_mean": float(np.mean(iters))})
+    return rows
+
+
+def bench_worlds(gpu, args, rng) -> tuple[list[dict], list[dict]]:
+    rows, accuracy = [], []
+    for n in args.world_sizes:
+        reference = None
+        for algorithm in args.algorithms:
+            if algorithm == "brute" and n > args.brute_max_world:
+                continue
+            progress(f"worlds: {algorithm} {n}^3")
+            try:
+                world = World(gpu, WorldConfig((n, n, n), args.chunk_size, args.max_distance, algorithm),
+                              args.limits)
+            except DeviceMemoryExceeded as exc:
+                rows.append({"algorithm": algorithm, "world_size": n, "skipped": str(exc)})
+                continue
+            try:
+                populate(world, np.random.default_rng(args.seed + n))  # same scene for every algorithm
+                times, iters = time_full(world, args.reps)
+                row = {"algorithm": algorithm, "world_size": n, **summarize(times),
+                       "iterations_mean": float(np.mean(iters)),
+                       "device_bytes": world.device_bytes,
+                       "voxels_per_s": n ** 3 / (np.median(times) * 1e-3)}
+                rows.append(row)
+                if n <= args.accuracy_max_world:
+                    field = world.read_distance()
+                    if algorithm == "exact":
+                        reference = field
+                    if reference is not None:
+                        accuracy.append(compare(algorithm, n, field, reference))
+            finally:
+                world.release()
+    return rows, accuracy
+
+
+def compare(algorithm: str, n: int, field: np.ndarray, reference: np.ndarray) -> dict:
+    error = field.astype(np.int32) - reference.astype(np.int32)
+    return {"algorithm": algorithm, "world_size": n, "exact_share": float((error == 0).mean()),
+            "max_error": int(np.abs(error).max()), "mean_error": float(np.abs(error).mean()),
+            "underestimates": int((error < 0).sum())}
+
+
+def bench_update(gpu, args, rng) -> list[dict]:
+    n = args.update_world
+    rows = []
+    try:
+        world = World(gpu, WorldConfig((n, n, n), args.chunk_size, 255, "exact"), args.limits)
+    except DeviceMemoryExceeded as exc:
+        return [{"world_size": n, "skipped": str(exc)}]
+    try:
+        populate(world, np.random.default_rng(args.seed))
+        for cap in args.update_caps:
+            world.reconfigure(max_distance=cap)
+            world.recompute()
+            times, volumes = [], []
+            for i in range(args.reps):
+                progress(f"update: {n}^3 cap {cap} edit {i + 1}/{args.reps}")
+                center = tuple(float(v) for v in rng.uniform(16, n - 16, 3))
+                world.apply_edits([SphereEdit(center, 8.0, int(rng.integers(1, 256)) if i % 2 == 0 else 0)])
+                result = world.recompute()
+                times.append(result.device_ms)
+                volumes.append(sum(r.volume for r in result.regions))
+            rows.append({"world_size": n, "max_distance": cap, "radius": 8, **summarize(times),
+                         "region_voxels_mean": float(np.mean(volumes))})
+    finally:
+        world.release()
+    return rows
+
+
+def bench_anchors(args) -> list[dict]:
+    from scipy.ndimage import distance_transform_cdt
+
+    rows = []
+    rng = np.random.default_rng(args.seed)
+    for n in args.world_sizes:
+        mask = rng.random((n, n, n)) > 0.001
+        if n <= args.scipy_max_world:
+            progress(f"anchors: scipy cdt {n}^3")
+            t = time.perf_counter()
+            distance_transform_cdt(mask, metric="taxicab")
+            rows.append({"anchor": "scipy.distance_transform_cdt (CPU, taxicab)", "world_size": n,
+                         "mean_ms": (time.perf_counter() - t) * 1e3, "n": 1})
+        try:
+            import cupy
+            from cupyx.scipy.ndimage import distance_transform_edt
+        except ImportError:
+            continue
+        progress(f"anchors: cupyx edt {n}^3")
+        gmask = cupy.asarray(mask)
+        distance_transform_edt(gmask)  # warm-up
+        times = []
+        for _ in range(args.reps):
+            start, end = cupy.cuda.Event(), cupy.cuda.Event()
+            start.record()
+            distance_transform_edt(gmask)
+            end.record()
+            end.synchronize()
+            times.append(cupy.cuda.get_elapsed_time(start, end))
+        rows.append({"anchor": "cupyx.distance_transform_edt (GPU, Euclidean)", "world_size": n,
+                     **summarize(times)})
+        del gmask
+    return rows
+
+
+def format_tables(results: dict) -> str:
+    lines = [f"device: {results['device']}", ""]
+    if results.get("chunks"):
+        lines.append("Single chunk, full regeneration (Tables 4.2, 4.4, 4.5, 4.6)")
+        lines.append(f"{'algorithm':<9} {'chunk':>6} {'mean ms':>10} {'std ms':>9} {'95% CI ms':>23} {'iters':>6}")
+        for r in results["chunks"]:
+            lo, hi = r["ci95_ms"]
+            lines.append(f"{r['algorithm']:<9} {r['chunk_size']:>5}³ {r['mean_ms']:>10.4f} {r['std_ms']:>9.4f} "
+                         f"({lo:>9.4f}, {hi:>9.4f}) {r['iterations_mean']:>6.2f}")
+        lines.append("")
+    if results.get("worlds"):
+        lines.append("Whole world, full regeneration")
+        lines.append(f"{'algorithm':<9} {'world':>6} {'median ms':>10} {'mean ms':>10} {'std ms':>9} {'Gvox/s':>8} {'iters':>6} {'MiB':>7}")
+        for r in results["worlds"]:
+            if "skipped" in r:
+                lines.append(f"{r['algorithm']:<9} {r['world_size']:>5}³ skipped: {r['skipped']}")
+                continue
+            lines.append(f"{r['algorithm']:<9} {r['world_size']:>5}³ {r['median_ms']:>10.4f} {r['mean_ms']:>10.4f} "
+                         f"{r['std_ms']:>9.4f} {r['voxels_per_s'] / 1e9:>8.2f} {r['iterations_mean']:>6.1f} "
+                         f"{r['device_bytes'] / 2**20:>7.0f}")
+        lines.append("")
+    if results.get("update"):
+        lines.append("Localized brush edit (radius 8), incremental update")
+        for r in results["update"]:
+            if "skipped" in r:
+                lines.append(f"{r['world_size']}³ skipped: {r['skipped']}")
+                continue
+            lines.append(f"{r['world_size']}³ cap {r['max_distance']:>3}: median {r['median_ms']:.4f} ms, "
+                         f"mean {r['mean_ms']:.4f} ± {r['std_ms']:.4f} ms, region {r['region_voxels_mean'] / 1e6:.1f} Mvox")
+        lines.append("")
+    if results.get("accuracy"):
+        lines.append("Accuracy against exact")
+        lines.append(f"{'algorithm':<9} {'world':>6} {'exact %':>8} {'max err':>8} {'mean err':>9} {'under':>6}")
+        for r in results["accuracy"]:
+            lines.append(f"{r['algorithm']:<9} {r['world_size']:>5}³ {100 * r['exact_share']:>8.2f} "
+                         f"{r['max_error']:>8} {r['mean_error']:>9.4f} {r['underestimates']:>6}")
+        lines.append("")
+    if results.get("anchors"):
+        lines.append("Anchors")
+        for r in results["anchors"]:
+            lines.append(f"{r['anchor']:<46} {r['world_size']:>5}³ {r['mean_ms']:>10.3f} ms")
+    return "\n".join(lines)
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="sdfserver bench", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--device", default=None, help="OpenCL device: index or name substring (default: prefer a GPU)")
+    p.add_argument("--sections", default="chunks,worlds,update,anchors",
+                   help="comma list of: chunks, worlds, update, anchors (accuracy comes with worlds)")
+    p.add_argument("--algorithms", default=",".join(ALL_ALGORITHMS))
+    p.add_argument("--chunk-sizes", default="8,16,32,64,128")
+    p.add_argument("--world-sizes", default="64,128,256,512,1024")
+    p.add_argument("--chunk-size", type=int, default=32, help="chunk size of the whole-world runs")
+    p.add_argument("--max-distance", type=int, default=255)
+    p.add_argument("--update-world", type=int, default=1024)
+    p.add_argument("--update-caps", default="255,64,16")
+    p.add_argument("--reps", type=int, default=20)
+    p.add_argument("--seed", type=int, default=2025)
+    p.add_argument("--brute-max-chunk", type=int, default=BRUTE_MAX_CHUNK)
+    p.add_argument("--brute-max-world", type=int, default=BRUTE_MAX_WORLD)
+    p.add_argument("--accuracy-max-world", type=int, default=512)
+    p.add_argument("--scipy-max-world", type=int, default=256)
+    p.add_argument("--quick", action="store_true", help="tiny sizes: a smoke run for CPU devices")
+    p.add_argument("--json", default=None, help="write every result to this file")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.chunk_sizes, args.world_sizes, args.update_world = "8,16", "32,64", 64
+        args.update_caps, args.reps = "255,16", 3
+        args.brute_max_world, args.brute_max_chunk = 32, 16
+    args.algorithms = [a for a in args.algorithms.split(",") if a]
+    unknown = set(args.algorithms) - set(ALGORITHMS)
+    if unknown:
+        p.error(f"unknown algorithms {sorted(unknown)}; choose from {sorted(ALGORITHMS)}")
+    args.sections = set(args.sections.split(","))
+    args.chunk_sizes = [int(v) for v in args.chunk_sizes.split(",")]
+    args.world_sizes = [int(v) for v in args.world_sizes.split(",")]
+    args.update_caps = [int(v) for v in args.update_caps.split(",")]
+    args.limits = EditLimits(max_ops_per_batch=4096)
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    gpu = GpuContext.create(args.device)
+    rng = np.random.default_rng(args.seed)
+    results = {"device": gpu.device_name, "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+               "host": platform.node(), "argv": sys.argv, "seed": args.seed}
+    if "chunks" in args.sections:
+        results["chunks"] = bench_chunks(gpu, args, rng)
+    if "worlds" in args.sections:
+        results["worlds"], results["accuracy"] = bench_worlds(gpu, args, rng)
+    if "update" in args.sections:
+        results["update"] = bench_update(gpu, args, rng)
+    if "anchors" in args.sections:
+        results["anchors"] = bench_anchors(args)
+    progress("done\n")
+    print(format_tables(results))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(results, f, indent=1)
+    return 0

@@ -16,6 +16,7 @@ from sdfclient.client import AsyncClient, Client
 from sdfclient.errors import (
     DeviceMemoryExceeded, InternalServerError, InvalidEdit, InvalidInput, NotFound, NotReady, ProtocolError,
     SdfClientError, ServerError, StreamClosed, Timeout, TooLarge, TransportError,
+    VersionNotReached,
 )
 from sdfclient.models import Block, ChunkUpdate, Focus, QueryResult, StreamMessage, WorldInfo
 from sdfclient.stream import Stream
@@ -24,5 +25,5 @@ __all__ = [
     "AsyncClient", "Block", "ChunkUpdate", "Client", "DeviceMemoryExceeded", "Focus", "InternalServerError",
     "InvalidEdit", "InvalidInput", "NotFound", "NotReady", "ProtocolError", "QueryResult", "SdfClientError",
     "ServerError", "Stream", "StreamClosed", "StreamMessage", "Timeout", "TooLarge", "TransportError",
-    "WorldInfo", "edits",
+    "VersionNotReached", "WorldInfo", "edits",
 ]

@@ -12,6 +12,7 @@
         ├── TooLarge            413: a body, batch or region over a limit
         ├── DeviceMemoryExceeded 507: the world does not fit in device memory
         ├── NotReady            503: the device cannot serve requests now
+        │   └── VersionNotReached 503: a read's min_version was not reached in time
         └── InternalServerError 500 and anything else
 
 A ``ServerError`` is chosen from the server's error ``code`` first (the names
@@ -84,6 +85,10 @@ class NotReady(ServerError):
     pass
 
 
+class VersionNotReached(NotReady):
+    pass
+
+
 class InternalServerError(ServerError):
     pass
 
@@ -96,6 +101,7 @@ _BY_CODE: dict[str, type[ServerError]] = {
     "device_memory_exceeded": DeviceMemoryExceeded,
     "not_ready": NotReady,
     "no_opencl_device": NotReady,
+    "version_not_reached": VersionNotReached,
 }
 
 _BY_STATUS: dict[int, type[ServerError]] = {
@@ -132,5 +138,5 @@ def server_error(status: int, body: Any) -> ServerError:
 __all__ = [
     "DeviceMemoryExceeded", "InternalServerError", "InvalidEdit", "InvalidInput", "NotFound", "NotReady",
     "ProtocolError", "SdfClientError", "ServerError", "StreamClosed", "Timeout", "TooLarge",
-    "TransportError", "error_class", "server_error",
+    "TransportError", "VersionNotReached", "error_class", "server_error",
 ]

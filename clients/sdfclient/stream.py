@@ -48,6 +48,15 @@ def _chunks(raw: Any) -> list[ChunkUpdate]:
     return out
 
 
+def closed_error(exc: websockets.ConnectionClosed) -> Exception:
+    """The server closes with 4000 + an HTTP status for a refused stream (4404: unknown world)."""
+    rcvd = exc.rcvd
+    code, reason = (rcvd.code, rcvd.reason) if rcvd else (None, "")
+    if code is not None and 4000 <= code < 5000:
+        return server_error(code - 4000, {"error": {"code": "", "message": reason}})
+    return StreamClosed(code, reason)
+
+
 def parse_message(raw: Any) -> StreamMessage:
     if not isinstance(raw, dict) or "type" not in raw:
         raise ProtocolError(f"stream frame without a type: {raw!r:.200}")
@@ -82,7 +91,7 @@ class Stream:
         try:
             await self._ws.send(_wire.encode(message))
         except websockets.ConnectionClosed as exc:
-            raise StreamClosed(exc.rcvd.code if exc.rcvd else None, exc.rcvd.reason if exc.rcvd else "") from exc
+            raise closed_error(exc) from exc
 
     async def subscribe(self, box: tuple[Sequence[int], Sequence[int]] | None = None, *,
                         format: str = "packed") -> int:  # noqa: A002
@@ -126,8 +135,7 @@ class Stream:
         try:
             frame = await self._ws.recv()
         except websockets.ConnectionClosed as exc:
-            rcvd = exc.rcvd
-            raise StreamClosed(rcvd.code if rcvd else None, rcvd.reason if rcvd else "") from exc
+            raise closed_error(exc) from exc
         if isinstance(frame, str):
             raise ProtocolError(f"text frame on a binary stream: {frame[:200]!r}")
         return parse_message(_wire.decode(frame))

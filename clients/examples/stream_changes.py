@@ -17,15 +17,16 @@ async def main(url: str) -> None:
         try:
             async with client.stream(world.id) as stream:
                 await stream.subscribe(((0, 0, 0), (64, 32, 32)), format="packed")
+                first = await stream.recv()  # the subscribed region as it is now
+                print(f"subscribed: {len(first.chunks)} chunks at version {first.version}")
                 version = await stream.edit([edits.sphere((8, 8, 8), 3, colour=0xFF)])
                 print(f"edit acknowledged: version {version}")
                 async for message in stream:
-                    if message.type != "chunks":
+                    if message.type != "chunks" or message.version < version:
                         continue
                     origins = sorted(c.origin for c in message.chunks)
                     print(f"version {message.version}: {len(origins)} changed chunks at {origins}")
-                    if message.version is not None and message.version >= version:
-                        break
+                    break
         finally:
             await client.delete_world(world.id)
 

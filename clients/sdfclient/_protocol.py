@@ -128,7 +128,8 @@ def _query(response: httpx.Response) -> QueryResult:
     body = _expect_dict(checked(response), "query")
     distances = _array(body["distances"], np.float32)
     gradients = _array(body.get("gradients", np.zeros((len(distances), 3), np.float32)), np.float32)
-    return QueryResult(distances=distances, gradients=gradients.reshape(-1, 3),
+    colours = _array(body.get("colours", np.zeros(len(distances), np.uint8)), np.uint8)
+    return QueryResult(distances=distances, gradients=gradients.reshape(-1, 3), colours=colours,
                        version=int(body.get("version", 0)))
 
 
@@ -226,10 +227,9 @@ def query(world_id: str, points: Any, min_version: int | None) -> Call:
     array = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if not np.isfinite(array).all():
         raise ValueError("query points must be finite")
-    body: dict[str, Any] = {"points": array.tolist()}
-    if min_version is not None:
-        body["min_version"] = int(min_version)
-    return Call("POST", _world_path(world_id) + "/query", _query, body=body)
+    params = {} if min_version is None else {"min_version": str(int(min_version))}
+    return Call("POST", _world_path(world_id) + "/query", _query, params=params,
+                body={"points": array.astype(np.float32)})
 
 
 KEEP = _KEEP

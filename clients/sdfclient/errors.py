@@ -16,7 +16,7 @@
         └── InternalServerError 500 and anything else
 
 A ``ServerError`` is chosen from the server's error ``code`` first (the names
-of ``sdfserver.errors``), then from the HTTP status; ``from_response`` is the
+of ``sdfserver.errors``), then from the HTTP status; ``server_error`` is the
 one place that does it.
 """
 
@@ -62,7 +62,7 @@ class ServerError(SdfClientError):
 
 
 class InvalidInput(ServerError):
-    pass
+    status = 422
 
 
 class InvalidEdit(InvalidInput):
@@ -70,19 +70,19 @@ class InvalidEdit(InvalidInput):
 
 
 class NotFound(ServerError):
-    pass
+    status = 404
 
 
 class TooLarge(ServerError):
-    pass
+    status = 413
 
 
 class DeviceMemoryExceeded(ServerError):
-    pass
+    status = 507
 
 
 class NotReady(ServerError):
-    pass
+    status = 503
 
 
 class VersionNotReached(NotReady):
@@ -122,8 +122,11 @@ def error_class(status: int, code: str | None) -> type[ServerError]:
     return _BY_STATUS.get(status, InternalServerError)
 
 
-def server_error(status: int, body: Any) -> ServerError:
-    """Build the exception for an error body (``{"error": {code, message, ...}}`` or flat)."""
+def server_error(status: int | None, body: Any) -> ServerError:
+    """Build the exception for an error body (``{"error": {code, message, ...}}`` or flat).
+
+    ``status`` None (a stream's error frame) takes the status of the code's class.
+    """
     error = body.get("error", body) if isinstance(body, dict) else None
     if isinstance(error, dict):
         code = str(error.get("code") or "")
@@ -131,7 +134,8 @@ def server_error(status: int, body: Any) -> ServerError:
         detail = error.get("detail")
     else:
         code, message, detail = "", str(body if body is not None else ""), None
-    cls = error_class(status, code or None)
+    cls = error_class(status or 0, code or None)
+    status = cls.status if status is None else status
     return cls(message or f"HTTP {status}", status=status, code=code or f"http_{status}", detail=detail)
 
 

@@ -99,11 +99,12 @@ class Block:
 
 @dataclass(frozen=True)
 class QueryResult:
-    """Distances at points, and the field's gradient direction there."""
+    """Distances at points, the colour the field records there, and the gradient direction."""
 
     distances: np.ndarray  # (N,)
-    gradients: np.ndarray  # (N, 3) x, y, z
+    gradients: np.ndarray  # (N, 3) x, y, z unit vectors; zero where the field is flat
     version: int
+    colours: np.ndarray | None = None  # (N,) uint8, 0 in air
 
 
 @dataclass(frozen=True)

@@ -1,14 +1,16 @@
 """The WebSocket stream of one world: send edits, subscribe to regions, receive changed chunks.
 
     async with Stream.connect("http://127.0.0.1:8000", world_id) as stream:
-        await stream.subscribe(((0, 0, 0), (64, 64, 64)))
+        await stream.subscribe(((0, 0, 0), (64, 64, 64)))         # then: all its chunks, once
         version = await stream.edit([sphere((32, 32, 32), 5)])     # waits for the ack
-        async for message in stream:                                # acks and changed chunks
-            if message.type == "chunks": ...
+        async for message in stream:                               # changed chunks, acks, ...
+            if message.type == "chunks" and message.version >= version: ...
 
 Frames are binary msgpack (``sdfserver.wire``) both ways. The stream is meant
-for one consumer task: ``edit`` reads until its acknowledgement and keeps any
-chunk messages it passes for the iterator, in order.
+for one consumer task: ``edit`` and ``subscribe`` read until their answer and
+keep the messages they pass for the iterator, in order. A frame the server
+refuses answers an ``error`` message, raised here as its ServerError; the
+connection stays open.
 """
 
 from __future__ import annotations
@@ -93,33 +95,44 @@ class Stream:
         except websockets.ConnectionClosed as exc:
             raise closed_error(exc) from exc
 
-    async def subscribe(self, box: tuple[Sequence[int], Sequence[int]] | None = None, *,
-                        format: str = "packed") -> int:  # noqa: A002
-        """Receive the changed chunks of ``box`` (None: the whole world) after each recompute."""
-        request_id = next(self._ids)
-        message: dict[str, Any] = {"type": "subscribe", "id": request_id, "format": format}
-        if box is not None:
-            message["min"], message["max"] = [int(v) for v in box[0]], [int(v) for v in box[1]]
-        await self._send(message)
-        return request_id
+    async def subscribe(self, box: tuple[Sequence[int], Sequence[int]], *,
+                        format: str = "distance") -> StreamMessage:  # noqa: A002
+        """Receive the chunks of ``box`` (widened to whole chunks): first all of them, then
+        the changed ones after every recompute. Replaces an earlier subscription; answers
+        the server's ``subscribed`` message (``raw`` has the widened ``min``/``max``)."""
+        lo, hi = ([int(v) for v in corner] for corner in box)
+        return await self._request({"type": "subscribe", "min": lo, "max": hi, "format": format},
+                                   "subscribed")
+
+    async def unsubscribe(self) -> None:
+        await self._request({"type": "unsubscribe"}, "unsubscribed")
+
+    async def ping(self) -> None:
+        await self._request({"type": "ping"}, "pong")
 
     async def send_edits(self, edits: Any) -> int:
-        """Send a batch without waiting; its ``ack`` message carries the same ``id``."""
+        """Send a batch without waiting; its ``ack`` message carries the returned ``id``."""
         request_id = next(self._ids)
         await self._send({"type": "edits", "id": request_id, "edits": normalize(edits)})
         return request_id
 
     async def edit(self, edits: Any) -> int:
         """Send a batch and wait for its acknowledgement; returns the version it became."""
-        request_id = await self.send_edits(edits)
+        ack = await self._request({"type": "edits", "edits": normalize(edits)}, "ack")
+        return int(ack.version)
+
+    async def _request(self, message: dict, answer: str) -> StreamMessage:
+        """Send a frame and read until its answer (or its error); keeps what passes for later."""
+        request_id = next(self._ids)
+        await self._send({**message, "id": request_id})
         held = []
         try:
             while True:
-                message = await self._receive()
-                if message.raw.get("id") == request_id and message.type in ("ack", "error"):
-                    self._raise_if_error(message)
-                    return int(message.version)
-                held.append(message)
+                reply = await self._receive()
+                if reply.raw.get("id") == request_id and reply.type in (answer, "error"):
+                    self._raise_if_error(reply)
+                    return reply
+                held.append(reply)
         finally:
             self._pending.extend(held)
 
@@ -129,7 +142,7 @@ class Stream:
     def _raise_if_error(message: StreamMessage) -> None:
         if message.type == "error":
             raw = message.raw
-            raise server_error(int(raw.get("status", 500)), raw.get("error", raw))
+            raise server_error(raw.get("status"), raw.get("error", raw))
 
     async def _receive(self) -> StreamMessage:
         try:

@@ -2,37 +2,16 @@
 
 from __future__ import annotations
 
-import os
-import socket
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import httpx
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-CLIENTS = ROOT / "clients"
-if str(CLIENTS) not in sys.path:
-    sys.path.insert(0, str(CLIENTS))
+from clients_support import CLIENTS, ROOT, env_with_paths, free_port  # noqa: F401
 
 READY_TIMEOUT_S = 120.0  # PoCL builds the kernels while the server warms up
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def env_with_paths() -> dict[str, str]:
-    env = dict(os.environ)
-    paths = [str(ROOT), str(CLIENTS)]
-    if env.get("PYTHONPATH"):
-        paths.append(env["PYTHONPATH"])
-    env["PYTHONPATH"] = os.pathsep.join(paths)
-    return env
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ import secrets
 
 import numpy as np
 import pytest
-from clients_oracle import apply_edits, oracle_distance, random_batch
+from clients_support import apply_edits, oracle_distance, random_batch
 
 from sdfclient import AsyncClient, Client, InvalidEdit, InvalidInput, NotFound, ServerError, edits
 

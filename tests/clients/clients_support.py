@@ -1,9 +1,34 @@
-"""NumPy oracles for the client tests: the edit semantics and scipy's capped taxicab transform."""
+"""Helpers for the client tests: paths, a free port, and NumPy oracles (edit semantics, capped taxicab)."""
 
 from __future__ import annotations
 
+import os
+import socket
+import sys
+from pathlib import Path
+
 import numpy as np
 from scipy.ndimage import distance_transform_cdt
+
+ROOT = Path(__file__).resolve().parents[2]
+CLIENTS = ROOT / "clients"
+if str(CLIENTS) not in sys.path:
+    sys.path.insert(0, str(CLIENTS))
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def env_with_paths() -> dict[str, str]:
+    env = dict(os.environ)
+    paths = [str(ROOT), str(CLIENTS)]
+    if env.get("PYTHONPATH"):
+        paths.append(env["PYTHONPATH"])
+    env["PYTHONPATH"] = os.pathsep.join(paths)
+    return env
 
 
 def apply_edits(voxels: np.ndarray, batch: list[dict]) -> None:

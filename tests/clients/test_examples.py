@@ -51,7 +51,7 @@ def test_query_points(server_url):
 
 def test_stream_changes(server_url):
     out = _run("stream_changes.py", server_url)
-    assert "subscribed: 8 chunks at version 0\n" in out
+    assert "subscribed: 16 chunks at version 0\n" in out
     assert "edit acknowledged: version 1\n" in out
     match = re.search(r"version (\d+): (\d+) changed chunks at (.*)", out)
     assert match and int(match.group(1)) >= 1 and int(match.group(2)) >= 1

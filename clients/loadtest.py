@@ -23,6 +23,8 @@ from __future__ import annotations
 import argparse
 import array
 import asyncio
+import contextlib
+import functools
 import json
 import multiprocessing
 import os
@@ -62,6 +64,7 @@ class LoadConfig:
     sphere_fraction: float = 0.5
     seed: int = 0
     timeout_s: float = 30.0
+    edits_over: str = "http"  # http: POST /edits; ws: the WebSocket stream (reads stay HTTP)
 
 
 # -- the brushes --------------------------------------------------------------------------------
@@ -141,7 +144,14 @@ async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget,
     interval = cfg.clients / cfg.rate if cfg.rate > 0 else 0.0
     next_at = start + interval * index / cfg.clients
     edits_sent = 0
-    async with AsyncClient(cfg.url, timeout=cfg.timeout_s, limits=httpx.Limits(max_connections=1)) as client:
+    async with contextlib.AsyncExitStack() as stack:
+        client = await stack.enter_async_context(
+            AsyncClient(cfg.url, timeout=cfg.timeout_s, limits=httpx.Limits(max_connections=1)))
+        if cfg.edits_over == "ws":
+            stream = await stack.enter_async_context(client.stream(cfg.world_id))
+            send_edit = stream.edit
+        else:
+            send_edit = functools.partial(client.edit, cfg.world_id)
         pending_read = None
         while True:
             if interval:
@@ -164,12 +174,12 @@ async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget,
                     tally.read_ms.append((time.perf_counter() - t0) * 1e3)
                     continue
                 batch, center = brushes.batch()
-                version = await client.edit(cfg.world_id, batch)
+                version = await asyncio.wait_for(send_edit(batch), cfg.timeout_s)
                 tally.edit_ms.append((time.perf_counter() - t0) * 1e3)
                 edits_sent += 1
                 if cfg.read_every and edits_sent % cfg.read_every == 0:
                     pending_read = (brushes.read_box(center), version)
-            except SdfClientError as exc:
+            except (SdfClientError, TimeoutError) as exc:
                 tally.error(exc)
 
 
@@ -187,7 +197,8 @@ async def run_clients(cfg: LoadConfig, indices: list[int], requests: int, tally:
     return time.perf_counter() - start
 
 
-def _worker(cfg: LoadConfig, indices: list[int], requests: int, out: "multiprocessing.Queue") -> None:
+def _worker(cfg: LoadConfig, indices: list[int], requests: int, out: "multiprocessing.Queue",
+            go: "multiprocessing.Event") -> None:
     tally = Tally()
     last = [0.0]
 
@@ -197,8 +208,10 @@ def _worker(cfg: LoadConfig, indices: list[int], requests: int, out: "multiproce
             last[0] = now
             out.put(("progress", os.getpid(), t.count, sum(t.errors.values())))
 
-    asyncio.run(run_clients(cfg, indices, requests, tally, progress))
-    out.put(("done", os.getpid(), tally.edit_ms.tobytes(), tally.read_ms.tobytes(), tally.errors))
+    out.put(("ready", os.getpid()))
+    go.wait()  # every worker has imported everything: start together
+    elapsed = asyncio.run(run_clients(cfg, indices, requests, tally, progress))
+    out.put(("done", os.getpid(), tally.edit_ms.tobytes(), tally.read_ms.tobytes(), tally.errors, elapsed))
 
 
 # -- driving and reporting --------------------------------------------------------------------------
@@ -248,21 +261,31 @@ def drive(cfg: LoadConfig, processes: int = 1, show_progress: bool = True) -> tu
     out = ctx.Queue()
     groups = [list(range(cfg.clients))[p::processes] for p in range(processes)]
     shares = _shares(cfg.requests, processes) if cfg.requests else [0] * processes
-    workers = [ctx.Process(target=_worker, args=(cfg, g, n, out), daemon=True) for g, n in zip(groups, shares)]
-    start = time.perf_counter()
+    go = ctx.Event()
+    workers = [ctx.Process(target=_worker, args=(cfg, g, n, out, go), daemon=True)
+               for g, n in zip(groups, shares)]
     for w in workers:
         w.start()
     counts: dict[int, tuple[int, int]] = {}
-    tally, done = Tally(), 0
-    hard_stop = start + cfg.duration_s + cfg.timeout_s + 60.0
+    tally, done, ready, elapsed = Tally(), 0, 0, 0.0
+    hard_stop = time.perf_counter() + cfg.duration_s + cfg.timeout_s + 120.0
     while done < len(workers):
         try:
             message = out.get(timeout=0.25)
         except queue.Empty:
-            if time.perf_counter() > hard_stop or not any(w.is_alive() for w in workers):
-                raise RuntimeError("a load-test worker died or did not finish") from None
+            failed = [w.exitcode for w in workers if w.exitcode not in (None, 0)]
+            if failed or time.perf_counter() > hard_stop or not any(w.is_alive() for w in workers):
+                for w in workers:
+                    if w.is_alive():
+                        w.terminate()
+                raise RuntimeError(f"a load-test worker died (exit codes {failed}) or did not finish") from None
             message = None
-        if message and message[0] == "progress":
+        if message and message[0] == "ready":
+            ready += 1
+            if ready == len(workers):
+                line.start = line.last = time.perf_counter()
+                go.set()
+        elif message and message[0] == "progress":
             counts[message[1]] = (message[2], message[3])
         elif message and message[0] == "done":
             done += 1
@@ -271,9 +294,9 @@ def drive(cfg: LoadConfig, processes: int = 1, show_progress: bool = True) -> tu
             for k, v in message[4].items():
                 tally.errors[k] = tally.errors.get(k, 0) + v
             counts[message[1]] = (0, 0)
+            elapsed = max(elapsed, message[5])
         line.update(tally.count + sum(c for c, _ in counts.values()),
                     sum(tally.errors.values()) + sum(e for _, e in counts.values()))
-    elapsed = time.perf_counter() - start
     for w in workers:
         w.join()
     line.update(tally.count, sum(tally.errors.values()), force=True)
@@ -345,6 +368,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--read-every", type=int, default=1, help="read the field after every k-th edit (0: never)")
     ap.add_argument("--read-size", type=int, default=16, help="side of the box read (0: the whole world)")
     ap.add_argument("--read-format", choices=("distance", "packed"), default="distance")
+    ap.add_argument("--edits-over", choices=("http", "ws"), default="http",
+                    help="post edits over HTTP or send them over each client's WebSocket stream")
     ap.add_argument("--ops-per-batch", type=int, default=1, help="brushes per edit batch")
     ap.add_argument("--brush-min", type=float, default=1.0, help="smallest brush radius / half-side, voxels")
     ap.add_argument("--brush-max", type=float, default=8.0, help="largest brush radius / half-side, voxels")
@@ -386,6 +411,7 @@ def main(argv: list[str] | None = None) -> int:
         read_size=args.read_size, read_format=args.read_format, ops_per_batch=args.ops_per_batch,
         brush_min=args.brush_min, brush_max=args.brush_max, delete_fraction=args.delete_fraction,
         sphere_fraction=args.sphere_fraction, seed=args.seed, timeout_s=args.timeout,
+        edits_over=args.edits_over,
     )
     try:
         tally, elapsed = drive(cfg, args.processes, show_progress=not args.quiet)

@@ -97,7 +97,14 @@ def test_request_count_and_rate_bound_the_run_on_a_given_world(server_url, tmp_p
             _, result = _run(server_url, tmp_path, "--world", world.id, "--clients", "2", "--rate", "20",
                              "--duration", "1", "--read-every", "0", "--quiet")
             assert 10 <= result["requests"] <= 24 and result["errors"]["count"] == 0
-            assert client.get_world(world.id).version == 30 + result["edits"]["count"]
+            version = 30 + result["edits"]["count"]
+            assert client.get_world(world.id).version == version
+
+            _, result = _run(server_url, tmp_path, "--world", world.id, "--clients", "2", "--requests", "20",
+                             "--edits-over", "ws", "--quiet")
+            assert result["edits"]["count"] == 10 and result["reads"]["count"] == 10
+            assert result["errors"]["count"] == 0 and result["config"]["edits_over"] == "ws"
+            assert client.get_world(world.id).version == version + 10
         finally:
             client.delete_world(world.id)
 

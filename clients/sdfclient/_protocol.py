@@ -1,0 +1,235 @@
+"""The HTTP protocol without I/O: what each call sends and how its answer is read.
+
+``Client`` and ``AsyncClient`` differ only in how they send a ``Call``; every
+request shape, every parse and the error mapping live here, once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import httpx
+import numpy as np
+
+from sdfclient import _wire
+from sdfclient.edits import normalize
+from sdfclient.errors import ProtocolError, server_error
+from sdfclient.models import Block, Focus, QueryResult, WorldInfo
+
+BoxArg = tuple[Sequence[int], Sequence[int]] | None
+_KEEP = object()  # update_world: leave this setting as it is
+
+
+@dataclass
+class Call:
+    method: str
+    path: str
+    parse: Callable[[httpx.Response], Any]
+    params: dict[str, str] = field(default_factory=dict)
+    body: Any = None  # encoded with sdfserver.wire when not None
+    timeout: float | None = None  # overrides the client's when the server may wait
+
+    def request_kwargs(self) -> dict:
+        headers = {"accept": _wire.CONTENT_TYPE}
+        kwargs: dict[str, Any] = {"params": self.params or None, "headers": headers}
+        if self.body is not None:
+            headers["content-type"] = _wire.CONTENT_TYPE
+            kwargs["content"] = _wire.encode(self.body)
+        if self.timeout is not None:
+            kwargs["timeout"] = self.timeout
+        return kwargs
+
+
+# -- reading answers ------------------------------------------------------------------------------
+
+
+def decode(response: httpx.Response) -> Any:
+    ctype = response.headers.get("content-type", "").split(";")[0].strip().lower()
+    if not response.content:
+        return None
+    try:
+        if ctype == "application/json" or ctype.endswith("+json"):
+            return response.json()
+        if ctype in _wire.CONTENT_TYPES:
+            return _wire.decode(response.content)
+    except ValueError as exc:
+        raise ProtocolError(f"{response.request.method} {response.request.url.path}: "
+                            f"unreadable {ctype} body: {exc}") from exc
+    raise ProtocolError(f"{response.request.method} {response.request.url.path}: "
+                        f"unexpected content type {ctype!r} (status {response.status_code})")
+
+
+def checked(response: httpx.Response) -> Any:
+    """The decoded body, or the ServerError the error body describes."""
+    if response.status_code >= 400:
+        try:
+            body = decode(response)
+        except ProtocolError:
+            body = response.text
+        raise server_error(response.status_code, body)
+    return decode(response)
+
+
+def _expect_dict(body: Any, what: str) -> dict:
+    if not isinstance(body, dict):
+        raise ProtocolError(f"{what}: expected an object, got {type(body).__name__}")
+    return body
+
+
+def _array(value: Any, dtype: Any = None, shape: Any = None) -> np.ndarray:
+    """A blob decoded by the wire module, or raw bytes with dtype and shape beside them."""
+    if isinstance(value, np.ndarray):
+        return value
+    if isinstance(value, (bytes, bytearray, memoryview)) and dtype is not None:
+        array = np.frombuffer(value, dtype=np.dtype(dtype))
+        return array.reshape(tuple(shape)) if shape is not None else array
+    if isinstance(value, list):
+        return np.asarray(value, dtype=dtype)
+    raise ProtocolError(f"expected an array blob, got {type(value).__name__}")
+
+
+def _block(fmt: str) -> Callable[[httpx.Response], Block]:
+    def parse(response: httpx.Response) -> Block:
+        body = checked(response)
+        if isinstance(body, (bytes, bytearray)):  # never: decode() only returns documents
+            raise ProtocolError("raw field body without headers")
+        body = _expect_dict(body, "field")
+        data = _array(body["data"], body.get("dtype"), body.get("shape"))
+        if "shape" in body and tuple(data.shape) != tuple(body["shape"]):
+            data = data.reshape(tuple(body["shape"]))
+        return Block(origin=tuple(int(v) for v in body.get("origin", (0, 0, 0))),
+                     version=int(body.get("version", 0)), data=data, format=fmt)
+    return parse
+
+
+def _world(response: httpx.Response) -> WorldInfo:
+    return WorldInfo.from_wire(_expect_dict(checked(response), "world"))
+
+
+def _worlds(response: httpx.Response) -> list[WorldInfo]:
+    body = checked(response)
+    if isinstance(body, dict):
+        body = body.get("worlds", [])
+    if not isinstance(body, list):
+        raise ProtocolError(f"worlds: expected a list, got {type(body).__name__}")
+    return [WorldInfo.from_wire(w) for w in body]
+
+
+def _version(response: httpx.Response) -> int:
+    return int(_expect_dict(checked(response), "edits")["version"])
+
+
+def _nothing(response: httpx.Response) -> None:
+    checked(response)
+
+
+def _query(response: httpx.Response) -> QueryResult:
+    body = _expect_dict(checked(response), "query")
+    distances = _array(body["distances"], np.float32)
+    gradients = _array(body.get("gradients", np.zeros((len(distances), 3), np.float32)), np.float32)
+    colours = _array(body.get("colours", np.zeros(len(distances), np.uint8)), np.uint8)
+    return QueryResult(distances=distances, gradients=gradients.reshape(-1, 3), colours=colours,
+                       version=int(body.get("version", 0)))
+
+
+# -- building requests ------------------------------------------------------------------------------
+
+
+def _world_path(world_id: str) -> str:
+    if not isinstance(world_id, str) or not world_id or "/" in world_id:
+        raise ValueError(f"a world id is a non-empty string without '/', got {world_id!r}")
+    return f"/v1/worlds/{world_id}"
+
+
+def _box_params(box: BoxArg) -> dict[str, str]:
+    if box is None:
+        return {}
+    lo, hi = box
+    if len(lo) != 3 or len(hi) != 3:
+        raise ValueError(f"a box is ((x, y, z), (x, y, z)), got {box!r}")
+    return {"min": ",".join(str(int(v)) for v in lo), "max": ",".join(str(int(v)) for v in hi)}
+
+
+def _focus(focus: Any) -> dict | None:
+    if focus is None or isinstance(focus, dict):
+        return focus
+    if isinstance(focus, Focus):
+        return focus.to_wire()
+    raise TypeError(f"focus must be a Focus, a dict or None, got {type(focus).__name__}")
+
+
+def create_world(size: Sequence[int], chunk_size: int, max_distance: int, algorithm: str,
+                 focus: Any) -> Call:
+    body = {"size": [int(v) for v in size], "chunk_size": int(chunk_size),
+            "max_distance": int(max_distance), "algorithm": algorithm}
+    if focus is not None:
+        body["focus"] = _focus(focus)
+    return Call("POST", "/v1/worlds", _world, body=body)
+
+
+def list_worlds() -> Call:
+    return Call("GET", "/v1/worlds", _worlds)
+
+
+def get_world(world_id: str) -> Call:
+    return Call("GET", _world_path(world_id), _world)
+
+
+def update_world(world_id: str, algorithm: Any, focus: Any, max_distance: Any) -> Call:
+    body: dict[str, Any] = {}
+    if algorithm is not _KEEP:
+        body["algorithm"] = algorithm
+    if focus is not _KEEP:
+        body["focus"] = _focus(focus)
+    if max_distance is not _KEEP:
+        body["max_distance"] = int(max_distance)
+    if not body:
+        raise ValueError("update_world needs at least one of algorithm, focus, max_distance")
+    return Call("PATCH", _world_path(world_id), _world, body=body)
+
+
+def delete_world(world_id: str) -> Call:
+    return Call("DELETE", _world_path(world_id), _nothing)
+
+
+def edit(world_id: str, edits: Any) -> Call:
+    batch = normalize(edits)
+    if not batch:
+        raise ValueError("an edit batch needs at least one edit")
+    return Call("POST", _world_path(world_id) + "/edits", _version, body={"edits": batch})
+
+
+def _wait_timeout(min_version: int | None, timeout: float | None) -> float | None:
+    return timeout if min_version is not None else None
+
+
+def read_field(world_id: str, box: BoxArg, format: str, min_version: int | None,  # noqa: A002
+               timeout: float | None) -> Call:
+    if format not in ("distance", "packed"):
+        raise ValueError(f"format is 'distance' or 'packed', got {format!r}")
+    params = {**_box_params(box), "format": format}
+    if min_version is not None:
+        params["min_version"] = str(int(min_version))
+    return Call("GET", _world_path(world_id) + "/field", _block(format), params=params,
+                timeout=_wait_timeout(min_version, timeout))
+
+
+def read_voxels(world_id: str, box: BoxArg, min_version: int | None, timeout: float | None) -> Call:
+    params = _box_params(box)
+    if min_version is not None:
+        params["min_version"] = str(int(min_version))
+    return Call("GET", _world_path(world_id) + "/voxels", _block("voxels"), params=params,
+                timeout=_wait_timeout(min_version, timeout))
+
+
+def query(world_id: str, points: Any, min_version: int | None) -> Call:
+    array = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not np.isfinite(array).all():
+        raise ValueError("query points must be finite")
+    params = {} if min_version is None else {"min_version": str(int(min_version))}
+    return Call("POST", _world_path(world_id) + "/query", _query, params=params,
+                body={"points": array.astype(np.float32)})
+
+
+KEEP = _KEEP

@@ -1,0 +1,128 @@
+"""What the client returns: plain dataclasses holding the server's answers.
+
+Arrays are NumPy arrays in the server's layout, ``(z, y, x)``; positions and
+sizes are ``(x, y, z)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+Vec3 = tuple[int, int, int]
+
+
+def _vec3(value: Any) -> Vec3 | None:
+    return None if value is None else tuple(int(v) for v in value)
+
+
+@dataclass(frozen=True)
+class Focus:
+    """The box of chunks computed with the world's algorithm (the rest uses the LOD one)."""
+
+    center: Vec3
+    size: Vec3
+
+    def to_wire(self) -> dict:
+        return {"center": list(self.center), "size": list(self.size)}
+
+    @classmethod
+    def from_wire(cls, raw: Any) -> "Focus | None":
+        if raw is None:
+            return None
+        return cls(_vec3(raw["center"]), _vec3(raw["size"]))
+
+
+@dataclass(frozen=True)
+class WorldInfo:
+    """A world's description as the server gives it."""
+
+    id: str
+    size: Vec3
+    chunk_size: int
+    max_distance: int
+    algorithm: str
+    version: int
+    field_version: int = 0
+    focus: Focus | None = None
+    dirty_chunks: int = 0
+    last_recompute_ms: float | None = None
+    raw: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @classmethod
+    def from_wire(cls, raw: dict) -> "WorldInfo":
+        last = raw.get("last_recompute_ms")
+        return cls(
+            id=str(raw["id"]),
+            size=_vec3(raw["size"]),
+            chunk_size=int(raw["chunk_size"]),
+            max_distance=int(raw["max_distance"]),
+            algorithm=str(raw["algorithm"]),
+            version=int(raw.get("version", 0)),
+            field_version=int(raw.get("field_version", 0)),
+            focus=Focus.from_wire(raw.get("focus")),
+            dirty_chunks=int(raw.get("dirty_chunks", raw.get("dirty_chunk_count", 0)) or 0),
+            last_recompute_ms=None if last is None else float(last),
+            raw=dict(raw),
+        )
+
+
+@dataclass(frozen=True)
+class Block:
+    """A box of the field or of the voxels: ``data`` has shape (z, y, x)."""
+
+    origin: Vec3  # (x, y, z) of data[0, 0, 0]
+    version: int  # the edit version this block reflects
+    data: np.ndarray
+    format: str = "distance"  # distance | packed | voxels
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return tuple(self.data.shape)
+
+    @property
+    def distance(self) -> np.ndarray:
+        """Distances (uint8); for a packed field, the high byte."""
+        if self.format == "packed":
+            return (self.data >> 8).astype(np.uint8)
+        return self.data
+
+    @property
+    def colour(self) -> np.ndarray:
+        """The low byte of a packed field (RGB332)."""
+        if self.format != "packed":
+            raise ValueError(f"a {self.format} block has no colour; read with format='packed'")
+        return (self.data & 0xFF).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class QueryResult:
+    """Distances at points, the colour the field records there, and the gradient direction."""
+
+    distances: np.ndarray  # (N,)
+    gradients: np.ndarray  # (N, 3) x, y, z unit vectors; zero where the field is flat
+    version: int
+    colours: np.ndarray | None = None  # (N,) uint8, 0 in air
+
+
+@dataclass(frozen=True)
+class ChunkUpdate:
+    """One changed chunk from the stream."""
+
+    origin: Vec3
+    data: np.ndarray  # (z, y, x)
+
+
+@dataclass(frozen=True)
+class StreamMessage:
+    """A frame from the stream: an acknowledgement or a set of changed chunks."""
+
+    type: str  # "ack" | "chunks" | "subscribed" | "error" | anything the server adds
+    version: int | None = None
+    chunks: list[ChunkUpdate] = field(default_factory=list)
+    raw: dict = field(default_factory=dict, repr=False)
+
+
+__all__ = ["Block", "ChunkUpdate", "Focus", "QueryResult", "StreamMessage", "Vec3", "WorldInfo"]

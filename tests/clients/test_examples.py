@@ -1,0 +1,58 @@
+"""The scripts in clients/examples run against a real server and print what they should."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+
+import numpy as np
+from clients_support import CLIENTS, ROOT, env_with_paths
+
+from sdfclient import Client
+
+
+def _run(name: str, server_url: str) -> str:
+    proc = subprocess.run([sys.executable, str(CLIENTS / "examples" / name), server_url],
+                          cwd=ROOT, env=env_with_paths(), capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return proc.stdout
+
+
+def _worlds(server_url: str) -> set[str]:
+    with Client(server_url) as client:
+        return {w.id for w in client.list_worlds()}
+
+
+def test_paint_sphere(server_url):
+    before = _worlds(server_url)
+    out = _run("paint_sphere.py", server_url)
+    z, y, x = np.mgrid[:32, :32, :32]
+    solid = int(((x - 16) ** 2 + (y - 16) ** 2 + (z - 16) ** 2 <= 25).sum())
+    assert "version 1, field (32, 32, 32) uint8" in out
+    assert "distance at the centre (16,16,16): 0\n" in out
+    assert "3 voxels off the surface: 3\n" in out
+    # The nearest sphere voxel to the corner: L1 distance 48 - ... capped at 32.
+    assert "distance at the corner (0,0,0): 32\n" in out
+    assert f"solid voxels: {solid}\n" in out
+    assert _worlds(server_url) == before  # it cleans up
+
+
+def test_query_points(server_url):
+    out = _run("query_points.py", server_url)
+    found = re.findall(r"point \[10, (\d+), 12\]: distance ([\d.]+), gradient \[(.*)\]", out)
+    assert len(found) == 6
+    for height, dist, grad in found:
+        assert float(dist) == float(height)
+        if int(height) > 0:
+            gx, gy, gz = (float(v) for v in grad.split(","))
+            assert gy > 0 and gx == 0 and gz == 0
+
+
+def test_stream_changes(server_url):
+    out = _run("stream_changes.py", server_url)
+    assert "subscribed: 16 chunks at version 0\n" in out
+    assert "edit acknowledged: version 1\n" in out
+    match = re.search(r"version (\d+): (\d+) changed chunks at (.*)", out)
+    assert match and int(match.group(1)) >= 1 and int(match.group(2)) >= 1
+    assert "(0, 0, 0)" in match.group(3) and "(32," not in match.group(3) and "(48," not in match.group(3)

@@ -96,6 +96,7 @@ class RenderOptions:
     light: Vec3f = (0.45, 1.0, 0.3)  # toward the light; normalized by the renderer
     highlight: tuple[int, int, int] | None = None  # brush preview centre (voxel)
     highlight_radius: float = 0.0
+    cursor: tuple[float, float] | None = None  # pixel coordinates: pick there, highlight the hit
 
     def validated(self) -> "RenderOptions":
         for name in ("ambient_occlusion", "shadows"):
@@ -113,7 +114,12 @@ class RenderOptions:
         radius = _real(self.highlight_radius, "highlight_radius")
         if not 0 <= radius <= 256:
             raise InvalidInput(f"highlight_radius must be 0..256, got {radius:g}")
-        return RenderOptions(self.ambient_occlusion, self.shadows, sky, light, highlight, radius)
+        cursor = None
+        if self.cursor is not None:
+            if not isinstance(self.cursor, (list, tuple)) or len(self.cursor) != 2:
+                raise InvalidInput(f"cursor must be [x, y] pixel coordinates, got {self.cursor!r}")
+            cursor = tuple(_real(v, "cursor") for v in self.cursor)
+        return RenderOptions(self.ambient_occlusion, self.shadows, sky, light, highlight, radius, cursor)
 
 
 def parse_view(raw: Any, limits: RenderLimits = RenderLimits()) -> tuple[Camera, RenderOptions]:
@@ -122,7 +128,9 @@ def parse_view(raw: Any, limits: RenderLimits = RenderLimits()) -> tuple[Camera,
         {"position": [x, y, z], "yaw_deg": 0, "pitch_deg": 0 | "target": [x, y, z],
          "fov_y_deg": 60, "width": 640, "height": 480,
          "ambient_occlusion": false, "shadows": false, "sky_rgb": 10275056,
-         "highlight": [x, y, z] | null, "highlight_radius": 0}
+         "highlight": [x, y, z] | null, "highlight_radius": 0, "cursor": [px, py] | null}
+
+    With a cursor, the voxel under it is picked and highlighted with the brush radius.
     """
     if not isinstance(raw, dict):
         raise InvalidInput(f"a camera must be an object, got {type(raw).__name__}")

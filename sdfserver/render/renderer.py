@@ -34,6 +34,7 @@ class Frame:
     device_ms: float  # the render kernel's time from its profiling event
     wall_ms: float
     reads: np.ndarray | None = None  # (height, width) uint32 field reads per pixel, if asked
+    pick: "Pick | None" = None  # the voxel under options.cursor
 
 
 @dataclass
@@ -99,10 +100,15 @@ class Renderer:
             | (FLAG_STATS if stats else 0)
         light = np.asarray(options.light, dtype=np.float64)
         light /= np.linalg.norm(light)
-        if options.highlight is None:
+        pick = None
+        centre = options.highlight
+        if options.cursor is not None:
+            pick = self.pick(world, camera, *options.cursor)
+            centre = pick.voxel if pick is not None else None
+        if centre is None:
             highlight = int4((0, 0, 0), -1)
         else:
-            highlight = int4(options.highlight, int(math.floor(options.highlight_radius ** 2)))
+            highlight = int4(centre, int(math.floor(options.highlight_radius ** 2)))
         gsize = tuple(-(-n // l) * l for n, l in zip((w, h), LOCAL_SIZE))
         queue = self.gpu.queue
         event = self.gpu.programs.kernel("render.cl", "render")(
@@ -120,7 +126,8 @@ class Renderer:
             cl.enqueue_copy(queue, reads, target.reads, wait_for=[event])
         queue.finish()
         device_ms = (event.profile.end - event.profile.start) * 1e-6
-        return Frame(pixels, world.field_version, device_ms, (time.perf_counter() - start) * 1e3, reads)
+        return Frame(pixels, world.field_version, device_ms, (time.perf_counter() - start) * 1e3, reads,
+                     pick)
 
     def pick(self, world, camera: Camera, px: float, py: float) -> Pick | None:
         """The voxel under pixel coordinates ``(px, py)`` (a pixel's centre is ``+0.5``), or None."""

@@ -261,3 +261,17 @@ def test_pick_matches_reference_centre_ray(gpu):
     sky_camera = Camera.look_at(position, (200.0, 300.0, 200.0), width=64, height=48).validated()
     assert renderer.pick(world, sky_camera, 32.5, 24.5) is None
     world.release()
+
+
+def test_cursor_highlights_the_picked_voxel(gpu):
+    voxels = analytic_world()
+    world = make_world(gpu, voxels)
+    renderer = Renderer(gpu)
+    camera = Camera.look_at((48.3, 40.7, 60.1), (20.0, 10.0, 12.0), width=64, height=48).validated()
+    plain = renderer.render(world, camera)
+    lit = renderer.render(world, camera, RenderOptions(cursor=(32.5, 24.5), highlight_radius=1.5))
+    assert lit.pick == renderer.pick(world, camera, 32.5, 24.5) and lit.pick is not None
+    changed = np.any(lit.pixels != plain.pixels, axis=-1)
+    assert changed[24, 32] and 1 < changed.sum() < 100
+    assert np.all(lit.pixels[changed][:, :3] >= plain.pixels[changed][:, :3])
+    world.release()

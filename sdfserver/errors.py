@@ -7,7 +7,8 @@
     ├── TooLarge                a body, batch or region over a limit          (HTTP 413)
     ├── DeviceMemoryExceeded    a world that does not fit the memory budget   (HTTP 507)
     ├── NotReady                the device cannot serve requests now          (HTTP 503)
-    │   └── NoOpenCLDevice      no OpenCL platform or no matching device
+    │   ├── NoOpenCLDevice      no OpenCL platform or no matching device
+    │   └── VersionNotReached   a read's min_version was not reached in time
     └── KernelBuildError        an OpenCL program failed to build             (HTTP 500)
 
 The mapping to HTTP status codes lives in the API layer, in one place; the
@@ -49,6 +50,10 @@ class NotReady(SdfServerError):
 
 class NoOpenCLDevice(NotReady):
     code = "no_opencl_device"
+
+
+class VersionNotReached(NotReady):
+    code = "version_not_reached"
 
 
 class KernelBuildError(SdfServerError):

@@ -136,7 +136,7 @@ def parse_view(raw: Any, limits: RenderLimits = RenderLimits()) -> tuple[Camera,
         raise InvalidInput(f"a camera must be an object, got {type(raw).__name__}")
     camera_keys = {"position", "yaw_deg", "pitch_deg", "target", "fov_y_deg", "width", "height"}
     option_keys = {f for f in RenderOptions.__dataclass_fields__}
-    unknown = set(raw) - camera_keys - option_keys - {"type", "max_fps", "format", "quality"}
+    unknown = set(raw) - camera_keys - option_keys - {"type", "id", "max_fps", "format", "quality"}
     if unknown:
         raise InvalidInput(f"unknown camera fields {sorted(unknown)}")
     if "position" not in raw:

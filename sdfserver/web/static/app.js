@@ -179,7 +179,8 @@ async function draw(msg) {
 
 function updateStats(now) {
   while (frameTimes.length && now - frameTimes[0] > 1000) frameTimes.shift();
-  $("fps").textContent = String(frameTimes.length);
+  // No frames while neither the view nor the world changes: the server sends none.
+  $("fps").textContent = frameTimes.length ? String(frameTimes.length) : "idle ·";
   if (demo.world) {
     $("world-line").textContent = `${$("world-select").selectedOptions[0]?.textContent ?? demo.world} · v${demo.lastVersion}`;
   }

@@ -15,7 +15,7 @@ from fastapi import FastAPI
 from prometheus_client import CollectorRegistry, Counter, Gauge
 
 from sdfserver import __version__
-from sdfserver.api import errors, health, routes, stream
+from sdfserver.api import errors, health, render_routes, routes, stream
 from sdfserver.engine import Engine, EngineLimits, EngineMetrics, Journal
 from sdfserver.gpu import GpuContext
 from sdfserver.settings import Settings
@@ -68,4 +68,5 @@ def create_app(settings: Settings, engine: Engine | None = None) -> FastAPI:
     app.include_router(health.router)
     app.include_router(routes.router)
     app.include_router(stream.router)
+    render_routes.install(app)  # render/pick routes, the web demo at / (issue 4)
     return app

@@ -9,6 +9,7 @@ Every frame is a msgpack map with a ``type``. Client to server:
   every recompute. A new subscribe replaces the old one.
 - ``{type: "unsubscribe", id?}`` -> ``{type: "unsubscribed", id}``
 - ``{type: "ping", id?}`` -> ``{type: "pong", id}``
+- ``{type: "camera", ...}`` -> ``{type: "frame", ...}`` pushes (see api/render_routes.py)
 
 Server to client, besides the answers: ``{type: "chunks", world, version,
 chunk_size, format, chunks: [{chunk: [cx, cy, cz], origin: [x, y, z], data:
@@ -30,6 +31,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from sdfserver import wire
 from sdfserver.api.errors import body_for, close_code_for
+from sdfserver.api.render_routes import FrameStream
 from sdfserver.api.routes import _edits_wire
 from sdfserver.edits import parse_edits
 from sdfserver.engine import Engine, Mailbox, Subscription
@@ -72,12 +74,14 @@ class StreamSession:
         self.loop = asyncio.get_running_loop()
         self.wake = asyncio.Event()
         self.send_lock = asyncio.Lock()
+        self.frames = FrameStream(websocket.app.state, engine, world_id, self.send)  # issue 4
 
     async def run(self) -> None:
         sender = asyncio.create_task(self._send_updates())
         try:
             await self._receive()
         finally:
+            await self.frames.close()  # issue 4
             sender.cancel()
             with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect, RuntimeError):
                 await sender
@@ -128,8 +132,11 @@ class StreamSession:
             await self.send({"type": "unsubscribed", "id": frame_id})
         elif kind == "ping":
             await self.send({"type": "pong", "id": frame_id})
+        elif kind == "camera":  # issue 4: frames
+            self.frames.set_view(frame)
         else:
-            raise InvalidInput(f"unknown frame type {kind!r}; expected edits, subscribe, unsubscribe or ping")
+            raise InvalidInput(f"unknown frame type {kind!r}; expected edits, subscribe, unsubscribe, ping "
+                               f"or camera")
 
     async def _subscribe(self, frame: dict[str, Any]) -> None:
         fmt = frame.get("format", "distance")

@@ -1,0 +1,229 @@
+/* The DDA ray marcher of the dissertation's §3.3 (Figure 3.4).
+ *
+ * One work-item per pixel. A ray from the camera is clipped to the world box
+ * [0, dims); outside it everything is air. Inside, the voxel traversal of
+ * Amanatides & Woo (1987) walks voxel by voxel, but reads the packed field
+ * only where it must: a voxel whose Manhattan distance is d > 0 has no solid
+ * within d - 1 face-steps, and every DDA step is one face-step, so the ray
+ * takes d steps without reading and reads again where it lands (Figure 3.4:
+ * read 3, advance 3, read 1, advance 1, read 0: hit). The field is exact or a
+ * lower bound for the exact algorithms; an approximate field that overestimates
+ * (JFA outside a focus box) can let a ray step over a thin solid.
+ *
+ * Conventions (sdf_common.h): the field is ushort (distance << 8) | RGB332,
+ * C-ordered (z, y, x); voxel (x, y, z) covers [x, x+1) x [y, y+1) x [z, z+1);
+ * y is up; image row 0 is the top.
+ *
+ * Shading: the voxel's RGB332 colour expanded to RGB888, times an integer
+ * brightness per entered face (top 256/256, x faces 204, z faces 166, bottom
+ * 128), so the result is exact integer arithmetic. Flags add ambient occlusion
+ * (from distances along the face normal) and a soft shadow toward `light`
+ * (a second DDA march), both floating point.
+ *
+ * Ties between axes in the DDA (a ray through an edge) go to x, then y, then z.
+ */
+#include "sdf_common.h"
+
+#define RENDER_AO 1
+#define RENDER_SHADOW 2
+#define RENDER_STATS 4
+
+typedef struct {
+    int hit;       /* 1: a solid voxel was reached */
+    int3 voxel;    /* the voxel hit */
+    int face;      /* the axis of the face the ray entered through; -1 if it started inside */
+    int3 step;     /* the ray's step direction per axis */
+    uint colour;   /* RGB332 */
+    uint reads;    /* field reads */
+    float shade;   /* min over reads of distance / t (soft shadows) */
+} march_result;
+
+inline int argmin3(float3 t)
+{
+    if (t.x <= t.y && t.x <= t.z)
+        return 0;
+    return t.y <= t.z ? 1 : 2;
+}
+
+inline int in_world(int3 v, int4 dims)
+{
+    return v.x >= 0 && v.y >= 0 && v.z >= 0 && v.x < dims.x && v.y < dims.y && v.z < dims.z;
+}
+
+/* Slab test of one axis: narrows [t0, t1] and records the axis giving t0. */
+inline void clip_axis(float o, float d, int n, int axis, float *t0, float *t1, int *entry)
+{
+    if (d == 0.0f) {
+        if (o < 0.0f || o >= (float)n)
+            *t1 = -1.0f;
+        return;
+    }
+    float a = (0.0f - o) / d, b = ((float)n - o) / d;
+    float lo = fmin(a, b), hi = fmax(a, b);
+    if (lo > *t0) {
+        *t0 = lo;
+        *entry = axis;
+    }
+    *t1 = fmin(*t1, hi);
+}
+
+inline march_result march(__global const ushort *field, int4 dims, float3 o, float3 d)
+{
+    march_result r;
+    r.hit = 0;
+    r.reads = 0;
+    r.shade = 1e30f;
+    r.colour = 0;
+    r.face = -1;
+    r.step = (int3)(d.x > 0.0f ? 1 : -1, d.y > 0.0f ? 1 : -1, d.z > 0.0f ? 1 : -1);
+
+    float t0 = 0.0f, t1 = INFINITY;
+    int entry = -1;
+    clip_axis(o.x, d.x, dims.x, 0, &t0, &t1, &entry);
+    clip_axis(o.y, d.y, dims.y, 1, &t0, &t1, &entry);
+    clip_axis(o.z, d.z, dims.z, 2, &t0, &t1, &entry);
+    if (!(t1 > t0))
+        return r;
+
+    const float3 p = o + d * t0;
+    int3 v = clamp(convert_int3_rtn(p), (int3)(0), dims.xyz - 1);
+    if (entry == 0) v.x = r.step.x > 0 ? 0 : dims.x - 1;
+    if (entry == 1) v.y = r.step.y > 0 ? 0 : dims.y - 1;
+    if (entry == 2) v.z = r.step.z > 0 ? 0 : dims.z - 1;
+    r.face = entry;
+
+    const float3 fv = convert_float3(v);
+    const float3 next = fv + (float3)(r.step.x > 0, r.step.y > 0, r.step.z > 0);
+    float3 t_max = (float3)(d.x != 0.0f ? (next.x - o.x) / d.x : INFINITY,
+                            d.y != 0.0f ? (next.y - o.y) / d.y : INFINITY,
+                            d.z != 0.0f ? (next.z - o.z) / d.z : INFINITY);
+    const float3 t_delta = (float3)(d.x != 0.0f ? fabs(1.0f / d.x) : INFINITY,
+                                    d.y != 0.0f ? fabs(1.0f / d.y) : INFINITY,
+                                    d.z != 0.0f ? fabs(1.0f / d.z) : INFINITY);
+    float t = t0;
+    /* Each pass takes at least one step, and a ray crosses at most sx + sy + sz voxels. */
+    const int max_passes = dims.x + dims.y + dims.z + 3;
+    for (int pass = 0; pass < max_passes; ++pass) {
+        const ushort f = field[world_index(v.x, v.y, v.z, dims)];
+        const uint dist = f >> 8;
+        r.reads++;
+        if (dist == 0) {
+            r.hit = 1;
+            r.voxel = v;
+            r.colour = f & 0xff;
+            return r;
+        }
+        r.shade = fmin(r.shade, (float)dist / fmax(t, 1e-3f));
+        for (uint k = 0; k < dist; ++k) {
+            const int axis = argmin3(t_max);
+            if (axis == 0) { v.x += r.step.x; t = t_max.x; t_max.x += t_delta.x; }
+            else if (axis == 1) { v.y += r.step.y; t = t_max.y; t_max.y += t_delta.y; }
+            else { v.z += r.step.z; t = t_max.z; t_max.z += t_delta.z; }
+            r.face = axis;
+            if (!in_world(v, dims))
+                return r;
+        }
+    }
+    return r;
+}
+
+inline uint face_brightness(int face, int3 step)
+{
+    if (face == 1)
+        return step.y < 0 ? 256u : 128u;  /* moving down enters a top face */
+    if (face == 0)
+        return 204u;
+    if (face == 2)
+        return 166u;
+    return 256u;                          /* the camera started inside this voxel */
+}
+
+inline uint3 rgb332_to_888(uint c)
+{
+    return (uint3)((((c >> 5) & 7u) * 255u) / 7u, (((c >> 2) & 7u) * 255u) / 7u, (c & 3u) * 85u);
+}
+
+/* 1 - occlusion, from distances k = 2..4 voxels out along the face normal: in the open
+ * the distance there is k; a nearby wall or crease makes it smaller. */
+inline float ambient(__global const ushort *field, int4 dims, int3 v, int3 normal)
+{
+    float occ = 0.0f;
+    for (int k = 2; k <= 4; ++k) {
+        const int3 a = v + normal * k;
+        if (!in_world(a, dims))
+            continue;
+        const uint dist = min((uint)(field[world_index(a.x, a.y, a.z, dims)] >> 8), (uint)k);
+        occ += (float)(k - (int)dist) / (float)k;
+    }
+    return 1.0f - 0.45f * occ / 3.0f;
+}
+
+/* Light reaching the face of voxel v with this normal, marching from the air voxel in front. */
+inline float shadow(__global const ushort *field, int4 dims, int3 v, int3 normal, float3 light)
+{
+    const int3 a = v + normal;
+    if (!in_world(a, dims))
+        return 1.0f;
+    const march_result s = march(field, dims, convert_float3(a) + 0.5f, light);
+    if (s.hit)
+        return 0.55f;
+    return 0.55f + 0.45f * clamp(s.shade * 4.0f, 0.0f, 1.0f);
+}
+
+/* cam_origin: camera position (voxels). cam_forward: unit view direction; cam_right and
+ * cam_up: scaled so that pixel centre (u, v) in [-1, 1] looks along forward + u*right + v*up.
+ * highlight: xyz a voxel, w its radius squared (tinted brush preview); w < 0: none. */
+__kernel void render(__global const ushort *field, int4 dims,
+                     float4 cam_origin, float4 cam_forward, float4 cam_right, float4 cam_up,
+                     int width, int height, uint sky_rgb, uint flags, float4 light,
+                     int4 highlight, __global uchar4 *out, __global uint *reads)
+{
+    const int px = get_global_id(0), py = get_global_id(1);
+    if (px >= width || py >= height)
+        return;
+    const float u = ((float)px + 0.5f) / (float)width * 2.0f - 1.0f;
+    const float w = 1.0f - ((float)py + 0.5f) / (float)height * 2.0f;
+    const float3 d = cam_forward.xyz + u * cam_right.xyz + w * cam_up.xyz;
+    const march_result r = march(field, dims, cam_origin.xyz, d);
+    const size_t pixel = (size_t)py * (size_t)width + (size_t)px;
+    if (flags & RENDER_STATS)
+        reads[pixel] = r.reads;
+    if (!r.hit) {
+        out[pixel] = (uchar4)((sky_rgb >> 16) & 0xff, (sky_rgb >> 8) & 0xff, sky_rgb & 0xff, 255);
+        return;
+    }
+    uint3 rgb = (rgb332_to_888(r.colour) * face_brightness(r.face, r.step)) >> 8;
+    if (flags & (RENDER_AO | RENDER_SHADOW)) {
+        int3 normal = (int3)(0);
+        if (r.face == 0) normal.x = -r.step.x;
+        if (r.face == 1) normal.y = -r.step.y;
+        if (r.face == 2) normal.z = -r.step.z;
+        float light_factor = 1.0f;
+        if (r.face >= 0 && (flags & RENDER_AO))
+            light_factor *= ambient(field, dims, r.voxel, normal);
+        if (r.face >= 0 && (flags & RENDER_SHADOW))
+            light_factor *= shadow(field, dims, r.voxel, normal, light.xyz);
+        rgb = convert_uint3_sat_rte(convert_float3(rgb) * light_factor);
+    }
+    if (highlight.w >= 0) {
+        const int3 e = r.voxel - highlight.xyz;
+        if (e.x * e.x + e.y * e.y + e.z * e.z <= highlight.w)
+            rgb = (rgb + (uint3)(255u)) / 2u;
+    }
+    out[pixel] = (uchar4)(rgb.x, rgb.y, rgb.z, 255);
+}
+
+/* One ray (a click): out[0] = (hit voxel, hit), out[1] = (normal of the entered face, face). */
+__kernel void pick(__global const ushort *field, int4 dims, float4 origin, float4 direction,
+                   __global int4 *out)
+{
+    if (get_global_id(0) != 0)
+        return;
+    const march_result r = march(field, dims, origin.xyz, direction.xyz);
+    int3 normal = (int3)(0);
+    if (r.face == 0) normal.x = -r.step.x;
+    if (r.face == 1) normal.y = -r.step.y;
+    if (r.face == 2) normal.z = -r.step.z;
+    out[0] = r.hit ? (int4)(r.voxel, 1) : (int4)(0);
+    out[1] = (int4)(normal, r.face);
+}

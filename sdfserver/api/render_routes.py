@@ -1,0 +1,220 @@
+"""Frames over HTTP and the WebSocket stream, picks, and the web demo at ``/``.
+
+- ``POST /v1/worlds/{id}/render`` with a camera (see ``sdfserver.render.parse_view``) ->
+  ``image/jpeg`` (default), ``image/png`` or raw RGBA (``application/octet-stream``),
+  chosen by ``?format=jpeg|png|rgba`` or the Accept header. Headers: ``X-Field-Version``
+  (the field version drawn), ``X-Frame-Width``/``X-Frame-Height``, ``X-Render-Ms``.
+- ``POST /v1/worlds/{id}/pick`` with a camera plus ``x``, ``y`` (pixel coordinates; a
+  pixel's centre is ``+0.5``) -> ``{hit, voxel, normal, place, field_version}``.
+- On ``/v1/worlds/{id}/stream``: ``{type: "camera", ...camera, max_fps?, format?, quality?}``
+  sets the client's view; the server then pushes ``{type: "frame", world, version, format,
+  width, height, data, render_ms, field_ms, seq}`` whenever the view or the field changed,
+  at most ``max_fps`` a second. Frames are rendered on the engine thread between steps
+  (one field version each), encoded in a thread pool, and wait in a single slot: a client
+  that reads slowly gets the newest frame, never a backlog.
+
+Everything that touches the device runs inside ``engine.run_on_device``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any, Awaitable, Callable
+
+from fastapi import APIRouter, FastAPI, Request, WebSocketDisconnect
+from fastapi.responses import FileResponse, Response
+from fastapi.staticfiles import StaticFiles
+
+from sdfserver.api.bodies import decode_body, respond
+from sdfserver.api.errors import body_for
+from sdfserver.engine import Engine
+from sdfserver.errors import InvalidInput, NotFound, SdfServerError
+from sdfserver.render import FORMATS, Renderer, encode_frame, format_from_accept, parse_view
+from sdfserver.render.encode import check_format
+
+STATIC_DIR = Path(__file__).resolve().parents[1] / "web" / "static"
+MAX_FPS = 240.0
+DEFAULT_FPS = 30.0
+
+router = APIRouter(prefix="/v1")
+_encode_pool: ThreadPoolExecutor | None = None
+
+
+def install(app: FastAPI) -> None:
+    """The render routes, the static files and the demo page at ``/``."""
+    app.state.renderer = None
+    app.include_router(router)
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+
+    @app.get("/", include_in_schema=False)
+    async def index() -> FileResponse:
+        return FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
+
+
+def encode_pool() -> ThreadPoolExecutor:
+    global _encode_pool
+    if _encode_pool is None:
+        _encode_pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="sdfserver-encode")
+    return _encode_pool
+
+
+def _renderer(state: Any, engine: Engine) -> Renderer:
+    """The app's renderer, made on first use (engine thread only)."""
+    if state.renderer is None:
+        state.renderer = Renderer(engine.gpu)
+    return state.renderer
+
+
+def _world(engine: Engine, world_id: str):
+    world = engine.worlds.get(world_id)  # engine thread only
+    if world is None:
+        raise NotFound(f"no world {world_id!r}")
+    return world
+
+
+def _quality(raw: Any) -> int:
+    if isinstance(raw, bool) or not isinstance(raw, int) or not 1 <= raw <= 100:
+        raise InvalidInput(f"quality must be an integer 1..100, got {raw!r}")
+    return raw
+
+
+@router.post("/worlds/{world_id}/render", summary="Render a frame (JPEG, PNG or raw RGBA)",
+             response_class=Response,
+             responses={200: {"content": {m: {} for m in FORMATS.values()}}})
+async def render(request: Request, world_id: str, format: str | None = None) -> Response:
+    body = await decode_body(request)
+    camera, options = parse_view(body)
+    fmt = check_format(format or (body.get("format") if isinstance(body, dict) else None)
+                       or format_from_accept(request.headers.get("accept")))
+    quality = _quality(body.get("quality", 85))
+    engine: Engine = request.app.state.engine
+    state = request.app.state
+    frame = await engine.run_on_device(
+        lambda: _renderer(state, engine).render(_world(engine, world_id), camera, options))
+    data = await asyncio.get_running_loop().run_in_executor(
+        encode_pool(), encode_frame, frame.pixels, fmt, quality)
+    request.app.state.metrics.bytes_out.inc(len(data))
+    return Response(data, media_type=FORMATS[fmt], headers={
+        "X-Field-Version": str(frame.field_version), "X-Frame-Width": str(camera.width),
+        "X-Frame-Height": str(camera.height), "X-Render-Ms": f"{frame.device_ms:.3f}",
+        "Cache-Control": "no-store"})
+
+
+@router.post("/worlds/{world_id}/pick", summary="The voxel under a pixel")
+async def pick(request: Request, world_id: str) -> Response:
+    body = await decode_body(request)
+    if not isinstance(body, dict) or "x" not in body or "y" not in body:
+        raise InvalidInput("a pick needs a camera and pixel coordinates x, y")
+    view = {k: v for k, v in body.items() if k not in ("x", "y")}
+    camera, _ = parse_view(view)
+    x, y = body["x"], body["y"]
+    for name, v in (("x", x), ("y", y)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or v != v or abs(v) > 1e6:
+            raise InvalidInput(f"{name} must be a finite number, got {v!r}")
+    engine: Engine = request.app.state.engine
+    state = request.app.state
+
+    def run():
+        world = _world(engine, world_id)
+        return _renderer(state, engine).pick(world, camera, float(x), float(y)), world.field_version
+
+    hit, version = await engine.run_on_device(run)
+    if hit is None:
+        return respond(request, {"hit": False, "field_version": version})
+    return respond(request, {"hit": True, "voxel": list(hit.voxel), "normal": list(hit.normal),
+                             "place": list(hit.place), "field_version": version})
+
+
+class FrameStream:
+    """One WebSocket client's frames: render -> encode -> single slot -> send."""
+
+    def __init__(self, app_state: Any, engine: Engine, world_id: str,
+                 send: Callable[[dict[str, Any]], Awaitable[None]]):
+        self.state = app_state
+        self.engine = engine
+        self.world_id = world_id
+        self.send = send
+        self.view: tuple | None = None  # (camera, options, format, quality, max_fps)
+        self.view_serial = 0
+        self.view_changed = asyncio.Event()
+        self.slot: dict[str, Any] | None = None
+        self.slot_filled = asyncio.Event()
+        self.seq = 0
+        self._tasks: list[asyncio.Task] = []
+
+    def set_view(self, message: dict[str, Any]) -> None:
+        """A ``{type: "camera", ...}`` frame; raises InvalidInput/TooLarge and keeps the old view."""
+        camera, options = parse_view(message)
+        fmt = check_format(message.get("format", "jpeg"))
+        quality = _quality(message.get("quality", 80))
+        max_fps = message.get("max_fps", DEFAULT_FPS)
+        if isinstance(max_fps, bool) or not isinstance(max_fps, (int, float)) or not 0 < max_fps <= MAX_FPS:
+            raise InvalidInput(f"max_fps must be a number in (0, {MAX_FPS:g}], got {max_fps!r}")
+        self.view = (camera, options, fmt, quality, float(max_fps))
+        self.view_serial += 1
+        self.view_changed.set()
+        if not self._tasks:
+            self._tasks = [asyncio.create_task(self._produce()), asyncio.create_task(self._deliver())]
+
+    async def close(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        for task in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect, RuntimeError):
+                await task  # a closed socket ends the sender with one of these
+        self._tasks = []
+
+    def _render_if_changed(self, serial: int, last: tuple[int, int] | None):
+        """Engine thread: a frame, or None when neither the view nor the field changed."""
+        world = _world(self.engine, self.world_id)
+        if last == (serial, world.field_version):
+            return None
+        camera, options = self.view[0], self.view[1]
+        frame = _renderer(self.state, self.engine).render(world, camera, options)
+        return frame, self.engine.last_recompute_ms.get(self.world_id)
+
+    async def _produce(self) -> None:
+        loop = asyncio.get_running_loop()
+        last: tuple[int, int] | None = None
+        while True:
+            started = loop.time()
+            serial, view = self.view_serial, self.view
+            try:
+                result = await self.engine.run_on_device(lambda: self._render_if_changed(serial, last))
+            except SdfServerError as exc:  # the world was deleted, the device lost: say so, stop
+                self.slot = {"type": "error", "id": None, **body_for(exc)[1]}
+                self.slot_filled.set()
+                self._tasks = [t for t in self._tasks if t is not asyncio.current_task()]
+                return
+            if result is not None:
+                frame, field_ms = result
+                last = (serial, frame.field_version)
+                camera, _, fmt, quality, _ = view
+                data = await loop.run_in_executor(encode_pool(), encode_frame, frame.pixels, fmt, quality)
+                self.seq += 1
+                self.slot = {"type": "frame", "world": self.world_id, "version": frame.field_version,
+                             "format": fmt, "width": camera.width, "height": camera.height, "data": data,
+                             "render_ms": frame.device_ms, "field_ms": field_ms, "seq": self.seq}
+                self.slot_filled.set()
+            # At most max_fps frames a second; a new view wakes the loop early only after that.
+            await asyncio.sleep(max(0.0, started + 1.0 / view[4] - loop.time()))
+            if result is None:
+                self.view_changed.clear()
+                try:
+                    await asyncio.wait_for(self.view_changed.wait(), timeout=1.0 / view[4])
+                except asyncio.TimeoutError:
+                    pass
+
+    async def _deliver(self) -> None:
+        while True:
+            await self.slot_filled.wait()
+            self.slot_filled.clear()
+            message, self.slot = self.slot, None
+            if message is not None:
+                await self.send(message)
+
+
+__all__ = ["FrameStream", "install", "router"]

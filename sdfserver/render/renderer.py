@@ -1,0 +1,144 @@
+"""Renderer: draws frames of a world with ``kernels/render.cl`` and answers picks.
+
+The renderer belongs to the thread that owns the GpuContext (the engine thread
+in the server): ``render`` reads ``world.buffers.field`` between steps, so a
+frame shows the field of exactly one version, ``frame.field_version``. Output
+buffers are allocated through the GpuContext once per frame size and reused;
+a few recent sizes are kept (several clients with different windows).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.cltypes as cltypes
+
+from sdfserver.algorithms.base import int4
+from sdfserver.gpu import GpuContext
+from sdfserver.render.camera import Camera, RenderOptions
+
+FLAG_AO, FLAG_SHADOW, FLAG_STATS = 1, 2, 4
+LOCAL_SIZE = (16, 8)
+KEEP_SIZES = 4
+
+
+@dataclass
+class Frame:
+    pixels: np.ndarray  # (height, width, 4) uint8 RGBA
+    field_version: int
+    device_ms: float  # the render kernel's time from its profiling event
+    wall_ms: float
+    reads: np.ndarray | None = None  # (height, width) uint32 field reads per pixel, if asked
+    pick: "Pick | None" = None  # the voxel under options.cursor
+
+
+@dataclass
+class Pick:
+    voxel: tuple[int, int, int]  # the solid voxel the ray reached
+    normal: tuple[int, int, int]  # outward normal of the face it entered; zero if it began inside
+
+    @property
+    def place(self) -> tuple[int, int, int]:
+        """Where a voxel placed against the hit face goes."""
+        return tuple(v + n for v, n in zip(self.voxel, self.normal))
+
+
+def _float4(v) -> np.ndarray:
+    return cltypes.make_float4(*(float(c) for c in v), 0.0)
+
+
+class _Target:
+    """Device buffers for one frame size."""
+
+    def __init__(self, gpu: GpuContext, width: int, height: int):
+        self.pixels_bytes = width * height * 4
+        self.pixels = gpu.allocate(self.pixels_bytes)
+        self.reads = gpu.allocate(self.pixels_bytes)
+
+    def release(self, gpu: GpuContext) -> None:
+        gpu.release(self.pixels, self.pixels_bytes)
+        gpu.release(self.reads, self.pixels_bytes)
+
+
+class Renderer:
+    def __init__(self, gpu: GpuContext):
+        self.gpu = gpu
+        self._targets: OrderedDict[tuple[int, int], _Target] = OrderedDict()
+        self._pick_out = gpu.allocate(32)
+
+    def release(self) -> None:
+        for target in self._targets.values():
+            target.release(self.gpu)
+        self._targets.clear()
+        if self._pick_out is not None:
+            self.gpu.release(self._pick_out, 32)
+            self._pick_out = None
+
+    def _target(self, width: int, height: int) -> _Target:
+        key = (width, height)
+        target = self._targets.pop(key, None)
+        if target is None:
+            while len(self._targets) >= KEEP_SIZES:
+                self._targets.popitem(last=False)[1].release(self.gpu)
+            target = _Target(self.gpu, width, height)
+        self._targets[key] = target
+        return target
+
+    def render(self, world, camera: Camera, options: RenderOptions = RenderOptions(),
+               *, stats: bool = False) -> Frame:
+        """One frame of ``world`` (a World) as seen by a validated ``camera``."""
+        start = time.perf_counter()
+        w, h = camera.width, camera.height
+        target = self._target(w, h)
+        origin, forward, right, up = camera.basis()
+        flags = (FLAG_AO if options.ambient_occlusion else 0) | (FLAG_SHADOW if options.shadows else 0) \
+            | (FLAG_STATS if stats else 0)
+        light = np.asarray(options.light, dtype=np.float64)
+        light /= np.linalg.norm(light)
+        pick = None
+        centre = options.highlight
+        if options.cursor is not None:
+            pick = self.pick(world, camera, *options.cursor)
+            centre = pick.voxel if pick is not None else None
+        if centre is None:
+            highlight = int4((0, 0, 0), -1)
+        else:
+            highlight = int4(centre, int(math.floor(options.highlight_radius ** 2)))
+        gsize = tuple(-(-n // l) * l for n, l in zip((w, h), LOCAL_SIZE))
+        queue = self.gpu.queue
+        event = self.gpu.programs.kernel("render.cl", "render")(
+            queue, gsize, LOCAL_SIZE,
+            world.buffers.field, int4(world.config.size),
+            _float4(origin), _float4(forward), _float4(right), _float4(up),
+            np.int32(w), np.int32(h), np.uint32(options.sky_rgb), np.uint32(flags), _float4(light),
+            highlight, target.pixels, target.reads,
+        )
+        pixels = np.empty((h, w, 4), dtype=np.uint8)
+        cl.enqueue_copy(queue, pixels, target.pixels, wait_for=[event])
+        reads = None
+        if stats:
+            reads = np.empty((h, w), dtype=np.uint32)
+            cl.enqueue_copy(queue, reads, target.reads, wait_for=[event])
+        queue.finish()
+        device_ms = (event.profile.end - event.profile.start) * 1e-6
+        return Frame(pixels, world.field_version, device_ms, (time.perf_counter() - start) * 1e3, reads,
+                     pick)
+
+    def pick(self, world, camera: Camera, px: float, py: float) -> Pick | None:
+        """The voxel under pixel coordinates ``(px, py)`` (a pixel's centre is ``+0.5``), or None."""
+        origin, direction = camera.ray(px, py)
+        self.gpu.programs.kernel("render.cl", "pick")(
+            self.gpu.queue, (1,), None, world.buffers.field, int4(world.config.size),
+            _float4(origin), _float4(direction), self._pick_out,
+        )
+        out = np.empty((2, 4), dtype=np.int32)
+        cl.enqueue_copy(self.gpu.queue, out, self._pick_out)
+        self.gpu.queue.finish()
+        if not out[0, 3]:
+            return None
+        return Pick(tuple(int(v) for v in out[0, :3]), tuple(int(v) for v in out[1, :3]))

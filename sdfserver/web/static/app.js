@@ -1,0 +1,381 @@
+// The voxel painter: frames streamed from the server over the world's WebSocket, a fly camera,
+// brush edits over HTTP. No build step; ES modules only.
+import { encode, decode } from "./msgpack.js";
+import { demoScene } from "./scene.js";
+
+const ALGORITHMS = ["exact", "brute", "fim", "jfa", "jfa_fim"];
+const PALETTE = [0xe4, 0xf4, 0xfc, 0x5c, 0x1c, 0x1f, 0x0b, 0x4b, 0x8e, 0xe3, 0x92, 0xb6, 0xdb, 0xff, 0x49, 0x6d];
+const $ = (id) => document.getElementById(id);
+const canvas = $("frame");
+const ctx = canvas.getContext("2d");
+
+const demo = { framesReceived: 0, lastVersion: -1, world: null, ready: false, edits: 0, errors: [] };
+window.sdfDemo = demo;  // read by the browser test
+
+const cam = { position: [0, 0, 0], yaw: 0, pitch: 0, fov: 60 };
+const brush = { mode: "place", colour: PALETTE[0], size: 2 };
+let socket = null, cursor = null, viewDirty = true, lastSent = 0, worldSize = [64, 64, 64];
+const keys = new Set();
+
+// ---------------------------------------------------------------------------------------------- HTTP
+
+async function api(method, path, body) {
+  const init = { method, headers: { Accept: "application/json" } };
+  if (body !== undefined) {
+    init.headers["Content-Type"] = "application/json";
+    init.body = JSON.stringify(body);
+  }
+  const response = await fetch(path, init);
+  const text = await response.text();
+  const data = text ? JSON.parse(text) : null;
+  if (!response.ok) {
+    const message = data?.error?.message ?? data?.message ?? data?.detail ?? `${response.status}`;
+    throw new Error(typeof message === "string" ? message : JSON.stringify(message));
+  }
+  return data;
+}
+
+function showStatus(text, isError = false) {
+  const el = $("status");
+  el.hidden = !text;
+  el.textContent = text || "";
+  el.classList.toggle("error", isError);
+  if (isError) demo.errors.push(text);
+}
+
+async function guarded(what, fn) {
+  try {
+    return await fn();
+  } catch (err) {
+    showStatus(`${what}: ${err.message}`, true);
+    setTimeout(() => showStatus(""), 4000);
+    return undefined;
+  }
+}
+
+// ---------------------------------------------------------------------------------------------- worlds
+
+function describeWorld(w) {
+  const [sx, sy, sz] = w.size;
+  const shape = sx === sy && sy === sz ? `${sx}³` : `${sx}×${sy}×${sz}`;
+  return `${w.id} · ${shape} · ${w.algorithm}`;
+}
+
+async function refreshWorlds(selectId) {
+  const { worlds } = await api("GET", "/v1/worlds");
+  const select = $("world-select");
+  select.replaceChildren(...worlds.map((w) => new Option(describeWorld(w), w.id)));
+  if (selectId) select.value = selectId;
+  return worlds;
+}
+
+async function createWorld(size, algorithm) {
+  showStatus(`Creating a ${size}³ world…`);
+  const world = await api("POST", "/v1/worlds", { size: [size, size, size], algorithm });
+  await api("POST", `/v1/worlds/${world.id}/edits`, { edits: demoScene(world.size) });
+  showStatus("");
+  return world;
+}
+
+function lookAt(position, target) {
+  const d = target.map((t, i) => t - position[i]);
+  cam.position = position.slice();
+  cam.yaw = Math.atan2(d[0], -d[2]) * 180 / Math.PI;
+  cam.pitch = Math.atan2(d[1], Math.hypot(d[0], d[2])) * 180 / Math.PI;
+}
+
+async function openWorld(world) {
+  demo.world = world.id;
+  worldSize = world.size;
+  location.hash = `world=${encodeURIComponent(world.id)}`;
+  const [sx, sy, sz] = world.size;
+  lookAt([sx * 1.02, sy * 0.62, sz * 1.12], [sx * 0.5, sy * 0.12, sz * 0.5]);
+  $("algorithm").value = world.algorithm;
+  $("lod-algorithm").value = world.lod_algorithm ?? "jfa";
+  $("focus-on").checked = !!world.focus;
+  if (world.focus) {
+    $("focus-center").value = world.focus.center.join(",");
+    $("focus-size").value = world.focus.size.join(",");
+  }
+  $("world-line").textContent = describeWorld(world);
+  connect(world.id);
+}
+
+// ---------------------------------------------------------------------------------------------- stream
+
+function connect(worldId) {
+  if (socket) socket.close();
+  const scheme = location.protocol === "https:" ? "wss" : "ws";
+  const ws = new WebSocket(`${scheme}://${location.host}/v1/worlds/${encodeURIComponent(worldId)}/stream`);
+  ws.binaryType = "arraybuffer";
+  socket = ws;
+  ws.onopen = () => { viewDirty = true; demo.ready = true; showStatus(""); };
+  ws.onmessage = (event) => {
+    const msg = typeof event.data === "string" ? JSON.parse(event.data) : decode(event.data);
+    if (msg.type === "frame") onFrame(msg);
+    else if (msg.type === "error") showStatus(`Server: ${msg.message ?? msg.error?.message ?? "error"}`, true);
+  };
+  ws.onclose = () => {
+    if (socket !== ws) return;
+    demo.ready = false;
+    showStatus("Disconnected — reconnecting…", true);
+    setTimeout(() => { if (socket === ws) connect(worldId); }, 1000);
+  };
+}
+
+function viewMessage() {
+  const scale = Number($("resolution").value);
+  const width = Math.max(16, Math.round(canvas.clientWidth * scale));
+  const height = Math.max(16, Math.round(canvas.clientHeight * scale));
+  if (canvas.width !== width || canvas.height !== height) {
+    canvas.width = width;
+    canvas.height = height;
+  }
+  const message = {
+    type: "camera", position: cam.position, yaw_deg: cam.yaw, pitch_deg: cam.pitch, fov_y_deg: cam.fov,
+    width, height, max_fps: Math.max(1, Math.min(240, Number($("max-fps").value) || 60)),
+    format: "jpeg", quality: 82,
+    ambient_occlusion: $("ao").checked, shadows: $("shadows").checked,
+    highlight_radius: brush.size,
+  };
+  if (cursor) message.cursor = [cursor[0] * scale, cursor[1] * scale];
+  return message;
+}
+
+function sendView(now) {
+  if (!socket || socket.readyState !== WebSocket.OPEN || !viewDirty) return;
+  if (now - lastSent < 1000 / 120) return;
+  socket.send(encode(viewMessage()));
+  viewDirty = false;
+  lastSent = now;
+}
+
+// Decode one frame at a time; a frame arriving meanwhile replaces any waiting one.
+let decoding = false, waiting = null;
+const frameTimes = [];
+
+function onFrame(msg) {
+  demo.framesReceived++;
+  demo.lastVersion = msg.version;
+  frameTimes.push(performance.now());
+  $("render-ms").textContent = msg.render_ms != null ? msg.render_ms.toFixed(2) : "–";
+  $("field-ms").textContent = msg.field_ms != null ? msg.field_ms.toFixed(2) : "–";
+  draw(msg);
+}
+
+async function draw(msg) {
+  if (decoding) { waiting = msg; return; }
+  decoding = true;
+  try {
+    const type = msg.format === "png" ? "image/png" : "image/jpeg";
+    const bitmap = await createImageBitmap(new Blob([msg.data], { type }));
+    ctx.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
+    bitmap.close();
+  } finally {
+    decoding = false;
+  }
+  if (waiting) { const next = waiting; waiting = null; draw(next); }
+}
+
+function updateStats(now) {
+  while (frameTimes.length && now - frameTimes[0] > 1000) frameTimes.shift();
+  // No frames while neither the view nor the world changes: the server sends none.
+  $("fps").textContent = frameTimes.length ? String(frameTimes.length) : "idle ·";
+  if (demo.world) {
+    $("world-line").textContent = `${$("world-select").selectedOptions[0]?.textContent ?? demo.world} · v${demo.lastVersion}`;
+  }
+}
+
+// ---------------------------------------------------------------------------------------------- editing
+
+async function paint(px, py, erase) {
+  if (!demo.world) return;
+  const scale = Number($("resolution").value);
+  const view = viewMessage();
+  const hit = await guarded("Pick", () => api("POST", `/v1/worlds/${demo.world}/pick`, {
+    position: view.position, yaw_deg: view.yaw_deg, pitch_deg: view.pitch_deg, fov_y_deg: view.fov_y_deg,
+    width: view.width, height: view.height, x: px * scale, y: py * scale,
+  }));
+  if (!hit || !hit.hit) return;
+  const edit = erase
+    ? { op: "sphere", center: hit.voxel, radius: brush.size, colour: 0 }
+    : { op: "sphere", center: hit.place, radius: brush.size, colour: brush.colour };
+  const done = await guarded("Edit", () => api("POST", `/v1/worlds/${demo.world}/edits`, { edits: [edit] }));
+  if (done) demo.edits++;
+}
+
+// ---------------------------------------------------------------------------------------------- input
+
+function basis() {
+  const y = cam.yaw * Math.PI / 180, p = cam.pitch * Math.PI / 180;
+  return {
+    forward: [Math.sin(y) * Math.cos(p), Math.sin(p), -Math.cos(y) * Math.cos(p)],
+    right: [Math.cos(y), 0, Math.sin(y)],
+  };
+}
+
+function turn(dx, dy) {
+  cam.yaw = (cam.yaw + dx * 0.25) % 360;
+  cam.pitch = Math.max(-89, Math.min(89, cam.pitch - dy * 0.25));
+  viewDirty = true;
+}
+
+let drag = null;
+canvas.addEventListener("contextmenu", (e) => e.preventDefault());
+canvas.addEventListener("pointerdown", (e) => {
+  canvas.focus();
+  drag = { x: e.clientX, y: e.clientY, button: e.button, shift: e.shiftKey, moved: false };
+  canvas.setPointerCapture(e.pointerId);
+});
+canvas.addEventListener("pointermove", (e) => {
+  if (document.pointerLockElement === canvas) { turn(e.movementX, e.movementY); return; }
+  const rect = canvas.getBoundingClientRect();
+  cursor = [e.clientX - rect.left, e.clientY - rect.top];
+  viewDirty = true;
+  if (!drag) return;
+  const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
+  if (!drag.moved && Math.hypot(dx, dy) > 4) drag.moved = true;
+  if (drag.moved) { turn(e.movementX, e.movementY); }
+});
+canvas.addEventListener("pointerup", (e) => {
+  const d = drag;
+  drag = null;
+  if (!d || d.moved) return;
+  const locked = document.pointerLockElement === canvas;
+  const rect = canvas.getBoundingClientRect();
+  const [px, py] = locked ? [rect.width / 2, rect.height / 2] : [e.clientX - rect.left, e.clientY - rect.top];
+  const erase = d.button === 2 || d.shift || brush.mode === "erase";
+  paint(px, py, erase);
+});
+canvas.addEventListener("pointerleave", () => { cursor = null; viewDirty = true; });
+canvas.addEventListener("wheel", (e) => {
+  e.preventDefault();
+  setBrushSize(brush.size + (e.deltaY < 0 ? 1 : -1));
+}, { passive: false });
+document.addEventListener("pointerlockchange", () => {
+  const locked = document.pointerLockElement === canvas;
+  $("crosshair").hidden = !locked;
+  if (locked) {
+    cursor = [canvas.clientWidth / 2, canvas.clientHeight / 2];
+    viewDirty = true;
+  }
+});
+window.addEventListener("keydown", (e) => {
+  if (e.target instanceof HTMLInputElement || e.target instanceof HTMLSelectElement) return;
+  const key = e.key.toLowerCase();
+  if (key === "l") {
+    if (document.pointerLockElement === canvas) document.exitPointerLock();
+    else canvas.requestPointerLock();
+    return;
+  }
+  keys.add(key);
+});
+window.addEventListener("keyup", (e) => keys.delete(e.key.toLowerCase()));
+window.addEventListener("blur", () => keys.clear());
+window.addEventListener("resize", () => { viewDirty = true; });
+
+let lastTick = performance.now();
+function tick(now) {
+  const dt = Math.min(0.1, (now - lastTick) / 1000);
+  lastTick = now;
+  const speed = Math.max(...worldSize) * 0.4 * dt;
+  const { forward, right } = basis();
+  const move = [0, 0, 0];
+  const add = (v, s) => { for (let i = 0; i < 3; i++) move[i] += v[i] * s; };
+  if (keys.has("w")) add(forward, 1);
+  if (keys.has("s")) add(forward, -1);
+  if (keys.has("d")) add(right, 1);
+  if (keys.has("a")) add(right, -1);
+  if (keys.has("e") || keys.has(" ")) move[1] += 1;
+  if (keys.has("q")) move[1] -= 1;
+  if (move.some((v) => v !== 0)) {
+    for (let i = 0; i < 3; i++) cam.position[i] += move[i] * speed;
+    viewDirty = true;
+  }
+  sendView(now);
+  updateStats(now);
+  requestAnimationFrame(tick);
+}
+
+// ---------------------------------------------------------------------------------------------- panel
+
+function setBrushSize(size) {
+  brush.size = Math.max(0, Math.min(12, size));
+  $("brush-size").value = brush.size;
+  $("brush-size-out").textContent = brush.size;
+  viewDirty = true;
+}
+
+function rgb332ToCss(c) {
+  const r = Math.round(((c >> 5) & 7) * 255 / 7), g = Math.round(((c >> 2) & 7) * 255 / 7), b = (c & 3) * 85;
+  return `rgb(${r}, ${g}, ${b})`;
+}
+
+function cssToRgb332(hex) {
+  const v = parseInt(hex.slice(1), 16);
+  const r = (v >> 16) & 255, g = (v >> 8) & 255, b = v & 255;
+  return Math.max(1, (Math.round(r * 7 / 255) << 5) | (Math.round(g * 7 / 255) << 2) | Math.round(b * 3 / 255));
+}
+
+function setupPanel() {
+  const palette = $("palette");
+  for (const c of PALETTE) {
+    const button = document.createElement("button");
+    button.style.background = rgb332ToCss(c);
+    button.title = `RGB332 ${c}`;
+    button.onclick = () => {
+      brush.colour = c;
+      for (const b of palette.children) b.classList.toggle("selected", b === button);
+    };
+    palette.append(button);
+  }
+  palette.children[0].classList.add("selected");
+  $("colour-picker").oninput = (e) => {
+    brush.colour = cssToRgb332(e.target.value);
+    for (const b of palette.children) b.classList.remove("selected");
+  };
+  $("brush-size").oninput = (e) => setBrushSize(Number(e.target.value));
+  for (const radio of document.querySelectorAll("input[name=mode]")) {
+    radio.onchange = () => { brush.mode = radio.value; };
+  }
+  for (const id of ["algorithm", "lod-algorithm", "new-algorithm"]) {
+    $(id).replaceChildren(...ALGORITHMS.map((a) => new Option(a, a)));
+  }
+  $("lod-algorithm").value = "jfa";
+  for (const id of ["ao", "shadows", "resolution", "max-fps"]) $(id).onchange = () => { viewDirty = true; };
+  $("world-select").onchange = (e) => guarded("Open world", async () => {
+    openWorld(await api("GET", `/v1/worlds/${encodeURIComponent(e.target.value)}`));
+  });
+  $("create-world").onclick = () => guarded("Create world", async () => {
+    const world = await createWorld(Number($("new-size").value), $("new-algorithm").value);
+    await refreshWorlds(world.id);
+    openWorld(world);
+  });
+  $("apply-field").onclick = () => guarded("Apply", async () => {
+    const triple = (id) => $(id).value.split(",").map((v) => parseInt(v.trim(), 10));
+    const body = { algorithm: $("algorithm").value, lod_algorithm: $("lod-algorithm").value,
+      focus: $("focus-on").checked ? { center: triple("focus-center"), size: triple("focus-size") } : null };
+    const world = await api("PATCH", `/v1/worlds/${demo.world}`, body);
+    await refreshWorlds(world.id);
+    showStatus(`Field: ${world.algorithm}${world.focus ? " in focus, " + world.lod_algorithm + " outside" : ""}`);
+    setTimeout(() => showStatus(""), 1500);
+  });
+}
+
+async function start() {
+  setupPanel();
+  requestAnimationFrame(tick);
+  await guarded("Start", async () => {
+    const wanted = decodeURIComponent((location.hash.match(/world=([^&]+)/) || [])[1] || "");
+    let worlds = await refreshWorlds();
+    let world = worlds.find((w) => w.id === wanted) ?? worlds[0];
+    if (!world) {
+      world = await createWorld(64, "exact");
+      worlds = await refreshWorlds(world.id);
+    }
+    $("world-select").value = world.id;
+    openWorld(world);
+  });
+}
+
+start();

@@ -1,0 +1,144 @@
+"""The web demo in a real headless Chromium against a real `sdfserver serve` on loopback.
+
+The page opens with no world on the server, so it creates its default world
+(floor and shapes); the test waits for streamed frames, clicks the canvas to
+place voxels, and checks that the world's version rises and the picture
+changes. Screenshots are saved under a tmp dir and their paths printed.
+Chromium is driven over the DevTools protocol (its WebSocket).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import io
+import itertools
+import json
+import re
+import shutil
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+import websockets
+from PIL import Image
+
+ROOT = Path(__file__).resolve().parents[2]
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="Debian's `chromium` is not installed "
+                                "(apt-get install -y chromium); CI installs it")
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync",
+         "--window-size=1100,700", "--remote-debugging-port=0", "--remote-allow-origins=*"]
+
+
+class Chromium:
+    def __init__(self, tmp: Path):
+        self.proc = subprocess.Popen([CHROMIUM, *FLAGS, f"--user-data-dir={tmp / 'profile'}", "about:blank"],
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        self.ids = itertools.count(1)
+
+    def devtools_url(self) -> str:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            line = self.proc.stderr.readline()
+            match = re.search(r"DevTools listening on (ws://\S+)", line)
+            if match:
+                return match.group(1)
+        raise RuntimeError("chromium did not print its DevTools address")
+
+    async def open_page(self):
+        port = int(re.search(r":(\d+)/", self.devtools_url()).group(1))
+        deadline = time.monotonic() + 10
+        while True:
+            targets = httpx.get(f"http://127.0.0.1:{port}/json").json()
+            pages = [t for t in targets if t["type"] == "page"]
+            if pages or time.monotonic() > deadline:
+                break
+            await asyncio.sleep(0.1)
+        self.ws = await websockets.connect(pages[0]["webSocketDebuggerUrl"], max_size=64 << 20)
+
+    async def call(self, method: str, **params):
+        call_id = next(self.ids)
+        await self.ws.send(json.dumps({"id": call_id, "method": method, "params": params}))
+        while True:
+            message = json.loads(await self.ws.recv())
+            if message.get("id") == call_id:
+                if "error" in message:
+                    raise RuntimeError(f"{method}: {message['error']}")
+                return message["result"]
+
+    async def evaluate(self, expression: str):
+        result = await self.call("Runtime.evaluate", expression=expression, returnByValue=True, awaitPromise=True)
+        return result["result"].get("value")
+
+    async def wait_for(self, expression: str, timeout_s: float = 60.0):
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            value = await self.evaluate(expression)
+            if value:
+                return value
+            await asyncio.sleep(0.2)
+        state = await self.evaluate("JSON.stringify(window.sdfDemo)")
+        raise AssertionError(f"timed out waiting for {expression}; page state: {state}")
+
+    async def screenshot(self, path: Path) -> np.ndarray:
+        data = base64.b64decode((await self.call("Page.captureScreenshot", format="png"))["data"])
+        path.write_bytes(data)
+        print(f"screenshot: {path}")
+        return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
+
+    async def click(self, x: float, y: float, button: str = "left"):
+        for kind in ("mouseMoved", "mousePressed", "mouseReleased"):
+            await self.call("Input.dispatchMouseEvent", type=kind, x=x, y=y, button=button,
+                            buttons=0 if kind == "mouseMoved" else 1, clickCount=1)
+
+    async def close(self):
+        if getattr(self, "ws", None) is not None:
+            await self.ws.close()
+        self.proc.terminate()
+        self.proc.wait(10)
+        self.proc.stderr.close()
+
+
+def test_demo_streams_frames_and_paints(server):
+    tmp = Path(tempfile.mkdtemp(prefix="sdfserver-demo-"))
+    asyncio.run(asyncio.wait_for(_drive(server, tmp), timeout=150))
+
+
+async def _drive(base: str, tmp: Path) -> None:
+    browser = Chromium(tmp)
+    try:
+        await browser.open_page()
+        await browser.call("Page.enable")
+        await browser.call("Page.navigate", url=base + "/")
+        # A newcomer: no world exists, so the page makes one and frames start to arrive.
+        await browser.wait_for("window.sdfDemo && window.sdfDemo.framesReceived > 0 "
+                               "&& window.sdfDemo.lastVersion >= 1")
+        worlds = httpx.get(base + "/v1/worlds").json()["worlds"]
+        assert len(worlds) == 1 and worlds[0]["version"] >= 1
+        await asyncio.sleep(1.0)  # let the last frame of the starting view settle
+        before = await browser.screenshot(tmp / "before.png")
+        rect = await browser.evaluate("(() => { const r = document.getElementById('frame')"
+                                      ".getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; })()")
+        left, top, width, height = rect
+        # A cyan brush, three voxels wide, at the middle of the picture.
+        await browser.evaluate("document.querySelectorAll('#palette button')[5].click()")
+        version = worlds[0]["version"]
+        await browser.click(left + width / 2, top + height / 2)
+        await browser.wait_for("window.sdfDemo.edits >= 1", 30)
+        await browser.wait_for(f"window.sdfDemo.lastVersion > {version}", 30)
+        await asyncio.sleep(1.0)
+        after = await browser.screenshot(tmp / "after.png")
+        assert httpx.get(base + f"/v1/worlds/{worlds[0]['id']}").json()["version"] > version
+        view = (slice(int(top), int(top + height)), slice(int(left), int(left + width)))
+        changed = np.any(np.abs(after[view].astype(int) - before[view].astype(int)) > 40, axis=-1)
+        assert changed.mean() > 0.001, "placing voxels did not change the picture"
+        assert not await browser.evaluate("window.sdfDemo.errors.length"), \
+            await browser.evaluate("window.sdfDemo.errors")
+    finally:
+        await browser.close()

@@ -1,0 +1,196 @@
+"""Every exact algorithm equals scipy's taxicab transform, capped, across chunk borders."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sdfserver.edits import BoxEdit, SphereEdit, VoxelsEdit
+from sdfserver.world import World, WorldConfig
+
+from .conftest import oracle, random_voxels
+
+EXACT = ["exact", "brute", "fim", "jfa_fim"]
+
+
+def check_field(world: World, voxels: np.ndarray) -> None:
+    cap = world.config.max_distance
+    field = world.read_field()
+    expected = oracle(voxels, cap)
+    distance = (field >> 8).astype(np.uint8)
+    mismatch = np.argwhere(distance != expected)
+    assert mismatch.size == 0, (
+        f"{len(mismatch)} voxels differ; first at zyx {mismatch[0].tolist()}: "
+        f"got {distance[tuple(mismatch[0])]}, expected {expected[tuple(mismatch[0])]}"
+    )
+    assert np.array_equal(field & 0xFF, voxels), "colour byte must be the voxel itself"
+
+
+# (algorithm, chunk size, world size xyz, cap): brute only where O(n^6) stays small.
+CASES = [
+    ("exact", 8, (24, 40, 16), 255),
+    ("exact", 16, (48, 16, 32), 7),
+    ("exact", 32, (64, 32, 96), 40),
+    ("exact", 64, (64, 128, 64), 255),
+    ("exact", 128, (128, 128, 128), 200),
+    ("fim", 8, (24, 16, 32), 255),
+    ("fim", 16, (32, 32, 48), 12),
+    ("fim", 32, (64, 32, 32), 100),
+    ("jfa_fim", 8, (16, 24, 40), 255),
+    ("jfa_fim", 16, (48, 32, 16), 9),
+    ("jfa_fim", 32, (32, 64, 32), 60),
+    ("brute", 8, (16, 24, 16), 255),
+    ("brute", 16, (32, 16, 16), 6),
+]
+
+
+@pytest.mark.parametrize("algorithm,chunk,size,cap", CASES)
+def test_full_recompute_matches_oracle(gpu, rng, algorithm, chunk, size, cap):
+    world = World(gpu, WorldConfig(size, chunk, cap, algorithm))
+    try:
+        voxels = random_voxels(rng, size[::-1], rng.uniform(0.0005, 0.03))
+        world.load_voxels(voxels)
+        world.recompute()
+        check_field(world, voxels)
+    finally:
+        world.release()
+
+
+@pytest.mark.parametrize("algorithm", EXACT)
+def test_solids_on_chunk_borders(gpu, rng, algorithm):
+    """Solids on both sides of every chunk face; distances must cross borders exactly."""
+    chunk, size, cap = 8, (32, 24, 16), 255
+    voxels = np.zeros(size[::-1], np.uint8)
+    for axis in range(3):
+        n = voxels.shape[axis]
+        planes = np.arange(chunk - 1, n - 1, chunk)
+        for p in rng.choice(np.concatenate([planes, planes + 1]), 3):
+            coords = [rng.integers(0, s, 4) for s in voxels.shape]
+            coords[axis] = np.full(4, p)
+            voxels[tuple(coords)] = rng.integers(1, 256, 4)
+    world = World(gpu, WorldConfig(size, chunk, cap, algorithm))
+    try:
+        world.load_voxels(voxels)
+        world.recompute()
+        check_field(world, voxels)
+    finally:
+        world.release()
+
+
+def test_empty_world_is_all_cap(gpu):
+    world = World(gpu, WorldConfig((16, 16, 16), 8, 37))
+    try:
+        world.apply_edits([BoxEdit((0, 0, 0), (0, 0, 0), 5)])  # touches nothing
+        world.recompute()
+        assert (world.read_distance() == 37).all()
+    finally:
+        world.release()
+
+
+def test_single_solid_gives_diamond(gpu):
+    world = World(gpu, WorldConfig((32, 32, 32), 16, 255))
+    try:
+        world.apply_edits([VoxelsEdit(np.array([[5, 20, 30, 77]]))])
+        world.recompute()
+        z, y, x = np.indices((32, 32, 32))
+        expected = np.abs(x - 5) + np.abs(y - 20) + np.abs(z - 30)
+        assert np.array_equal(world.read_distance(), expected)
+        assert world.read_field()[30, 20, 5] == 77
+    finally:
+        world.release()
+
+
+@pytest.mark.parametrize("algorithm,cap", [("exact", 255), ("exact", 10), ("fim", 20), ("jfa_fim", 255), ("brute", 5)])
+def test_incremental_equals_full_equals_oracle(gpu, rng, algorithm, cap):
+    """Edit sequences that add and remove voxels; each incremental field equals a fresh full one."""
+    size, chunk = ((32, 24, 40), 8) if algorithm != "brute" else ((24, 16, 16), 8)
+    world = World(gpu, WorldConfig(size, chunk, cap, algorithm))
+    try:
+        previous = random_voxels(rng, size[::-1], 0.01)
+        world.load_voxels(previous)
+        world.recompute()
+        for step in range(6):
+            edits = []
+            for _ in range(rng.integers(1, 4)):
+                kind = rng.integers(0, 3)
+                colour = int(rng.integers(0, 256)) if rng.random() < 0.6 else 0
+                if kind == 0:
+                    n = int(rng.integers(1, 20))
+                    pts = np.column_stack([rng.integers(0, s, n) for s in size] + [rng.integers(0, 256, n)])
+                    edits.append(VoxelsEdit(pts))
+                elif kind == 1:
+                    lo = rng.integers(-4, np.array(size))
+                    edits.append(BoxEdit(tuple(map(int, lo)), tuple(map(int, lo + rng.integers(0, 8, 3))), colour))
+                else:
+                    c = rng.uniform(-3, np.array(size) + 3)
+                    edits.append(SphereEdit(tuple(map(float, c)), float(rng.uniform(0, 6)), colour))
+            world.apply_edits(edits)
+            result = world.recompute()
+            incremental = world.read_field()
+            voxels = world.read_voxels()
+            check_field(world, voxels)
+            touched = {tuple(c) for c in (np.argwhere(voxels != previous)[:, ::-1] // chunk).tolist()}
+            assert touched <= {tuple(c) for c in result.changed_chunks.tolist()}
+            previous = voxels
+            world.mark_all_dirty()
+            world.recompute()
+            assert np.array_equal(world.read_field(), incremental), f"step {step}: incremental != full"
+    finally:
+        world.release()
+
+
+def test_incremental_region_is_local(gpu, rng):
+    """A small edit far from the rest rewrites only the chunks within the cap of it."""
+    world = World(gpu, WorldConfig((128, 32, 32), 16, 8))
+    try:
+        voxels = random_voxels(rng, (32, 32, 128), 0.01)
+        world.load_voxels(voxels)
+        world.recompute()
+        world.apply_edits([VoxelsEdit(np.array([[3, 3, 3, 9]]))])
+        result = world.recompute()
+        assert result.regions and all(r.hi[0] <= 16 + 16 for r in result.regions)
+        assert set(map(tuple, result.changed_chunks)) <= {(x, y, z) for x in range(2) for y in range(2) for z in range(2)}
+        voxels[3, 3, 3] = 9
+        check_field(world, voxels)
+    finally:
+        world.release()
+
+
+def test_jfa_never_underestimates_and_error_is_measured(gpu, rng):
+    size = (48, 32, 40)
+    world = World(gpu, WorldConfig(size, 8, 255, "jfa"))
+    try:
+        voxels = random_voxels(rng, size[::-1], 0.004)
+        world.load_voxels(voxels)
+        world.recompute()
+        got = world.read_distance().astype(int)
+        truth = oracle(voxels, 255).astype(int)
+        error = got - truth
+        assert (error >= 0).all(), f"{(error < 0).sum()} underestimates"
+        assert (got[voxels > 0] == 0).all()
+        stats = {"exact_share": (error == 0).mean(), "max": error.max(), "mean": error.mean()}
+        print("jfa error", stats)
+        assert 0 < stats["exact_share"] <= 1
+    finally:
+        world.release()
+
+
+def test_focus_is_exact_inside_and_upper_bound_outside(gpu, rng):
+    from sdfserver.world import Focus
+
+    size = (64, 32, 32)
+    world = World(gpu, WorldConfig(size, 8, 255, "exact", focus=Focus((2, 2, 2), (2, 2, 2)), lod_algorithm="jfa"))
+    try:
+        voxels = random_voxels(rng, size[::-1], 0.003)
+        world.load_voxels(voxels)
+        world.recompute()
+        for _ in range(2):
+            world.apply_edits([SphereEdit(tuple(map(float, rng.uniform(0, 32, 3))), 3.0, int(rng.integers(0, 256)))])
+            world.recompute()
+        voxels = world.read_voxels()
+        got, truth = world.read_distance(), oracle(voxels, 255)
+        inside = (slice(8, 24), slice(8, 24), slice(8, 24))  # chunks 1..2 on each axis, (z, y, x)
+        assert np.array_equal(got[inside], truth[inside])
+        assert (got >= truth).all()
+    finally:
+        world.release()

@@ -1,0 +1,128 @@
+"""Edits on the device match a NumPy replay; bad batches raise and change nothing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from sdfserver.edits import BoxEdit, EditLimits, SphereEdit, VoxelsEdit, parse_edits
+from sdfserver.errors import InvalidEdit, TooLarge
+from sdfserver.world import World, WorldConfig
+
+from .conftest import oracle
+
+
+def replay(voxels: np.ndarray, edits) -> np.ndarray:
+    """An independent NumPy model of the edit semantics."""
+    out = voxels.copy()
+    sz, sy, sx = out.shape
+    z, y, x = np.indices(out.shape)
+    for e in edits:
+        if isinstance(e, VoxelsEdit):
+            for vx, vy, vz, c in e.voxels:  # test oracle: tiny lists
+                out[vz, vy, vx] = c
+        elif isinstance(e, BoxEdit):
+            (x0, y0, z0), (x1, y1, z1) = e.min, e.max
+            out[max(z0, 0):max(z1, 0), max(y0, 0):max(y1, 0), max(x0, 0):max(x1, 0)] = e.colour
+        else:
+            c = np.asarray(e.center, np.float32)
+            d2 = (x - c[0]).astype(np.float32) ** 2 + (y - c[1]).astype(np.float32) ** 2 + (z - c[2]).astype(np.float32) ** 2
+            out[d2 <= np.float32(e.radius * e.radius)] = e.colour
+    return out
+
+
+def test_batch_applies_in_order_and_later_duplicates_win(gpu):
+    world = World(gpu, WorldConfig((16, 16, 16), 8, 255))
+    try:
+        edits = [
+            BoxEdit((2, 2, 2), (10, 6, 9), 40),
+            SphereEdit((8.0, 8.0, 8.0), 3.5, 0),
+            VoxelsEdit(np.array([[1, 1, 1, 5], [1, 1, 1, 6], [15, 15, 15, 200]])),
+        ]
+        assert world.apply_edits(edits) == 1
+        expected = replay(np.zeros((16, 16, 16), np.uint8), edits)
+        assert np.array_equal(world.read_voxels(), expected)
+        assert world.read_voxels()[1, 1, 1] == 6
+    finally:
+        world.release()
+
+
+BAD_BATCHES = [
+    ([], InvalidEdit),
+    ([VoxelsEdit(np.array([[0, 0, 16, 3]]))], InvalidEdit),  # z out of bounds
+    ([VoxelsEdit(np.array([[-1, 0, 0, 3]]))], InvalidEdit),
+    ([VoxelsEdit(np.array([[0, 0, 0, 256]]))], InvalidEdit),
+    ([VoxelsEdit(np.zeros((0, 4), np.int64))], InvalidEdit),
+    ([BoxEdit((4, 4, 4), (2, 8, 8), 1)], InvalidEdit),
+    ([SphereEdit((1.0, 1.0, 1.0), 1e6, 1)], InvalidEdit),
+    ([SphereEdit((1.0, 1.0, 1.0), 2.0, 1)] * 9, TooLarge),
+    ([VoxelsEdit(np.zeros((65, 4), np.int64))], TooLarge),
+]
+
+
+@pytest.mark.parametrize("batch,error", BAD_BATCHES)
+def test_bad_batch_changes_nothing(gpu, rng, batch, error):
+    limits = EditLimits(max_ops_per_batch=8, max_voxels_per_batch=64, max_brush_radius_vox=32)
+    world = World(gpu, WorldConfig((16, 16, 16), 8, 255), limits)
+    try:
+        # A valid first op in front of the bad ones: nothing of the batch may apply.
+        world.apply_edits([BoxEdit((0, 0, 0), (16, 4, 16), 9)])
+        world.recompute()
+        before_voxels, before_field = world.read_voxels(), world.read_field()
+        with pytest.raises(error):
+            world.apply_edits([BoxEdit((0, 8, 0), (16, 9, 16), 3), *batch] if batch else batch)
+        assert world.version == 1
+        assert world.dirty_chunk_count == 0
+        world.recompute()
+        assert np.array_equal(world.read_voxels(), before_voxels)
+        assert np.array_equal(world.read_field(), before_field)
+    finally:
+        world.release()
+
+
+@pytest.mark.parametrize("raw,message", [
+    ("not a list", "must be a list"),
+    ([{"op": "teleport"}], "unknown op"),
+    ([{"op": "box", "min": [0, 0, 0], "max": [1, 1, 1]}], "missing field 'colour'"),
+    ([{"op": "box", "min": [0, 0, 0], "max": [1, 1, 1], "colour": "red"}], "colour"),
+    ([{"op": "box", "min": [0, 0, 0], "max": [1, 1, 1], "colour": True}], "colour"),
+    ([{"op": "box", "min": [0, 0.5, 0], "max": [1, 1, 1], "colour": 1}], "integers"),
+    ([{"op": "sphere", "center": [0, float("nan"), 0], "radius": 1, "colour": 1}], "finite"),
+    ([{"op": "sphere", "center": [0, 0, 0], "radius": float("inf"), "colour": 1}], "finite"),
+    ([{"op": "voxels", "voxels": [[1, 2, 3]]}], "[x, y, z, colour]"),
+    ([{"op": "voxels", "voxels": np.zeros((2, 4), np.float32)}], "integer"),
+])
+def test_parse_rejects_malformed_edits(raw, message):
+    with pytest.raises(InvalidEdit, match=message.replace("[", r"\[").replace("]", r"\]")):
+        parse_edits(raw)
+
+
+coord = st.integers(0, 15)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    initial=st.lists(st.tuples(coord, coord, coord, st.integers(1, 255)), max_size=12),
+    edits=st.lists(st.tuples(coord, coord, coord, st.integers(0, 255)), min_size=1, max_size=8),
+    cap=st.integers(1, 30),
+)
+def test_small_worlds_incremental_matches_oracle(gpu, initial, edits, cap):
+    """Hypothesis: tiny worlds, random place/erase voxel edits, incremental == oracle."""
+    size = (16, 16, 16)
+    world = World(gpu, WorldConfig(size, 8, cap))
+    try:
+        voxels = np.zeros(size[::-1], np.uint8)
+        if initial:
+            batch = VoxelsEdit(np.array(initial))
+            world.apply_edits([batch])
+            voxels = replay(voxels, [batch])
+        world.recompute()
+        batch = VoxelsEdit(np.array(edits))
+        world.apply_edits([batch])
+        voxels = replay(voxels, [batch])
+        world.recompute()
+        assert np.array_equal(world.read_voxels(), voxels)
+        assert np.array_equal(world.read_distance(), oracle(voxels, cap))
+    finally:
+        world.release()

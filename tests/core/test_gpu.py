@@ -1,0 +1,74 @@
+"""GPU plumbing: device choice, the program loader, the memory budget."""
+
+from __future__ import annotations
+
+import pyopencl as cl
+import pytest
+
+from sdfserver.errors import DeviceMemoryExceeded, InvalidInput, KernelBuildError, NoOpenCLDevice
+from sdfserver.gpu import GpuContext, choose_device, describe_devices
+from sdfserver.gpu import programs
+from sdfserver.world import World, WorldConfig
+
+
+def test_no_platform_says_how_to_fix(monkeypatch):
+    def no_platforms():
+        raise cl.LogicError("clGetPlatformIDs failed: PLATFORM_NOT_FOUND_KHR")
+
+    monkeypatch.setattr(cl, "get_platforms", no_platforms)
+    with pytest.raises(NoOpenCLDevice, match=r"pyopencl\[pocl\]"):
+        choose_device()
+
+
+def test_device_spec_by_index_and_name():
+    listing = describe_devices()
+    assert listing and listing[0].startswith("0: ")
+    first = choose_device("0")
+    assert choose_device(first.name.strip()[:6]).name == first.name
+    with pytest.raises(NoOpenCLDevice, match="No OpenCL device matches"):
+        choose_device("no-such-device-anywhere")
+    with pytest.raises(NoOpenCLDevice, match="out of range"):
+        choose_device("99")
+
+
+def test_failed_build_carries_file_options_and_log(gpu, tmp_path, monkeypatch):
+    (tmp_path / "broken.cl").write_text("__kernel void k(__global int *a) { a[0] = undefined_name; }\n")
+    monkeypatch.setattr(programs, "KERNEL_DIR", tmp_path)
+    with pytest.raises(KernelBuildError) as info:
+        gpu.programs.get("broken.cl", FLAVOUR=3)
+    assert info.value.path.endswith("broken.cl")
+    assert "-DFLAVOUR=3" in info.value.options
+    assert "undefined_name" in info.value.log
+
+
+def test_programs_are_memoized_per_options(gpu):
+    a = gpu.programs.get("exact.cl", AXIS=0, SEG=4, LOAD_INIT=1, STORE_PACK=0)
+    assert gpu.programs.get("exact.cl", SEG=4, AXIS=0, STORE_PACK=0, LOAD_INIT=1) is a
+    assert gpu.programs.get("exact.cl", AXIS=1, SEG=4, LOAD_INIT=0, STORE_PACK=0) is not a
+
+
+def test_world_over_budget_fails_before_allocating(gpu):
+    small = GpuContext(gpu.device, memory_budget_bytes=1 << 20)
+    with pytest.raises(DeviceMemoryExceeded, match="MiB"):
+        World(small, WorldConfig((128, 128, 128), 16))
+    assert small.allocated_bytes == 0
+    world = World(small, WorldConfig((32, 32, 32), 16))  # 160 KiB fits
+    assert small.allocated_bytes == 5 * 32 ** 3
+    world.release()
+    assert small.allocated_bytes == 0
+
+
+@pytest.mark.parametrize("config,message", [
+    (dict(size=(30, 32, 32), chunk_size=16), "multiples"),
+    (dict(size=(32, 32, 32), chunk_size=12), "chunk_size"),
+    (dict(size=(32, 32, 32), chunk_size=16, max_distance=0), "max_distance"),
+    (dict(size=(32, 32, 32), chunk_size=16, max_distance=256), "max_distance"),
+    (dict(size=(32, 32, 32), chunk_size=16, algorithm="magic"), "unknown algorithm"),
+    (dict(size=(32, 32), chunk_size=16), "three integers"),
+    (dict(size=(4096, 8, 8), chunk_size=8), "at most"),
+])
+def test_bad_world_config(gpu, config, message):
+    before = gpu.allocated_bytes
+    with pytest.raises(InvalidInput, match=message):
+        World(gpu, WorldConfig(**config))
+    assert gpu.allocated_bytes == before

@@ -12,10 +12,11 @@ import contextlib
 from typing import AsyncIterator
 
 from fastapi import FastAPI
+from fastapi.openapi.utils import get_openapi
 from prometheus_client import CollectorRegistry, Counter, Gauge
 
 from sdfserver import __version__
-from sdfserver.api import errors, health, render_routes, routes, stream
+from sdfserver.api import errors, health, models, render_routes, routes, stream
 from sdfserver.engine import Engine, EngineLimits, EngineMetrics, Journal
 from sdfserver.gpu import GpuContext
 from sdfserver.settings import Settings
@@ -69,4 +70,14 @@ def create_app(settings: Settings, engine: Engine | None = None) -> FastAPI:
     app.include_router(routes.router)
     app.include_router(stream.router)
     render_routes.install(app)  # render/pick routes, the web demo at / (issue 4)
+
+    def openapi() -> dict:
+        if app.openapi_schema is None:
+            schema = get_openapi(title=app.title, version=app.version, description=app.description,
+                                 routes=app.routes)
+            schema.setdefault("components", {}).setdefault("schemas", {}).update(models.SCHEMAS)
+            app.openapi_schema = schema
+        return app.openapi_schema
+
+    app.openapi = openapi
     return app

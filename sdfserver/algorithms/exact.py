@@ -15,6 +15,7 @@ than 32 * 64 voxels are refused by the world size limit.
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 
 from sdfserver.algorithms.base import AlgorithmRun, RegionJob, int4
 from sdfserver.gpu import GpuContext
@@ -22,6 +23,7 @@ from sdfserver.gpu import GpuContext
 MAX_SEGMENTS = 32  # work-items per line
 LANES = 32  # x-lanes per work-group for the y and z passes
 X_PASS_THREADS = 256  # work-items per work-group for the x pass
+MAX_SEG = 128  # elements per work-item: 32 x 64 covers the longest world side
 
 
 def segment_length(line_len: int) -> int:
@@ -36,24 +38,34 @@ class Exact:
     name = "exact"
     exact = True
 
+    def _launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int):
+        """The kernel, segments per line, and global/local sizes for one pass.
+
+        Fewer, longer segments when the kernel's register use caps the
+        work-group below one segment per x-lane of a 32-lane row.
+        """
+        seg = segment_length(line_len)
+        while True:
+            nseg = -(-line_len // seg)
+            kernel = gpu.programs.kernel(
+                "exact.cl", "line_pass", AXIS=axis, SEG=seg,
+                LOAD_INIT=int(axis == 0), STORE_PACK=int(axis == 2),
+            )
+            max_group = kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, gpu.device)
+            if axis == 0:
+                if nseg <= max_group or seg >= MAX_SEG:
+                    per_group = max(1, min(X_PASS_THREADS, max_group) // nseg)
+                    lines = ny * nz
+                    return kernel, nseg, (nseg, -(-lines // per_group) * per_group), (nseg, per_group)
+            elif LANES * nseg <= max_group or seg >= MAX_SEG:
+                return kernel, nseg, (-(-nx // LANES) * LANES, nseg * (nz if axis == 1 else ny)), (LANES, nseg)
+            seg *= 2
+
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         nx, ny, nz = job.work_box.shape_xyz
         run = AlgorithmRun()
         for axis, line_len in enumerate((nx, ny, nz)):
-            seg = segment_length(line_len)
-            nseg = -(-line_len // seg)
-            line_pass = gpu.programs.kernel(
-                "exact.cl", "line_pass", AXIS=axis, SEG=seg,
-                LOAD_INIT=int(axis == 0), STORE_PACK=int(axis == 2),
-            )
-            if axis == 0:
-                lines = ny * nz
-                per_group = max(1, X_PASS_THREADS // nseg)
-                local = (nseg, per_group)
-                global_ = (nseg, -(-lines // per_group) * per_group)
-            else:
-                local = (LANES, nseg)
-                global_ = (-(-nx // LANES) * LANES, nseg * (nz if axis == 1 else ny))
+            line_pass, nseg, global_, local = self._launch_shape(gpu, axis, line_len, nx, ny, nz)
             run.events.append(line_pass(
                 gpu.queue, global_, local,
                 job.buffers.work, job.buffers.voxels, job.buffers.field,
@@ -62,3 +74,4 @@ class Exact:
                 np.int32(job.seeded), np.int32(job.cap), np.int32(nseg),
             ))
         return run
+

@@ -9,12 +9,16 @@ KernelBuildError with the file, the options and the build log.
 
 from __future__ import annotations
 
+import logging
 import threading
+import warnings
 from pathlib import Path
 
 import pyopencl as cl
 
 from sdfserver.errors import KernelBuildError
+
+log = logging.getLogger(__name__)
 
 KERNEL_DIR = Path(__file__).resolve().parents[2] / "kernels"
 INCLUDE_DIR = KERNEL_DIR / "include"
@@ -62,6 +66,13 @@ class ProgramCache:
         source = path.read_text()
         options = [f"-I{INCLUDE_DIR}", *defines]
         try:
-            return cl.Program(self._context, source).build(options=options)
+            # A successful build with a non-empty log (NVIDIA notes inlining) is not a
+            # failure: keep the log for debugging instead of raising a warning.
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", cl.CompilerWarning)
+                program = cl.Program(self._context, source).build(options=options)
         except cl.RuntimeError as exc:
             raise KernelBuildError(str(path), options, str(exc)) from exc
+        for w in caught:
+            log.debug("build of %s %s: %s", filename, " ".join(defines), w.message)
+        return program

@@ -68,8 +68,9 @@ def populate(world: World, rng: np.random.Generator, brushes_per_chunk: float = 
         world.apply_edits(brushes[i:i + step])
 
 
-def time_full(world: World, reps: int, rng: np.random.Generator | None = None) -> tuple[list[float], list[int]]:
-    times, iterations = [], []
+def time_full(world: World, reps: int, rng: np.random.Generator | None = None):
+    """Device times and iteration counts of `reps` full regenerations, and the last one's launches."""
+    times, iterations, launches = [], [], []
     world.recompute()  # warm-up: builds the programs
     for _ in range(reps):
         if rng is not None:
@@ -78,7 +79,8 @@ def time_full(world: World, reps: int, rng: np.random.Generator | None = None) -
         result = world.recompute()
         times.append(result.device_ms)
         iterations.append(result.iterations)
-    return times, iterations
+        launches = result.kernel_ms
+    return times, iterations, launches
 
 
 def bench_chunks(gpu, args, rng) -> list[dict]:
@@ -92,7 +94,7 @@ def bench_chunks(gpu, args, rng) -> list[dict]:
             try:
                 populate(world, rng, brushes_per_chunk=4)
                 reps = args.reps if algorithm != "brute" or cs <= 32 else max(2, args.reps // 10)
-                times, iters = time_full(world, reps, rng)
+                times, iters, _ = time_full(world, reps, rng)
             finally:
                 world.release()
             rows.append({"algorithm": algorithm, "chunk_size": cs, **summarize(times),
@@ -116,11 +118,13 @@ def bench_worlds(gpu, args, rng) -> tuple[list[dict], list[dict]]:
                 continue
             try:
                 populate(world, np.random.default_rng(args.seed + n))  # same scene for every algorithm
-                times, iters = time_full(world, args.reps)
+                times, iters, launches = time_full(world, args.reps)
                 row = {"algorithm": algorithm, "world_size": n, **summarize(times),
                        "iterations_mean": float(np.mean(iters)),
                        "device_bytes": world.device_bytes,
                        "voxels_per_s": n ** 3 / (np.median(times) * 1e-3)}
+                if len(launches) <= 8:
+                    row["launches_ms"] = launches
                 rows.append(row)
                 if n <= args.accuracy_max_world:
                     field = world.read_distance()

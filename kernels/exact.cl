@@ -12,118 +12,156 @@
  * through local memory: a segment's incoming forward value is
  *   min_j<s (end_j + (s-1-j) * SEG)
  * and likewise from the right. Each pass reads its input once and writes its
- * output once. The first pass (LOAD_INIT) computes initial distances straight
- * from voxels and the seed shell; the last (STORE_PACK) writes the packed field
- * over R instead of the work box.
+ * output once:
+ *   pass_x   voxels (+ the seed shell from the field) -> work
+ *   pass_yz  work -> work (AXIS 1), work + voxels -> packed field over R (AXIS 2)
+ * Distances are saturating uchar: every value >= cap means "at least cap", and
+ * min-plus with saturation at 255 >= cap keeps the capped result exact.
  *
- * Build options: AXIS (0 = x, 1 = y, 2 = z), SEG (elements per work-item),
- * LOAD_INIT, STORE_PACK.
- * Local size: AXIS 0 -> (segments, lines); AXIS 1, 2 -> (32 x-lanes, segments).
+ * Layout: the work box's x-origin and x-extent are multiples of 8 (the host
+ * aligns them), so uchar8 loads along x and uchar4/ushort4 accesses across
+ * x-lanes are aligned in both the work box and the world arrays.
+ * Build options: SEG (elements per work-item), AXIS (pass_yz: 1 = y, 2 = z).
+ * Local size: pass_x (segments, lines); pass_yz (32 lanes of 4 x-columns, segments).
  */
 #include "sdf_common.h"
 
-#if AXIS == 0
-#define LINE_LEN(n) ((n).x)
-#define STRIDE(n) ((size_t)1)
-#elif AXIS == 1
-#define LINE_LEN(n) ((n).y)
-#define STRIDE(n) ((size_t)(n).x)
-#else
-#define LINE_LEN(n) ((n).z)
-#define STRIDE(n) ((size_t)(n).x * (size_t)(n).y)
-#endif
+#define LANES 32
+#define SAT 255
 
-__kernel void line_pass(__global uchar *work, __global const uchar *voxels,
-                        __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
-                        int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
+/* Forward and backward sweeps of one segment with carries through local memory.
+ * d holds the segment; seg_end is this line's slice of local memory. */
+#define SWEEP_SEGMENT(T, d, seg_end, seg, nseg, ZERO, CONV)                           \
+    do {                                                                              \
+        T run_ = (T)(SAT);                                                            \
+        _Pragma("unroll") for (int k = 0; k < SEG; ++k) {                            \
+            run_ = min(d[k], add_sat(run_, (T)(1)));                                  \
+            d[k] = run_;                                                              \
+        }                                                                             \
+        seg_end[seg] = run_;                                                          \
+        barrier(CLK_LOCAL_MEM_FENCE);                                                 \
+        T carry_ = (T)(SAT);                                                          \
+        for (int j = 0; j < seg; ++j)                                                 \
+            carry_ = min(carry_, CONV(ZERO(seg_end[j]) + (seg - 1 - j) * SEG));        \
+        barrier(CLK_LOCAL_MEM_FENCE);                                                 \
+        run_ = (T)(SAT);                                                              \
+        for (int k = SEG - 1; k >= 0; --k) {                                          \
+            const T f_ = min(d[k], CONV(ZERO(carry_) + (k + 1)));                     \
+            run_ = min(f_, add_sat(run_, (T)(1)));                                    \
+            d[k] = run_;                                                              \
+        }                                                                             \
+        seg_end[seg] = run_;                                                          \
+        barrier(CLK_LOCAL_MEM_FENCE);                                                 \
+        carry_ = (T)(SAT);                                                            \
+        for (int j = seg + 1; j < nseg; ++j)                                          \
+            carry_ = min(carry_, CONV(ZERO(seg_end[j]) + (j - seg - 1) * SEG));        \
+        for (int k = 0; k < SEG; ++k)                                                 \
+            d[k] = min(d[k], CONV(ZERO(carry_) + (SEG - k)));                         \
+    } while (0)
+
+#define AS_INT(v) ((int)(v))
+#define AS_INT4(v) convert_int4(v)
+#define SAT_UCHAR(v) ((uchar)min((v), SAT))
+#define SAT_UCHAR4(v) convert_uchar4_sat(v)
+
+/* x: lines are contiguous; each work-item loads SEG bytes as uchar8 vectors. */
+__kernel void pass_x(__global uchar *work, __global const uchar *voxels,
+                     __global const ushort *field, int4 dims, int4 w_lo, int4 w_n,
+                     int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
 {
-    __local ushort seg_end[1024];
-
-    /* Which line, which segment of it, and where its element 0 sits in W. */
-#if AXIS == 0
+    __local uchar ends[1024];
     const int seg = get_local_id(0);
-    const int slot = get_local_id(1) * nseg;
+    __local uchar *seg_end = ends + get_local_id(1) * nseg;
     const int line = get_global_id(1);
     const int valid = line < w_n.y * w_n.z;
-    const int lx = 0, ly = valid ? line % w_n.y : 0, lz = valid ? line / w_n.y : 0;
-#else
+    const int ly = valid ? line % w_n.y : 0, lz = valid ? line / w_n.y : 0;
+    const int wy = w_lo.y + ly, wz = w_lo.z + lz;
+    const size_t world_row = world_index(w_lo.x, wy, wz, dims);
+    const size_t work_row = box_index(0, ly, lz, w_n);
+    /* A seed-shell line (outside R in y or z) takes every distance from the field. */
+    const int line_in_r = wy >= r_lo.y && wy < r_hi.y && wz >= r_lo.z && wz < r_hi.z;
+    const uchar air = (uchar)cap;
+    const int t0 = seg * SEG;
+
+    uchar d[SEG];
+    for (int c = 0; c < SEG; c += 8) {
+        const int t = t0 + c;
+        if (valid && t < w_n.x) {
+            const uchar8 v = vload8(0, voxels + world_row + t);
+            const uchar8 init = select((uchar8)(air), (uchar8)(0), v != (uchar8)(0));
+            vstore8(init, 0, d + c);
+            if (seeded) {
+                const int wx = w_lo.x + t;
+                if (!line_in_r || wx < r_lo.x || wx + 8 > r_hi.x) {
+                    const ushort8 f = vload8(0, field + world_row + t);
+                    const uchar8 shell = convert_uchar8(min(f >> (ushort)8, (ushort8)(cap)));
+                    for (int k = 0; k < 8; ++k) {
+                        const int x = wx + k;
+                        if (!line_in_r || x < r_lo.x || x >= r_hi.x)
+                            d[c + k] = ((uchar *)&shell)[k];
+                    }
+                }
+            }
+        } else {
+            vstore8((uchar8)(SAT), 0, d + c);
+        }
+    }
+
+    SWEEP_SEGMENT(uchar, d, seg_end, seg, nseg, AS_INT, SAT_UCHAR);
+
+    for (int c = 0; c < SEG; c += 8) {
+        const int t = t0 + c;
+        if (valid && t < w_n.x)
+            vstore8(min(vload8(0, d + c), (uchar8)(air)), 0, work + work_row + t);
+    }
+}
+
+/* y or z: 32 lanes of 4 adjacent x-columns, so a warp touches 128 contiguous bytes a row. */
+__kernel void pass_yz(__global uchar *work, __global const uchar *voxels,
+                      __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
+                      int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
+{
+    __local uchar4 ends[1024];
     const int seg = get_local_id(1);
-    const int slot = get_local_id(0) * nseg;
-    const int lx = get_global_id(0);
+    __local uchar4 *seg_end = ends + get_local_id(0) * nseg;
+    const int lx = get_global_id(0) * 4;
     const int valid = lx < w_n.x;
 #if AXIS == 1
     const int ly = 0, lz = get_group_id(1);
+    const int len = w_n.y;
+    const size_t stride = (size_t)w_n.x;
 #else
     const int ly = get_group_id(1), lz = 0;
+    const int len = w_n.z;
+    const size_t stride = (size_t)w_n.x * (size_t)w_n.y;
 #endif
-#endif
-    const int len = LINE_LEN(w_n);
-    const size_t stride = STRIDE(w_n);
     const size_t base = box_index(lx, ly, lz, w_n);
     const int t0 = seg * SEG;
 
-    int d[SEG];
-#pragma unroll
+    uchar4 d[SEG];
     for (int k = 0; k < SEG; ++k) {
         const int t = t0 + k;
-        int v = SDF_INF;
-        if (valid && t < len) {
-#if LOAD_INIT
-            const int wx = w_lo.x + lx + (AXIS == 0 ? t : 0);
-            const int wy = w_lo.y + ly + (AXIS == 1 ? t : 0);
-            const int wz = w_lo.z + lz + (AXIS == 2 ? t : 0);
-            v = (int)init_distance(voxels, field, wx, wy, wz, dims, r_lo, r_hi, seeded, cap);
-#else
-            v = work[base + (size_t)t * stride];
-#endif
-        }
-        d[k] = v;
+        d[k] = (valid && t < len) ? vload4(0, work + base + (size_t)t * stride) : (uchar4)(SAT);
     }
 
-    /* Forward sweep inside the segment. */
-    int run = SDF_INF;
-#pragma unroll
-    for (int k = 0; k < SEG; ++k) {
-        run = min(d[k], run + 1);
-        d[k] = run;
-    }
-    seg_end[slot + seg] = (ushort)min(run, SDF_INF);
-    barrier(CLK_LOCAL_MEM_FENCE);
-    int carry = SDF_INF;
-    for (int j = 0; j < seg; ++j)
-        carry = min(carry, (int)seg_end[slot + j] + (seg - 1 - j) * SEG);
-    barrier(CLK_LOCAL_MEM_FENCE);
+    SWEEP_SEGMENT(uchar4, d, seg_end, seg, nseg, AS_INT4, SAT_UCHAR4);
 
-    /* Apply the carry from the left, then the backward sweep. */
-    run = SDF_INF;
-#pragma unroll
-    for (int k = SEG - 1; k >= 0; --k) {
-        const int f = min(d[k], carry + k + 1);
-        run = min(f, run + 1);
-        d[k] = run;
-    }
-    seg_end[slot + seg] = (ushort)min(run, SDF_INF);
-    barrier(CLK_LOCAL_MEM_FENCE);
-    carry = SDF_INF;
-    for (int j = seg + 1; j < nseg; ++j)
-        carry = min(carry, (int)seg_end[slot + j] + (j - seg - 1) * SEG);
-
-#pragma unroll
+    const uchar4 capv = (uchar4)((uchar)cap);
     for (int k = 0; k < SEG; ++k) {
         const int t = t0 + k;
         if (!valid || t >= len)
             continue;
-        const uint out = (uint)min(min(d[k], carry + SEG - k), cap);
-#if STORE_PACK
-        const int wx = w_lo.x + lx + (AXIS == 0 ? t : 0);
-        const int wy = w_lo.y + ly + (AXIS == 1 ? t : 0);
-        const int wz = w_lo.z + lz + (AXIS == 2 ? t : 0);
+        const uchar4 out = min(d[k], capv);
+#if AXIS == 2
+        /* x-lanes are 4-aligned and R's x-bounds are multiples of 8: a lane is all in or all out. */
+        const int wx = w_lo.x + lx, wy = w_lo.y + ly, wz = w_lo.z + t;
         if (in_box(wx, wy, wz, r_lo, r_hi)) {
             const size_t i = world_index(wx, wy, wz, dims);
-            field[i] = pack_field(out, voxels[i]);
+            const ushort4 colour = convert_ushort4(vload4(0, voxels + i));
+            vstore4((convert_ushort4(out) << (ushort)8) | colour, 0, field + i);
         }
 #else
-        work[base + (size_t)t * stride] = (uchar)out;
+        vstore4(out, 0, work + base + (size_t)t * stride);
 #endif
     }
 }

@@ -21,14 +21,14 @@ from sdfserver.algorithms.base import AlgorithmRun, RegionJob, int4
 from sdfserver.gpu import GpuContext
 
 MAX_SEGMENTS = 32  # work-items per line
-LANES = 32  # x-lanes per work-group for the y and z passes
+LANES = 32  # work-items across x for the y and z passes, 4 columns each
 X_PASS_THREADS = 256  # work-items per work-group for the x pass
 MAX_SEG = 128  # elements per work-item: 32 x 64 covers the longest world side
 
 
-def segment_length(line_len: int) -> int:
-    """Elements per work-item: a power of two >= 4 such that one line needs at most 32."""
-    seg = 4
+def segment_length(line_len: int, minimum: int) -> int:
+    """Elements per work-item: a power of two >= minimum such that one line needs at most 32."""
+    seg = minimum
     while seg * MAX_SEGMENTS < line_len:
         seg *= 2
     return seg
@@ -42,31 +42,32 @@ class Exact:
         """The kernel, segments per line, and global/local sizes for one pass.
 
         Fewer, longer segments when the kernel's register use caps the
-        work-group below one segment per x-lane of a 32-lane row.
+        work-group below what one line needs.
         """
-        seg = segment_length(line_len)
+        seg = segment_length(line_len, 8 if axis == 0 else 4)
         while True:
             nseg = -(-line_len // seg)
-            kernel = gpu.programs.kernel(
-                "exact.cl", "line_pass", AXIS=axis, SEG=seg,
-                LOAD_INIT=int(axis == 0), STORE_PACK=int(axis == 2),
-            )
-            max_group = kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, gpu.device)
             if axis == 0:
-                if nseg <= max_group or seg >= MAX_SEG:
-                    per_group = max(1, min(X_PASS_THREADS, max_group) // nseg)
-                    lines = ny * nz
-                    return kernel, nseg, (nseg, -(-lines // per_group) * per_group), (nseg, per_group)
-            elif LANES * nseg <= max_group or seg >= MAX_SEG:
-                return kernel, nseg, (-(-nx // LANES) * LANES, nseg * (nz if axis == 1 else ny)), (LANES, nseg)
+                kernel = gpu.programs.kernel("exact.cl", "pass_x", SEG=seg)
+            else:
+                kernel = gpu.programs.kernel("exact.cl", "pass_yz", SEG=seg, AXIS=axis)
+            max_group = kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, gpu.device)
+            if axis == 0 and (nseg <= max_group or seg >= MAX_SEG):
+                per_group = max(1, min(X_PASS_THREADS, max_group) // nseg)
+                lines = ny * nz
+                return kernel, nseg, (nseg, -(-lines // per_group) * per_group), (nseg, per_group)
+            if axis > 0 and (LANES * nseg <= max_group or seg >= MAX_SEG):
+                lanes = -(-nx // 4)
+                global_ = (-(-lanes // LANES) * LANES, nseg * (nz if axis == 1 else ny))
+                return kernel, nseg, global_, (LANES, nseg)
             seg *= 2
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         nx, ny, nz = job.work_box.shape_xyz
         run = AlgorithmRun()
         for axis, line_len in enumerate((nx, ny, nz)):
-            line_pass, nseg, global_, local = self._launch_shape(gpu, axis, line_len, nx, ny, nz)
-            run.events.append(line_pass(
+            kernel, nseg, global_, local = self._launch_shape(gpu, axis, line_len, nx, ny, nz)
+            run.events.append(kernel(
                 gpu.queue, global_, local,
                 job.buffers.work, job.buffers.voxels, job.buffers.field,
                 int4(job.buffers.dims), int4(job.work_box.lo), int4(job.work_box.shape_xyz),
@@ -74,4 +75,3 @@ class Exact:
                 np.int32(job.seeded), np.int32(job.cap), np.int32(nseg),
             ))
         return run
-

@@ -45,7 +45,7 @@
             carry_ = min(carry_, CONV(ZERO(seg_end[j]) + (seg - 1 - j) * SEG));        \
         barrier(CLK_LOCAL_MEM_FENCE);                                                 \
         run_ = (T)(SAT);                                                              \
-        for (int k = SEG - 1; k >= 0; --k) {                                          \
+        _Pragma("unroll") for (int k = SEG - 1; k >= 0; --k) {                       \
             const T f_ = min(d[k], CONV(ZERO(carry_) + (k + 1)));                     \
             run_ = min(f_, add_sat(run_, (T)(1)));                                    \
             d[k] = run_;                                                              \
@@ -55,23 +55,33 @@
         carry_ = (T)(SAT);                                                            \
         for (int j = seg + 1; j < nseg; ++j)                                          \
             carry_ = min(carry_, CONV(ZERO(seg_end[j]) + (j - seg - 1) * SEG));        \
-        for (int k = 0; k < SEG; ++k)                                                 \
+        _Pragma("unroll") for (int k = 0; k < SEG; ++k)                              \
             d[k] = min(d[k], CONV(ZERO(carry_) + (SEG - k)));                         \
     } while (0)
 
 #define AS_INT(v) ((int)(v))
 #define AS_INT4(v) convert_int4(v)
-#define SAT_UCHAR(v) ((uchar)min((v), SAT))
+#define SAT_UINT(v) ((uint)min((v), SAT))
 #define SAT_UCHAR4(v) convert_uchar4_sat(v)
+
+/* Component k of an 8-vector; k is a constant after unrolling, so this folds
+ * away and the private array d never needs an address (it stays in registers). */
+inline uint lane8(uint8 v, int k)
+{
+    switch (k) {
+    case 0: return v.s0; case 1: return v.s1; case 2: return v.s2; case 3: return v.s3;
+    case 4: return v.s4; case 5: return v.s5; case 6: return v.s6; default: return v.s7;
+    }
+}
 
 /* x: lines are contiguous; each work-item loads SEG bytes as uchar8 vectors. */
 __kernel void pass_x(__global uchar *work, __global const uchar *voxels,
                      __global const ushort *field, int4 dims, int4 w_lo, int4 w_n,
                      int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
 {
-    __local uchar ends[1024];
+    __local uint ends[1024];
     const int seg = get_local_id(0);
-    __local uchar *seg_end = ends + get_local_id(1) * nseg;
+    __local uint *seg_end = ends + get_local_id(1) * nseg;
     const int line = get_global_id(1);
     const int valid = line < w_n.y * w_n.z;
     const int ly = valid ? line % w_n.y : 0, lz = valid ? line / w_n.y : 0;
@@ -80,39 +90,37 @@ __kernel void pass_x(__global uchar *work, __global const uchar *voxels,
     const size_t work_row = box_index(0, ly, lz, w_n);
     /* A seed-shell line (outside R in y or z) takes every distance from the field. */
     const int line_in_r = wy >= r_lo.y && wy < r_hi.y && wz >= r_lo.z && wz < r_hi.z;
-    const uchar air = (uchar)cap;
     const int t0 = seg * SEG;
 
-    uchar d[SEG];
-    for (int c = 0; c < SEG; c += 8) {
+    uint d[SEG];
+    _Pragma("unroll") for (int c = 0; c < SEG; c += 8) {
         const int t = t0 + c;
+        uint8 init = (uint8)(SAT);
         if (valid && t < w_n.x) {
-            const uchar8 v = vload8(0, voxels + world_row + t);
-            const uchar8 init = select((uchar8)(air), (uchar8)(0), v != (uchar8)(0));
-            vstore8(init, 0, d + c);
-            if (seeded) {
-                const int wx = w_lo.x + t;
-                if (!line_in_r || wx < r_lo.x || wx + 8 > r_hi.x) {
-                    const ushort8 f = vload8(0, field + world_row + t);
-                    const uchar8 shell = convert_uchar8(min(f >> (ushort)8, (ushort8)(cap)));
-                    for (int k = 0; k < 8; ++k) {
-                        const int x = wx + k;
-                        if (!line_in_r || x < r_lo.x || x >= r_hi.x)
-                            d[c + k] = ((uchar *)&shell)[k];
-                    }
-                }
+            const uint8 v = convert_uint8(vload8(0, voxels + world_row + t));
+            init = select((uint8)(cap), (uint8)(0), v != (uint8)(0));
+            const int wx = w_lo.x + t;
+            if (seeded && (!line_in_r || wx < r_lo.x || wx + 8 > r_hi.x)) {
+                const uint8 shell = min(convert_uint8(vload8(0, field + world_row + t) >> (ushort)8),
+                                        (uint8)(cap));
+                const int8 x = (int8)(wx) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+                const int8 outside = (int8)(!line_in_r) | (x < (int8)(r_lo.x)) | (x >= (int8)(r_hi.x));
+                init = select(init, shell, convert_uint8(outside) != (uint8)(0));
             }
-        } else {
-            vstore8((uchar8)(SAT), 0, d + c);
         }
+        _Pragma("unroll") for (int k = 0; k < 8; ++k)
+            d[c + k] = lane8(init, k);
     }
 
-    SWEEP_SEGMENT(uchar, d, seg_end, seg, nseg, AS_INT, SAT_UCHAR);
+    SWEEP_SEGMENT(uint, d, seg_end, seg, nseg, AS_INT, SAT_UINT);
 
-    for (int c = 0; c < SEG; c += 8) {
+    _Pragma("unroll") for (int c = 0; c < SEG; c += 8) {
         const int t = t0 + c;
-        if (valid && t < w_n.x)
-            vstore8(min(vload8(0, d + c), (uchar8)(air)), 0, work + work_row + t);
+        if (valid && t < w_n.x) {
+            const uint8 out = (uint8)(d[c], d[c + 1], d[c + 2], d[c + 3],
+                                      d[c + 4], d[c + 5], d[c + 6], d[c + 7]);
+            vstore8(convert_uchar8(min(out, (uint8)(cap))), 0, work + work_row + t);
+        }
     }
 }
 
@@ -139,7 +147,7 @@ __kernel void pass_yz(__global uchar *work, __global const uchar *voxels,
     const int t0 = seg * SEG;
 
     uchar4 d[SEG];
-    for (int k = 0; k < SEG; ++k) {
+    _Pragma("unroll") for (int k = 0; k < SEG; ++k) {
         const int t = t0 + k;
         d[k] = (valid && t < len) ? vload4(0, work + base + (size_t)t * stride) : (uchar4)(SAT);
     }
@@ -147,7 +155,7 @@ __kernel void pass_yz(__global uchar *work, __global const uchar *voxels,
     SWEEP_SEGMENT(uchar4, d, seg_end, seg, nseg, AS_INT4, SAT_UCHAR4);
 
     const uchar4 capv = (uchar4)((uchar)cap);
-    for (int k = 0; k < SEG; ++k) {
+    _Pragma("unroll") for (int k = 0; k < SEG; ++k) {
         const int t = t0 + k;
         if (!valid || t >= len)
             continue;

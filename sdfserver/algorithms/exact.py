@@ -38,13 +38,14 @@ class Exact:
     name = "exact"
     exact = True
 
-    def _launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int):
+    def launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int,
+                     seg: int | None = None):
         """The kernel, segments per line, and global/local sizes for one pass.
 
         Fewer, longer segments when the kernel's register use caps the
         work-group below what one line needs.
         """
-        seg = segment_length(line_len, 8 if axis == 0 else 4)
+        seg = seg or segment_length(line_len, 8 if axis == 0 else 4)
         while True:
             nseg = -(-line_len // seg)
             if axis == 0:
@@ -66,7 +67,7 @@ class Exact:
         nx, ny, nz = job.work_box.shape_xyz
         run = AlgorithmRun()
         for axis, line_len in enumerate((nx, ny, nz)):
-            kernel, nseg, global_, local = self._launch_shape(gpu, axis, line_len, nx, ny, nz)
+            kernel, nseg, global_, local = self.launch_shape(gpu, axis, line_len, nx, ny, nz)
             run.events.append(kernel(
                 gpu.queue, global_, local,
                 job.buffers.work, job.buffers.voxels, job.buffers.field,

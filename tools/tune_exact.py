@@ -1,0 +1,87 @@
+"""Per-pass timing of the exact transform on one world, across segment lengths.
+
+    python tools/tune_exact.py --size 512 --segs 8,16,32 --reps 20
+
+For each pass and SEG: the kernel's work-group limit, private (spilled) and
+local memory, the median device time with passes launched back to back (no
+host round trip between repetitions), and the achieved bandwidth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+
+import numpy as np
+import pyopencl as cl
+
+from sdfserver.algorithms import RegionJob
+from sdfserver.algorithms.exact import Exact
+from sdfserver.bench import populate
+from sdfserver.edits import EditLimits
+from sdfserver.gpu import GpuContext
+from sdfserver.world import World, WorldConfig
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("--size", type=int, default=512)
+    p.add_argument("--segs", default="8,16,32")
+    p.add_argument("--reps", type=int, default=20)
+    p.add_argument("--device", default=None)
+    p.add_argument("--ptx", default=None, help="write each program's binary (PTX on NVIDIA) under this prefix")
+    args = p.parse_args()
+    gpu = GpuContext.create(args.device)
+    n = args.size
+    world = World(gpu, WorldConfig((n, n, n), 32, 255), EditLimits(max_ops_per_batch=4096))
+    populate(world, np.random.default_rng(1))
+    world.recompute()
+    reference = world.read_field()
+    job = RegionJob.seeded_region(world.buffers, world.world_box, 255)
+    exact = Exact()
+    bytes_moved = {0: 2 * n**3, 1: 2 * n**3, 2: 4 * n**3}
+    print(f"{gpu.device_name}, {n}^3")
+    for seg in [int(s) for s in args.segs.split(",")]:
+        launches = []
+        for axis in range(3):
+            kernel, nseg, global_, local = exact.launch_shape(gpu, axis, n, n, n, n, seg=seg if axis or seg >= 8 else 8)
+            info = {k: kernel.get_work_group_info(getattr(cl.kernel_work_group_info, k), gpu.device)
+                    for k in ("WORK_GROUP_SIZE", "PRIVATE_MEM_SIZE", "LOCAL_MEM_SIZE")}
+            launches.append((axis, kernel, nseg, global_, local, info))
+            if args.ptx and seg == int(args.segs.split(",")[0]):
+                binary = kernel.program.get_info(cl.program_info.BINARIES)[0]
+                with open(f"{args.ptx}-seg{seg}-axis{axis}.ptx", "wb") as f:
+                    f.write(binary)
+                text = binary.decode(errors="replace")
+                info["ptx_local_decls"] = len(re.findall(r"\.local\s", text))
+        def enqueue(axis, kernel, nseg, global_, local):
+            b = job.buffers
+            return kernel(gpu.queue, global_, local, b.work, b.voxels, b.field, *[
+                a for a in (cl.cltypes.make_int4(*b.dims, 0), cl.cltypes.make_int4(*job.work_box.lo, 0),
+                            cl.cltypes.make_int4(*job.work_box.shape_xyz, 0), cl.cltypes.make_int4(*job.region.lo, 0),
+                            cl.cltypes.make_int4(*job.region.hi, 0))],
+                np.int32(1), np.int32(255), np.int32(nseg))
+        times = {0: [], 1: [], 2: []}
+        for _ in range(2):  # warm-up
+            for axis, kernel, nseg, g, l, _info in launches:
+                enqueue(axis, kernel, nseg, g, l)
+        gpu.queue.finish()
+        events = []
+        for _ in range(args.reps):
+            for axis, kernel, nseg, g, l, _info in launches:
+                events.append((axis, enqueue(axis, kernel, nseg, g, l)))
+        gpu.queue.finish()
+        for axis, e in events:
+            times[axis].append((e.profile.end - e.profile.start) * 1e-6)
+        ok = np.array_equal(world.read_field(), reference)
+        total = sum(np.median(times[a]) for a in range(3))
+        print(f"SEG={seg:3d} total {total:.4f} ms  correct={ok}")
+        for axis, kernel, nseg, g, l, info in launches:
+            t = np.median(times[axis])
+            print(f"   pass {'xyz'[axis]}: {t:.4f} ms {bytes_moved[axis] / t / 1e9:.2f} TB/s  "
+                  f"nseg={nseg} local={l} {info}")
+    world.release()
+
+
+if __name__ == "__main__":
+    main()

@@ -29,59 +29,58 @@
 #define LANES 32
 #define SAT 255
 
-/* Forward and backward sweeps of one segment with carries through local memory.
- * d holds the segment; seg_end is this line's slice of local memory. */
-#define SWEEP_SEGMENT(T, d, seg_end, seg, nseg, ZERO, CONV)                           \
-    do {                                                                              \
-        T run_ = (T)(SAT);                                                            \
-        _Pragma("unroll") for (int k = 0; k < SEG; ++k) {                            \
-            run_ = min(d[k], add_sat(run_, (T)(1)));                                  \
-            d[k] = run_;                                                              \
-        }                                                                             \
-        seg_end[seg] = run_;                                                          \
-        barrier(CLK_LOCAL_MEM_FENCE);                                                 \
-        T carry_ = (T)(SAT);                                                          \
-        for (int j = 0; j < seg; ++j)                                                 \
-            carry_ = min(carry_, CONV(ZERO(seg_end[j]) + (seg - 1 - j) * SEG));        \
-        barrier(CLK_LOCAL_MEM_FENCE);                                                 \
-        run_ = (T)(SAT);                                                              \
-        _Pragma("unroll") for (int k = SEG - 1; k >= 0; --k) {                       \
-            const T f_ = min(d[k], CONV(ZERO(carry_) + (k + 1)));                     \
-            run_ = min(f_, add_sat(run_, (T)(1)));                                    \
-            d[k] = run_;                                                              \
-        }                                                                             \
-        seg_end[seg] = run_;                                                          \
-        barrier(CLK_LOCAL_MEM_FENCE);                                                 \
-        carry_ = (T)(SAT);                                                            \
-        for (int j = seg + 1; j < nseg; ++j)                                          \
-            carry_ = min(carry_, CONV(ZERO(seg_end[j]) + (j - seg - 1) * SEG));        \
-        _Pragma("unroll") for (int k = 0; k < SEG; ++k)                              \
-            d[k] = min(d[k], CONV(ZERO(carry_) + (SEG - k)));                         \
+/* min(v, 255) as a uchar: offsets larger than any distance saturate. */
+#define SAT_OFFSET(v) ((uchar)min((v), SAT))
+
+/* Forward and backward sweeps of one segment, with the carries between the
+ * segments of a line passed through local memory. T is uchar or uchar4; all
+ * arithmetic is saturating uchar, so there are no conversions in the hot loops. */
+#define SWEEP_SEGMENT(T, d, seg_end, seg, nseg)                                        \
+    do {                                                                               \
+        const T one_ = (T)(1);                                                         \
+        T run_ = (T)(SAT);                                                             \
+        _Pragma("unroll") for (int k = 0; k < SEG; ++k) {                              \
+            run_ = min(d[k], add_sat(run_, one_));                                     \
+            d[k] = run_;                                                               \
+        }                                                                              \
+        seg_end[seg] = run_;                                                           \
+        barrier(CLK_LOCAL_MEM_FENCE);                                                  \
+        T carry_ = (T)(SAT);                                                           \
+        for (int j = 0; j < seg; ++j)                                                  \
+            carry_ = min(carry_, add_sat(seg_end[j], (T)(SAT_OFFSET((seg - 1 - j) * SEG)))); \
+        barrier(CLK_LOCAL_MEM_FENCE);                                                  \
+        run_ = (T)(SAT);                                                               \
+        _Pragma("unroll") for (int k = SEG - 1; k >= 0; --k) {                         \
+            const T f_ = min(d[k], add_sat(carry_, (T)((uchar)(k + 1))));              \
+            run_ = min(f_, add_sat(run_, one_));                                       \
+            d[k] = run_;                                                               \
+        }                                                                              \
+        seg_end[seg] = run_;                                                           \
+        barrier(CLK_LOCAL_MEM_FENCE);                                                  \
+        carry_ = (T)(SAT);                                                             \
+        for (int j = seg + 1; j < nseg; ++j)                                           \
+            carry_ = min(carry_, add_sat(seg_end[j], (T)(SAT_OFFSET((j - seg - 1) * SEG)))); \
+        _Pragma("unroll") for (int k = 0; k < SEG; ++k)                                \
+            d[k] = min(d[k], add_sat(carry_, (T)((uchar)(SEG - k))));                  \
     } while (0)
 
-#define AS_INT(v) ((int)(v))
-#define AS_INT4(v) convert_int4(v)
-#define SAT_UINT(v) ((uint)min((v), SAT))
-#define SAT_UCHAR4(v) convert_uchar4_sat(v)
-
-/* Component k of an 8-vector; k is a constant after unrolling, so this folds
- * away and the private array d never needs an address (it stays in registers). */
-inline uint lane8(uint8 v, int k)
-{
-    switch (k) {
-    case 0: return v.s0; case 1: return v.s1; case 2: return v.s2; case 3: return v.s3;
-    case 4: return v.s4; case 5: return v.s5; case 6: return v.s6; default: return v.s7;
-    }
-}
+#define INIT_OF(v) ((v) ? (uchar)0 : air)
+#define UNPACK8(d, c, v)                                                               \
+    do {                                                                               \
+        d[c] = INIT_OF(v.s0); d[c + 1] = INIT_OF(v.s1); d[c + 2] = INIT_OF(v.s2);      \
+        d[c + 3] = INIT_OF(v.s3); d[c + 4] = INIT_OF(v.s4); d[c + 5] = INIT_OF(v.s5);  \
+        d[c + 6] = INIT_OF(v.s6); d[c + 7] = INIT_OF(v.s7);                            \
+    } while (0)
+#define PACK8(d, c) ((uchar8)(d[c], d[c + 1], d[c + 2], d[c + 3], d[c + 4], d[c + 5], d[c + 6], d[c + 7]))
 
 /* x: lines are contiguous; each work-item loads SEG bytes as uchar8 vectors. */
 __kernel void pass_x(__global uchar *work, __global const uchar *voxels,
                      __global const ushort *field, int4 dims, int4 w_lo, int4 w_n,
                      int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
 {
-    __local uint ends[1024];
+    __local uchar ends[1024];
     const int seg = get_local_id(0);
-    __local uint *seg_end = ends + get_local_id(1) * nseg;
+    __local uchar *seg_end = ends + get_local_id(1) * nseg;
     const int line = get_global_id(1);
     const int valid = line < w_n.y * w_n.z;
     const int ly = valid ? line % w_n.y : 0, lz = valid ? line / w_n.y : 0;
@@ -90,37 +89,36 @@ __kernel void pass_x(__global uchar *work, __global const uchar *voxels,
     const size_t work_row = box_index(0, ly, lz, w_n);
     /* A seed-shell line (outside R in y or z) takes every distance from the field. */
     const int line_in_r = wy >= r_lo.y && wy < r_hi.y && wz >= r_lo.z && wz < r_hi.z;
+    const uchar air = (uchar)cap;
     const int t0 = seg * SEG;
 
-    uint d[SEG];
+    uchar d[SEG];
     _Pragma("unroll") for (int c = 0; c < SEG; c += 8) {
         const int t = t0 + c;
-        uint8 init = (uint8)(SAT);
         if (valid && t < w_n.x) {
-            const uint8 v = convert_uint8(vload8(0, voxels + world_row + t));
-            init = select((uint8)(cap), (uint8)(0), v != (uint8)(0));
+            const uchar8 v = vload8(0, voxels + world_row + t);
+            UNPACK8(d, c, v);
             const int wx = w_lo.x + t;
             if (seeded && (!line_in_r || wx < r_lo.x || wx + 8 > r_hi.x)) {
-                const uint8 shell = min(convert_uint8(vload8(0, field + world_row + t) >> (ushort)8),
-                                        (uint8)(cap));
-                const int8 x = (int8)(wx) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-                const int8 outside = (int8)(!line_in_r) | (x < (int8)(r_lo.x)) | (x >= (int8)(r_hi.x));
-                init = select(init, shell, convert_uint8(outside) != (uint8)(0));
+                /* The seed shell: rare, so plain scalar reads. */
+                _Pragma("unroll") for (int k = 0; k < 8; ++k) {
+                    const int x = wx + k;
+                    if (!line_in_r || x < r_lo.x || x >= r_hi.x)
+                        d[c + k] = (uchar)min((uint)(field[world_row + t + k] >> 8), (uint)cap);
+                }
             }
+        } else {
+            _Pragma("unroll") for (int k = 0; k < 8; ++k)
+                d[c + k] = SAT;
         }
-        _Pragma("unroll") for (int k = 0; k < 8; ++k)
-            d[c + k] = lane8(init, k);
     }
 
-    SWEEP_SEGMENT(uint, d, seg_end, seg, nseg, AS_INT, SAT_UINT);
+    SWEEP_SEGMENT(uchar, d, seg_end, seg, nseg);
 
     _Pragma("unroll") for (int c = 0; c < SEG; c += 8) {
         const int t = t0 + c;
-        if (valid && t < w_n.x) {
-            const uint8 out = (uint8)(d[c], d[c + 1], d[c + 2], d[c + 3],
-                                      d[c + 4], d[c + 5], d[c + 6], d[c + 7]);
-            vstore8(convert_uchar8(min(out, (uint8)(cap))), 0, work + work_row + t);
-        }
+        if (valid && t < w_n.x)
+            vstore8(min(PACK8(d, c), (uchar8)(air)), 0, work + work_row + t);
     }
 }
 
@@ -152,7 +150,7 @@ __kernel void pass_yz(__global uchar *work, __global const uchar *voxels,
         d[k] = (valid && t < len) ? vload4(0, work + base + (size_t)t * stride) : (uchar4)(SAT);
     }
 
-    SWEEP_SEGMENT(uchar4, d, seg_end, seg, nseg, AS_INT4, SAT_UCHAR4);
+    SWEEP_SEGMENT(uchar4, d, seg_end, seg, nseg);
 
     const uchar4 capv = (uchar4)((uchar)cap);
     _Pragma("unroll") for (int k = 0; k < SEG; ++k) {

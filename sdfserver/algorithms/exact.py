@@ -22,6 +22,7 @@ from sdfserver.gpu import GpuContext
 
 MAX_SEGMENTS = 32  # work-items per line
 LANES = 32  # work-items across x for the y and z passes, 4 columns each
+MIN_LANES = 8  # below this, longer segments beat narrower rows
 X_PASS_THREADS = 256  # work-items per work-group for the x pass
 MAX_SEG = 128  # elements per work-item: 32 x 64 covers the longest world side
 
@@ -42,8 +43,8 @@ class Exact:
                      seg: int | None = None):
         """The kernel, segments per line, and global/local sizes for one pass.
 
-        Fewer, longer segments when the kernel's register use caps the
-        work-group below what one line needs.
+        When the kernel's register use caps the work-group below what one
+        line needs, first fewer x-lanes, then fewer, longer segments.
         """
         seg = seg or segment_length(line_len, 8 if axis == 0 else 4)
         while True:
@@ -57,10 +58,12 @@ class Exact:
                 per_group = max(1, min(X_PASS_THREADS, max_group) // nseg)
                 lines = ny * nz
                 return kernel, nseg, (nseg, -(-lines // per_group) * per_group), (nseg, per_group)
-            if axis > 0 and (LANES * nseg <= max_group or seg >= MAX_SEG):
-                lanes = -(-nx // 4)
-                global_ = (-(-lanes // LANES) * LANES, nseg * (nz if axis == 1 else ny))
-                return kernel, nseg, global_, (LANES, nseg)
+            lanes = min(LANES, max_group // nseg)
+            if axis > 0 and (lanes >= MIN_LANES or seg >= MAX_SEG):
+                lanes = max(1, lanes)
+                columns = -(-nx // 4)
+                global_ = (-(-columns // lanes) * lanes, nseg * (nz if axis == 1 else ny))
+                return kernel, nseg, global_, (lanes, nseg)
             seg *= 2
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:

@@ -21,13 +21,17 @@
  * Layout: the work box's x-origin and x-extent are multiples of 8 (the host
  * aligns them), so uchar8 loads along x and uchar4/ushort4 accesses across
  * x-lanes are aligned in both the work box and the world arrays.
- * Build options: SEG (elements per work-item), AXIS (pass_yz: 1 = y, 2 = z).
- * Local size: pass_x (segments, lines); pass_yz (32 lanes of 4 x-columns, segments).
+ * Build options: SEG (elements per work-item), AXIS (pass_yz: 1 = y, 2 = z),
+ * LOCAL_X, LOCAL_Y (the work-group: pass_x (segments, lines); pass_yz (lanes of
+ * 4 x-columns, segments)).
  */
 #include "sdf_common.h"
 
-#define LANES 32
 #define SAT 255
+
+/* The host compiles each pass for its exact work-group shape, which lets the
+ * compiler budget registers for full work-groups instead of guessing. */
+#define GROUP_SHAPE __attribute__((reqd_work_group_size(LOCAL_X, LOCAL_Y, 1)))
 
 /* min(v, 255) as a uchar: offsets larger than any distance saturate. */
 #define SAT_OFFSET(v) ((uchar)min((v), SAT))
@@ -74,7 +78,7 @@
 #define PACK8(d, c) ((uchar8)(d[c], d[c + 1], d[c + 2], d[c + 3], d[c + 4], d[c + 5], d[c + 6], d[c + 7]))
 
 /* x: lines are contiguous; each work-item loads SEG bytes as uchar8 vectors. */
-__kernel void pass_x(__global uchar *work, __global const uchar *voxels,
+__kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *voxels,
                      __global const ushort *field, int4 dims, int4 w_lo, int4 w_n,
                      int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
 {
@@ -123,7 +127,7 @@ __kernel void pass_x(__global uchar *work, __global const uchar *voxels,
 }
 
 /* y or z: 32 lanes of 4 adjacent x-columns, so a warp touches 128 contiguous bytes a row. */
-__kernel void pass_yz(__global uchar *work, __global const uchar *voxels,
+__kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *voxels,
                       __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
                       int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
 {

@@ -15,16 +15,13 @@ than 32 * 64 voxels are refused by the world size limit.
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 
 from sdfserver.algorithms.base import AlgorithmRun, RegionJob, int4
 from sdfserver.gpu import GpuContext
 
 MAX_SEGMENTS = 32  # work-items per line
 LANES = 32  # work-items across x for the y and z passes, 4 columns each
-MIN_LANES = 8  # below this, longer segments beat narrower rows
 X_PASS_THREADS = 256  # work-items per work-group for the x pass
-MAX_SEG = 128  # elements per work-item: 32 x 64 covers the longest world side
 
 
 def segment_length(line_len: int, minimum: int) -> int:
@@ -43,28 +40,23 @@ class Exact:
                      seg: int | None = None):
         """The kernel, segments per line, and global/local sizes for one pass.
 
-        When the kernel's register use caps the work-group below what one
-        line needs, first fewer x-lanes, then fewer, longer segments.
+        Each pass is compiled for its work-group shape (reqd_work_group_size),
+        so the compiler fits registers to it.
         """
         seg = seg or segment_length(line_len, 8 if axis == 0 else 4)
-        while True:
-            nseg = -(-line_len // seg)
-            if axis == 0:
-                kernel = gpu.programs.kernel("exact.cl", "pass_x", SEG=seg)
-            else:
-                kernel = gpu.programs.kernel("exact.cl", "pass_yz", SEG=seg, AXIS=axis)
-            max_group = kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, gpu.device)
-            if axis == 0 and (nseg <= max_group or seg >= MAX_SEG):
-                per_group = max(1, min(X_PASS_THREADS, max_group) // nseg)
-                lines = ny * nz
-                return kernel, nseg, (nseg, -(-lines // per_group) * per_group), (nseg, per_group)
-            lanes = min(LANES, max_group // nseg)
-            if axis > 0 and (lanes >= MIN_LANES or seg >= MAX_SEG):
-                lanes = max(1, lanes)
-                columns = -(-nx // 4)
-                global_ = (-(-columns // lanes) * lanes, nseg * (nz if axis == 1 else ny))
-                return kernel, nseg, global_, (lanes, nseg)
-            seg *= 2
+        nseg = -(-line_len // seg)
+        if axis == 0:
+            per_group = max(1, X_PASS_THREADS // nseg)
+            local = (nseg, per_group)
+            global_ = (nseg, -(-(ny * nz) // per_group) * per_group)
+            kernel = gpu.programs.kernel("exact.cl", "pass_x", SEG=seg, LOCAL_X=local[0], LOCAL_Y=local[1])
+        else:
+            local = (LANES, nseg)
+            columns = -(-nx // 4)
+            global_ = (-(-columns // LANES) * LANES, nseg * (nz if axis == 1 else ny))
+            kernel = gpu.programs.kernel("exact.cl", "pass_yz", SEG=seg, AXIS=axis,
+                                         LOCAL_X=local[0], LOCAL_Y=local[1])
+        return kernel, nseg, global_, local
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         nx, ny, nz = job.work_box.shape_xyz

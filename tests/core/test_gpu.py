@@ -42,9 +42,9 @@ def test_failed_build_carries_file_options_and_log(gpu, tmp_path, monkeypatch):
 
 
 def test_programs_are_memoized_per_options(gpu):
-    a = gpu.programs.get("exact.cl", AXIS=0, SEG=4, LOAD_INIT=1, STORE_PACK=0)
-    assert gpu.programs.get("exact.cl", SEG=4, AXIS=0, STORE_PACK=0, LOAD_INIT=1) is a
-    assert gpu.programs.get("exact.cl", AXIS=1, SEG=4, LOAD_INIT=0, STORE_PACK=0) is not a
+    a = gpu.programs.get("exact.cl", AXIS=1, SEG=4, LOCAL_X=32, LOCAL_Y=2)
+    assert gpu.programs.get("exact.cl", SEG=4, LOCAL_Y=2, AXIS=1, LOCAL_X=32) is a
+    assert gpu.programs.get("exact.cl", AXIS=2, SEG=4, LOCAL_X=32, LOCAL_Y=2) is not a
 
 
 def test_world_over_budget_fails_before_allocating(gpu):

@@ -19,8 +19,10 @@
  * min-plus with saturation at 255 >= cap keeps the capped result exact.
  *
  * Layout: the work box's x-origin and x-extent are multiples of 8 (the host
- * aligns them), so uchar8 loads along x and uchar4/ushort4 accesses across
- * x-lanes are aligned in both the work box and the world arrays.
+ * aligns them), so uchar8 accesses along x and uchar4/ushort4 accesses across
+ * x-lanes are aligned in both the work box and the world arrays; they are
+ * written as vector pointer accesses because vloadn promises only byte
+ * alignment and compiles to byte loads.
  * Build options: SEG (elements per work-item), AXIS (pass_yz: 1 = y, 2 = z),
  * LOCAL_X, LOCAL_Y (the work-group: pass_x (segments, lines); pass_yz (lanes of
  * 4 x-columns, segments)).
@@ -100,7 +102,7 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
     _Pragma("unroll") for (int c = 0; c < SEG; c += 8) {
         const int t = t0 + c;
         if (valid && t < w_n.x) {
-            const uchar8 v = vload8(0, voxels + world_row + t);
+            const uchar8 v = *(__global const uchar8 *)(voxels + world_row + t);
             UNPACK8(d, c, v);
             const int wx = w_lo.x + t;
             if (seeded && (!line_in_r || wx < r_lo.x || wx + 8 > r_hi.x)) {
@@ -122,7 +124,7 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
     _Pragma("unroll") for (int c = 0; c < SEG; c += 8) {
         const int t = t0 + c;
         if (valid && t < w_n.x)
-            vstore8(min(PACK8(d, c), (uchar8)(air)), 0, work + work_row + t);
+            *(__global uchar8 *)(work + work_row + t) = min(PACK8(d, c), (uchar8)(air));
     }
 }
 
@@ -151,7 +153,8 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
     uchar4 d[SEG];
     _Pragma("unroll") for (int k = 0; k < SEG; ++k) {
         const int t = t0 + k;
-        d[k] = (valid && t < len) ? vload4(0, work + base + (size_t)t * stride) : (uchar4)(SAT);
+        d[k] = (valid && t < len) ? *(__global const uchar4 *)(work + base + (size_t)t * stride)
+                                  : (uchar4)(SAT);
     }
 
     SWEEP_SEGMENT(uchar4, d, seg_end, seg, nseg);
@@ -167,11 +170,11 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
         const int wx = w_lo.x + lx, wy = w_lo.y + ly, wz = w_lo.z + t;
         if (in_box(wx, wy, wz, r_lo, r_hi)) {
             const size_t i = world_index(wx, wy, wz, dims);
-            const ushort4 colour = convert_ushort4(vload4(0, voxels + i));
-            vstore4((convert_ushort4(out) << (ushort)8) | colour, 0, field + i);
+            const ushort4 colour = convert_ushort4(*(__global const uchar4 *)(voxels + i));
+            *(__global ushort4 *)(field + i) = (convert_ushort4(out) << (ushort)8) | colour;
         }
 #else
-        vstore4(out, 0, work + base + (size_t)t * stride);
+        *(__global uchar4 *)(work + base + (size_t)t * stride) = out;
 #endif
     }
 }

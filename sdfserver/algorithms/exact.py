@@ -37,7 +37,7 @@ class Exact:
     exact = True
 
     def launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int,
-                     seg: int | None = None):
+                     seg: int | None = None, lanes: int = LANES):
         """The kernel, segments per line, and global/local sizes for one pass.
 
         Each pass is compiled for its work-group shape (reqd_work_group_size),
@@ -51,9 +51,9 @@ class Exact:
             global_ = (nseg, -(-(ny * nz) // per_group) * per_group)
             kernel = gpu.programs.kernel("exact.cl", "pass_x", SEG=seg, LOCAL_X=local[0], LOCAL_Y=local[1])
         else:
-            local = (LANES, nseg)
+            local = (lanes, nseg)
             columns = -(-nx // 4)
-            global_ = (-(-columns // LANES) * LANES, nseg * (nz if axis == 1 else ny))
+            global_ = (-(-columns // lanes) * lanes, nseg * (nz if axis == 1 else ny))
             kernel = gpu.programs.kernel("exact.cl", "pass_yz", SEG=seg, AXIS=axis,
                                          LOCAL_X=local[0], LOCAL_Y=local[1])
         return kernel, nseg, global_, local

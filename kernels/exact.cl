@@ -15,8 +15,9 @@
  * output once:
  *   pass_x   voxels (+ the seed shell from the field) -> work
  *   pass_yz  work -> work (AXIS 1), work + voxels -> packed field over R (AXIS 2)
- * Distances are saturating uchar: every value >= cap means "at least cap", and
- * min-plus with saturation at 255 >= cap keeps the capped result exact.
+ * Distances travel as uchar capped at the world's cap (a value of cap means
+ * "at least cap", which keeps min-plus exact for the capped result) and are
+ * swept as 32-bit ints.
  *
  * Layout: the work box's x-origin and x-extent are multiples of 8 (the host
  * aligns them), so uchar8 accesses along x and uchar4/ushort4 accesses across
@@ -29,64 +30,64 @@
  */
 #include "sdf_common.h"
 
-#define SAT 255
+/* Larger than any distance plus any line length. */
+#define BIG 0x3fff
 
 /* The host compiles each pass for its exact work-group shape, which lets the
  * compiler budget registers for full work-groups instead of guessing. */
 #define GROUP_SHAPE __attribute__((reqd_work_group_size(LOCAL_X, LOCAL_Y, 1)))
 
-/* min(v, 255) as a uchar: offsets larger than any distance saturate. */
-#define SAT_OFFSET(v) ((uchar)min((v), SAT))
-
 /* Forward and backward sweeps of one segment, with the carries between the
- * segments of a line passed through local memory. T is uchar or uchar4; all
- * arithmetic is saturating uchar, so there are no conversions in the hot loops. */
+ * segments of a line passed through local memory. T is int or int4: native
+ * 32-bit min and add (saturating byte arithmetic costs several instructions a
+ * step on NVIDIA, and this kernel is bound by instruction issue, not bytes). */
 #define SWEEP_SEGMENT(T, d, seg_end, seg, nseg)                                        \
     do {                                                                               \
-        const T one_ = (T)(1);                                                         \
-        T run_ = (T)(SAT);                                                             \
+        T run_ = (T)(BIG);                                                             \
         _Pragma("unroll") for (int k = 0; k < SEG; ++k) {                              \
-            run_ = min(d[k], add_sat(run_, one_));                                     \
+            run_ = min(d[k], run_ + 1);                                                \
             d[k] = run_;                                                               \
         }                                                                              \
         seg_end[seg] = run_;                                                           \
         barrier(CLK_LOCAL_MEM_FENCE);                                                  \
-        T carry_ = (T)(SAT);                                                           \
+        T carry_ = (T)(BIG);                                                           \
         for (int j = 0; j < seg; ++j)                                                  \
-            carry_ = min(carry_, add_sat(seg_end[j], (T)(SAT_OFFSET((seg - 1 - j) * SEG)))); \
+            carry_ = min(carry_, seg_end[j] + (seg - 1 - j) * SEG);                    \
         barrier(CLK_LOCAL_MEM_FENCE);                                                  \
-        run_ = (T)(SAT);                                                               \
+        run_ = (T)(BIG);                                                               \
+        carry_ += 1;                                                                   \
         _Pragma("unroll") for (int k = SEG - 1; k >= 0; --k) {                         \
-            const T f_ = min(d[k], add_sat(carry_, (T)((uchar)(k + 1))));              \
-            run_ = min(f_, add_sat(run_, one_));                                       \
+            run_ = min(min(d[k], carry_ + k), run_ + 1);                               \
             d[k] = run_;                                                               \
         }                                                                              \
         seg_end[seg] = run_;                                                           \
         barrier(CLK_LOCAL_MEM_FENCE);                                                  \
-        carry_ = (T)(SAT);                                                             \
+        carry_ = (T)(BIG);                                                             \
         for (int j = seg + 1; j < nseg; ++j)                                           \
-            carry_ = min(carry_, add_sat(seg_end[j], (T)(SAT_OFFSET((j - seg - 1) * SEG)))); \
+            carry_ = min(carry_, seg_end[j] + (j - seg - 1) * SEG);                    \
+        carry_ += SEG;                                                                 \
         _Pragma("unroll") for (int k = 0; k < SEG; ++k)                                \
-            d[k] = min(d[k], add_sat(carry_, (T)((uchar)(SEG - k))));                  \
+            d[k] = min(d[k], carry_ - k);                                              \
     } while (0)
 
-#define INIT_OF(v) ((v) ? (uchar)0 : air)
+#define INIT_OF(v) ((v) ? 0 : cap)
 #define UNPACK8(d, c, v)                                                               \
     do {                                                                               \
         d[c] = INIT_OF(v.s0); d[c + 1] = INIT_OF(v.s1); d[c + 2] = INIT_OF(v.s2);      \
         d[c + 3] = INIT_OF(v.s3); d[c + 4] = INIT_OF(v.s4); d[c + 5] = INIT_OF(v.s5);  \
         d[c + 6] = INIT_OF(v.s6); d[c + 7] = INIT_OF(v.s7);                            \
     } while (0)
-#define PACK8(d, c) ((uchar8)(d[c], d[c + 1], d[c + 2], d[c + 3], d[c + 4], d[c + 5], d[c + 6], d[c + 7]))
+#define PACK8(d, c) convert_uchar8(min((int8)(d[c], d[c + 1], d[c + 2], d[c + 3],           \
+                                              d[c + 4], d[c + 5], d[c + 6], d[c + 7]), (int8)(cap)))
 
 /* x: lines are contiguous; each work-item loads SEG bytes as uchar8 vectors. */
 __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *voxels,
                      __global const ushort *field, int4 dims, int4 w_lo, int4 w_n,
                      int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
 {
-    __local uchar ends[1024];
+    __local int ends[LOCAL_X * LOCAL_Y];
     const int seg = get_local_id(0);
-    __local uchar *seg_end = ends + get_local_id(1) * nseg;
+    __local int *seg_end = ends + get_local_id(1) * nseg;
     const int line = get_global_id(1);
     const int valid = line < w_n.y * w_n.z;
     const int ly = valid ? line % w_n.y : 0, lz = valid ? line / w_n.y : 0;
@@ -95,10 +96,9 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
     const size_t work_row = box_index(0, ly, lz, w_n);
     /* A seed-shell line (outside R in y or z) takes every distance from the field. */
     const int line_in_r = wy >= r_lo.y && wy < r_hi.y && wz >= r_lo.z && wz < r_hi.z;
-    const uchar air = (uchar)cap;
     const int t0 = seg * SEG;
 
-    uchar d[SEG];
+    int d[SEG];
     _Pragma("unroll") for (int c = 0; c < SEG; c += 8) {
         const int t = t0 + c;
         if (valid && t < w_n.x) {
@@ -110,21 +110,21 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
                 _Pragma("unroll") for (int k = 0; k < 8; ++k) {
                     const int x = wx + k;
                     if (!line_in_r || x < r_lo.x || x >= r_hi.x)
-                        d[c + k] = (uchar)min((uint)(field[world_row + t + k] >> 8), (uint)cap);
+                        d[c + k] = min((int)(field[world_row + t + k] >> 8), cap);
                 }
             }
         } else {
             _Pragma("unroll") for (int k = 0; k < 8; ++k)
-                d[c + k] = SAT;
+                d[c + k] = BIG;
         }
     }
 
-    SWEEP_SEGMENT(uchar, d, seg_end, seg, nseg);
+    SWEEP_SEGMENT(int, d, seg_end, seg, nseg);
 
     _Pragma("unroll") for (int c = 0; c < SEG; c += 8) {
         const int t = t0 + c;
         if (valid && t < w_n.x)
-            *(__global uchar8 *)(work + work_row + t) = min(PACK8(d, c), (uchar8)(air));
+            *(__global uchar8 *)(work + work_row + t) = PACK8(d, c);
     }
 }
 
@@ -133,9 +133,9 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
                       __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
                       int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
 {
-    __local uchar4 ends[1024];
+    __local int4 ends[LOCAL_X * LOCAL_Y];
     const int seg = get_local_id(1);
-    __local uchar4 *seg_end = ends + get_local_id(0) * nseg;
+    __local int4 *seg_end = ends + get_local_id(0) * nseg;
     const int lx = get_global_id(0) * 4;
     const int valid = lx < w_n.x;
 #if AXIS == 1
@@ -150,21 +150,21 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
     const size_t base = box_index(lx, ly, lz, w_n);
     const int t0 = seg * SEG;
 
-    uchar4 d[SEG];
+    int4 d[SEG];
     _Pragma("unroll") for (int k = 0; k < SEG; ++k) {
         const int t = t0 + k;
-        d[k] = (valid && t < len) ? *(__global const uchar4 *)(work + base + (size_t)t * stride)
-                                  : (uchar4)(SAT);
+        d[k] = (valid && t < len) ? convert_int4(*(__global const uchar4 *)(work + base + (size_t)t * stride))
+                                  : (int4)(BIG);
     }
 
-    SWEEP_SEGMENT(uchar4, d, seg_end, seg, nseg);
+    SWEEP_SEGMENT(int4, d, seg_end, seg, nseg);
 
-    const uchar4 capv = (uchar4)((uchar)cap);
+    const int4 capv = (int4)(cap);
     _Pragma("unroll") for (int k = 0; k < SEG; ++k) {
         const int t = t0 + k;
         if (!valid || t >= len)
             continue;
-        const uchar4 out = min(d[k], capv);
+        const int4 out = min(d[k], capv);
 #if AXIS == 2
         /* x-lanes are 4-aligned and R's x-bounds are multiples of 8: a lane is all in or all out. */
         const int wx = w_lo.x + lx, wy = w_lo.y + ly, wz = w_lo.z + t;
@@ -174,7 +174,7 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
             *(__global ushort4 *)(field + i) = (convert_ushort4(out) << (ushort)8) | colour;
         }
 #else
-        *(__global uchar4 *)(work + base + (size_t)t * stride) = out;
+        *(__global uchar4 *)(work + base + (size_t)t * stride) = convert_uchar4(out);
 #endif
     }
 }

@@ -53,7 +53,7 @@ def main() -> None:
             info = {k: kernel.get_work_group_info(getattr(cl.kernel_work_group_info, k), gpu.device)
                     for k in ("WORK_GROUP_SIZE", "PRIVATE_MEM_SIZE", "LOCAL_MEM_SIZE")}
             launches.append((axis, kernel, nseg, global_, local, info))
-            if args.ptx and seg == int(args.segs.split(",")[0]):
+            if args.ptx and spec == args.segs.split(",")[0] and lanes == int(args.lanes.split(",")[0]):
                 binary = kernel.program.get_info(cl.program_info.BINARIES)[0]
                 with open(f"{args.ptx}-seg{seg}-axis{axis}.ptx", "wb") as f:
                     f.write(binary)

@@ -20,13 +20,14 @@
  * swept as 32-bit ints.
  *
  * Layout: the work box's x-origin and x-extent are multiples of 8 (the host
- * aligns them), so uchar8 accesses along x and uchar4/ushort4 accesses across
+ * aligns them), so uchar8 accesses along x and VEC-wide accesses across
  * x-lanes are aligned in both the work box and the world arrays; they are
  * written as vector pointer accesses because vloadn promises only byte
  * alignment and compiles to byte loads.
+ * One program holds one pass: pass_yz when VEC is defined, else pass_x.
  * Build options: SEG (elements per work-item), AXIS (pass_yz: 1 = y, 2 = z),
- * LOCAL_X, LOCAL_Y (the work-group: pass_x (segments, lines); pass_yz (lanes of
- * 4 x-columns, segments)).
+ * VEC (pass_yz: x-columns per work-item, 2 or 4), LOCAL_X, LOCAL_Y (the
+ * work-group: pass_x (segments, lines); pass_yz (x-lanes, segments)).
  */
 #include "sdf_common.h"
 
@@ -38,7 +39,7 @@
 #define GROUP_SHAPE __attribute__((reqd_work_group_size(LOCAL_X, LOCAL_Y, 1)))
 
 /* Forward and backward sweeps of one segment, with the carries between the
- * segments of a line passed through local memory. T is int or int4: native
+ * segments of a line passed through local memory. T is int or an int vector: native
  * 32-bit min and add (saturating byte arithmetic costs several instructions a
  * step on NVIDIA, and this kernel is bound by instruction issue, not bytes). */
 #define SWEEP_SEGMENT(T, d, seg_end, seg, nseg)                                        \
@@ -80,6 +81,7 @@
 #define PACK8(d, c) convert_uchar8(min((int8)(d[c], d[c + 1], d[c + 2], d[c + 3],           \
                                               d[c + 4], d[c + 5], d[c + 6], d[c + 7]), (int8)(cap)))
 
+#ifndef VEC
 /* x: lines are contiguous; each work-item loads SEG bytes as uchar8 vectors. */
 __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *voxels,
                      __global const ushort *field, int4 dims, int4 w_lo, int4 w_n,
@@ -128,15 +130,26 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
     }
 }
 
-/* y or z: 32 lanes of 4 adjacent x-columns, so a warp touches 128 contiguous bytes a row. */
+#else
+/* y or z: each work-item sweeps VEC adjacent x-columns (VEC = 2 or 4), so a
+ * warp touches 32 * VEC contiguous bytes of a row. */
+#define CAT_(a, b) a##b
+#define CAT(a, b) CAT_(a, b)
+#define intV CAT(int, VEC)
+#define ucharV CAT(uchar, VEC)
+#define ushortV CAT(ushort, VEC)
+#define convert_intV CAT(convert_int, VEC)
+#define convert_ucharV CAT(convert_uchar, VEC)
+#define convert_ushortV CAT(convert_ushort, VEC)
+
 __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *voxels,
                       __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
                       int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
 {
-    __local int4 ends[LOCAL_X * LOCAL_Y];
+    __local intV ends[LOCAL_X * LOCAL_Y];
     const int seg = get_local_id(1);
-    __local int4 *seg_end = ends + get_local_id(0) * nseg;
-    const int lx = get_global_id(0) * 4;
+    __local intV *seg_end = ends + get_local_id(0) * nseg;
+    const int lx = get_global_id(0) * VEC;
     const int valid = lx < w_n.x;
 #if AXIS == 1
     const int ly = 0, lz = get_group_id(1);
@@ -150,31 +163,32 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
     const size_t base = box_index(lx, ly, lz, w_n);
     const int t0 = seg * SEG;
 
-    int4 d[SEG];
+    intV d[SEG];
     _Pragma("unroll") for (int k = 0; k < SEG; ++k) {
         const int t = t0 + k;
-        d[k] = (valid && t < len) ? convert_int4(*(__global const uchar4 *)(work + base + (size_t)t * stride))
-                                  : (int4)(BIG);
+        d[k] = (valid && t < len) ? convert_intV(*(__global const ucharV *)(work + base + (size_t)t * stride))
+                                  : (intV)(BIG);
     }
 
-    SWEEP_SEGMENT(int4, d, seg_end, seg, nseg);
+    SWEEP_SEGMENT(intV, d, seg_end, seg, nseg);
 
-    const int4 capv = (int4)(cap);
+    const intV capv = (intV)(cap);
     _Pragma("unroll") for (int k = 0; k < SEG; ++k) {
         const int t = t0 + k;
         if (!valid || t >= len)
             continue;
-        const int4 out = min(d[k], capv);
+        const intV out = min(d[k], capv);
 #if AXIS == 2
-        /* x-lanes are 4-aligned and R's x-bounds are multiples of 8: a lane is all in or all out. */
+        /* x-lanes are VEC-aligned and R's x-bounds are multiples of 8: a lane is all in or all out. */
         const int wx = w_lo.x + lx, wy = w_lo.y + ly, wz = w_lo.z + t;
         if (in_box(wx, wy, wz, r_lo, r_hi)) {
             const size_t i = world_index(wx, wy, wz, dims);
-            const ushort4 colour = convert_ushort4(*(__global const uchar4 *)(voxels + i));
-            *(__global ushort4 *)(field + i) = (convert_ushort4(out) << (ushort)8) | colour;
+            const ushortV colour = convert_ushortV(*(__global const ucharV *)(voxels + i));
+            *(__global ushortV *)(field + i) = (convert_ushortV(out) << (ushort)8) | colour;
         }
 #else
-        *(__global uchar4 *)(work + base + (size_t)t * stride) = convert_uchar4(out);
+        *(__global ucharV *)(work + base + (size_t)t * stride) = convert_ucharV(out);
 #endif
     }
 }
+#endif

@@ -26,7 +26,7 @@ from sdfserver.world import World, WorldConfig
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--size", type=int, default=512)
-    p.add_argument("--segs", default="16,32", help="SEG of every pass, or XSEG:YZSEG, comma list")
+    p.add_argument("--segs", default="16,32", help="SEG of every pass, or XSEG:YZSEG[:VEC], comma list")
     p.add_argument("--lanes", default="32", help="x-lanes of the y/z passes, comma list")
     p.add_argument("--reps", type=int, default=20)
     p.add_argument("--device", default=None)
@@ -43,13 +43,13 @@ def main() -> None:
     bytes_moved = {0: 2 * n**3, 1: 2 * n**3, 2: 4 * n**3}
     print(f"{gpu.device_name}, {n}^3")
     for spec, lanes in [(s, int(l)) for s in args.segs.split(",") for l in args.lanes.split(",")]:
-        xseg, _, yzseg = spec.partition(":")
-        xseg, yzseg = int(xseg), int(yzseg or xseg)
+        parts = [int(v) for v in spec.split(":")]
+        xseg, yzseg, vec = (parts + [parts[-1], 4][len(parts) - 1:])[:3]
         seg = xseg
         launches = []
         for axis in range(3):
             kernel, nseg, global_, local = exact.launch_shape(gpu, axis, n, n, n, n, seg=yzseg if axis else xseg,
-                                                                lanes=lanes)
+                                                                lanes=lanes, vec=vec)
             info = {k: kernel.get_work_group_info(getattr(cl.kernel_work_group_info, k), gpu.device)
                     for k in ("WORK_GROUP_SIZE", "PRIVATE_MEM_SIZE", "LOCAL_MEM_SIZE")}
             launches.append((axis, kernel, nseg, global_, local, info))
@@ -80,7 +80,7 @@ def main() -> None:
             times[axis].append((e.profile.end - e.profile.start) * 1e-6)
         ok = np.array_equal(world.read_field(), reference)
         total = sum(np.median(times[a]) for a in range(3))
-        print(f"SEG={xseg}:{yzseg} lanes={lanes} total {total:.4f} ms  correct={ok}")
+        print(f"SEG={xseg}:{yzseg} vec={vec} lanes={lanes} total {total:.4f} ms  correct={ok}")
         for axis, kernel, nseg, g, l, info in launches:
             t = np.median(times[axis])
             print(f"   pass {'xyz'[axis]}: {t:.4f} ms {bytes_moved[axis] / t / 1e9:.2f} TB/s  "

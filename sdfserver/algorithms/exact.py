@@ -20,7 +20,8 @@ from sdfserver.algorithms.base import AlgorithmRun, RegionJob, int4
 from sdfserver.gpu import GpuContext
 
 MAX_SEGMENTS = 32  # work-items per line
-LANES = 32  # work-items across x for the y and z passes, 4 columns each
+LANES = 16  # work-items across x for the y and z passes
+VEC = 4  # x-columns per work-item in the y and z passes
 X_PASS_THREADS = 256  # work-items per work-group for the x pass
 
 
@@ -37,7 +38,7 @@ class Exact:
     exact = True
 
     def launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int,
-                     seg: int | None = None, lanes: int = LANES):
+                     seg: int | None = None, lanes: int = LANES, vec: int = VEC):
         """The kernel, segments per line, and global/local sizes for one pass.
 
         Each pass is compiled for its work-group shape (reqd_work_group_size),
@@ -52,9 +53,9 @@ class Exact:
             kernel = gpu.programs.kernel("exact.cl", "pass_x", SEG=seg, LOCAL_X=local[0], LOCAL_Y=local[1])
         else:
             local = (lanes, nseg)
-            columns = -(-nx // 4)
+            columns = -(-nx // vec)
             global_ = (-(-columns // lanes) * lanes, nseg * (nz if axis == 1 else ny))
-            kernel = gpu.programs.kernel("exact.cl", "pass_yz", SEG=seg, AXIS=axis,
+            kernel = gpu.programs.kernel("exact.cl", "pass_yz", SEG=seg, AXIS=axis, VEC=vec,
                                          LOCAL_X=local[0], LOCAL_Y=local[1])
         return kernel, nseg, global_, local
 

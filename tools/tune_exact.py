@@ -47,6 +47,9 @@ def main() -> None:
         xseg, yzseg, vec = (parts + [parts[-1], 4][len(parts) - 1:])[:3]
         seg = xseg
         launches = []
+        if lanes * -(-n // yzseg) > 1024:
+            print(f"SEG={xseg}:{yzseg} vec={vec} lanes={lanes}: work-group over 1024, skipped")
+            continue
         for axis in range(3):
             kernel, nseg, global_, local = exact.launch_shape(gpu, axis, n, n, n, n, seg=yzseg if axis else xseg,
                                                                 lanes=lanes, vec=vec)

@@ -26,8 +26,8 @@ from sdfserver.world import World, WorldConfig
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--size", type=int, default=512)
-    p.add_argument("--segs", default="16,32", help="SEG of every pass, or XSEG:YZSEG[:VEC], comma list")
-    p.add_argument("--lanes", default="32", help="x-lanes of the y/z passes, comma list")
+    p.add_argument("--segs", default="0", help="SEG of every pass, or XSEG:YZSEG[:VEC], comma list (0: tuned)")
+    p.add_argument("--lanes", default="0", help="x-lanes of the y/z passes, comma list (0: tuned)")
     p.add_argument("--reps", type=int, default=20)
     p.add_argument("--device", default=None)
     p.add_argument("--ptx", default=None, help="write each program's binary (PTX on NVIDIA) under this prefix")
@@ -44,15 +44,15 @@ def main() -> None:
     print(f"{gpu.device_name}, {n}^3")
     for spec, lanes in [(s, int(l)) for s in args.segs.split(",") for l in args.lanes.split(",")]:
         parts = [int(v) for v in spec.split(":")]
-        xseg, yzseg, vec = (parts + [parts[-1], 4][len(parts) - 1:])[:3]
+        xseg, yzseg, vec = (parts + [parts[-1], 0][len(parts) - 1:])[:3]
         seg = xseg
         launches = []
-        if lanes * -(-n // yzseg) > 1024:
+        if yzseg and lanes * -(-n // yzseg) > 1024:
             print(f"SEG={xseg}:{yzseg} vec={vec} lanes={lanes}: work-group over 1024, skipped")
             continue
         for axis in range(3):
-            kernel, nseg, global_, local = exact.launch_shape(gpu, axis, n, n, n, n, seg=yzseg if axis else xseg,
-                                                                lanes=lanes, vec=vec)
+            kernel, nseg, global_, local = exact.launch_shape(gpu, axis, n, n, n, n, seg=(yzseg if axis else xseg) or None,
+                                                                lanes=lanes or None, vec=vec or None)
             info = {k: kernel.get_work_group_info(getattr(cl.kernel_work_group_info, k), gpu.device)
                     for k in ("WORK_GROUP_SIZE", "PRIVATE_MEM_SIZE", "LOCAL_MEM_SIZE")}
             launches.append((axis, kernel, nseg, global_, local, info))

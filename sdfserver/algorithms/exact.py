@@ -14,21 +14,43 @@ than 32 * 64 voxels are refused by the world size limit.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from sdfserver.algorithms.base import AlgorithmRun, RegionJob, int4
 from sdfserver.gpu import GpuContext
 
-MAX_SEGMENTS = 32  # work-items per line
-LANES = 16  # work-items across x for the y and z passes
-VEC = 4  # x-columns per work-item in the y and z passes
+MAX_GROUP = 1024  # work-items per work-group
+
+
+@dataclass(frozen=True)
+class PassShape:
+    """How one pass cuts its lines: measured on an H200 at 512^3 with tools/tune_exact.py
+    (docs/benchmarks.md). Fewer, longer segments and small work-groups won; wider x-vectors
+    help the z pass, whose rows are a whole slice apart."""
+
+    segments: int  # target work-items per line
+    min_seg: int
+    max_seg: int  # elements per work-item (registers)
+    vec: int = 1  # x-columns per work-item (y and z passes)
+    lanes: int = 1  # work-items across x per work-group (y and z passes)
+
+
+PASS_SHAPES = {
+    0: PassShape(segments=16, min_seg=8, max_seg=32),
+    1: PassShape(segments=16, min_seg=4, max_seg=32, vec=2, lanes=8),
+    2: PassShape(segments=32, min_seg=4, max_seg=16, vec=4, lanes=8),
+}
 X_PASS_THREADS = 256  # work-items per work-group for the x pass
 
 
-def segment_length(line_len: int, minimum: int) -> int:
-    """Elements per work-item: a power of two >= minimum such that one line needs at most 32."""
-    seg = minimum
-    while seg * MAX_SEGMENTS < line_len:
+def segment_length(line_len: int, shape: PassShape) -> int:
+    """A power of two near line_len / segments, within the shape's bounds and the group limit."""
+    seg = shape.min_seg
+    while seg < shape.max_seg and seg * shape.segments < line_len:
+        seg *= 2
+    while -(-line_len // seg) * max(1, shape.lanes) > MAX_GROUP:
         seg *= 2
     return seg
 
@@ -38,13 +60,15 @@ class Exact:
     exact = True
 
     def launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int,
-                     seg: int | None = None, lanes: int = LANES, vec: int = VEC):
+                     seg: int | None = None, lanes: int | None = None, vec: int | None = None):
         """The kernel, segments per line, and global/local sizes for one pass.
 
         Each pass is compiled for its work-group shape (reqd_work_group_size),
-        so the compiler fits registers to it.
+        so the compiler fits registers to it. seg, lanes and vec override the
+        tuned shape (tools/tune_exact.py).
         """
-        seg = seg or segment_length(line_len, 8 if axis == 0 else 4)
+        shape = PASS_SHAPES[axis]
+        seg = seg or segment_length(line_len, shape)
         nseg = -(-line_len // seg)
         if axis == 0:
             per_group = max(1, X_PASS_THREADS // nseg)
@@ -52,6 +76,7 @@ class Exact:
             global_ = (nseg, -(-(ny * nz) // per_group) * per_group)
             kernel = gpu.programs.kernel("exact.cl", "pass_x", SEG=seg, LOCAL_X=local[0], LOCAL_Y=local[1])
         else:
+            lanes, vec = lanes or shape.lanes, vec or shape.vec
             local = (lanes, nseg)
             columns = -(-nx // vec)
             global_ = (-(-columns // lanes) * lanes, nseg * (nz if axis == 1 else ny))

@@ -7,8 +7,11 @@
     ├── TooLarge                a body, batch or region over a limit          (HTTP 413)
     ├── DeviceMemoryExceeded    a world that does not fit the memory budget   (HTTP 507)
     ├── NotReady                the device cannot serve requests now          (HTTP 503)
-    │   └── NoOpenCLDevice      no OpenCL platform or no matching device
-    └── KernelBuildError        an OpenCL program failed to build             (HTTP 500)
+    │   ├── NoOpenCLDevice      no OpenCL platform or no matching device
+    │   └── WritesDisabled      the write-ahead log failed; no edit is accepted
+    ├── KernelBuildError        an OpenCL program failed to build             (HTTP 500)
+    └── StorageError            the data directory cannot be used            (HTTP 500)
+        └── CorruptData         a log or snapshot fails its checks; names file and offset
 
 The mapping to HTTP status codes lives in the API layer, in one place; the
 engine raises these and knows nothing of HTTP.
@@ -49,6 +52,30 @@ class NotReady(SdfServerError):
 
 class NoOpenCLDevice(NotReady):
     code = "no_opencl_device"
+
+
+class WritesDisabled(NotReady):
+    """A sync or write of the write-ahead log failed. Nothing is retried and acknowledged:
+    every later write is refused with this error until the server is restarted."""
+
+    code = "writes_disabled"
+
+
+class StorageError(SdfServerError):
+    code = "storage_error"
+
+
+class CorruptData(StorageError):
+    """A log or snapshot on disk fails its checks; the message names the file and offset."""
+
+    code = "corrupt_data"
+
+    def __init__(self, path: str, offset: int | None, reason: str):
+        self.path = str(path)
+        self.offset = offset
+        self.reason = reason
+        where = self.path if offset is None else f"{self.path} at offset {offset}"
+        super().__init__(f"corrupt data in {where}: {reason}")
 
 
 class KernelBuildError(SdfServerError):

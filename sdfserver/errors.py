@@ -8,6 +8,7 @@
     ├── DeviceMemoryExceeded    a world that does not fit the memory budget   (HTTP 507)
     ├── NotReady                the device cannot serve requests now          (HTTP 503)
     │   ├── NoOpenCLDevice      no OpenCL platform or no matching device
+    │   ├── VersionNotReached   a read's min_version was not reached in time
     │   └── WritesDisabled      the write-ahead log failed; no edit is accepted
     ├── KernelBuildError        an OpenCL program failed to build             (HTTP 500)
     └── StorageError            the data directory cannot be used            (HTTP 500)
@@ -52,6 +53,10 @@ class NotReady(SdfServerError):
 
 class NoOpenCLDevice(NotReady):
     code = "no_opencl_device"
+
+
+class VersionNotReached(NotReady):
+    code = "version_not_reached"
 
 
 class WritesDisabled(NotReady):

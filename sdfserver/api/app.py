@@ -1,0 +1,71 @@
+"""The FastAPI application: ``create_app(settings, engine=None)``.
+
+The app holds one Engine in ``app.state.engine``. Given none, it builds one
+from the settings when it starts (GpuContext on ``settings.device`` with
+``settings.memory_budget_bytes``) and stops it when it shuts down; an engine
+passed in is started if it is not running yet and stopped at shutdown too.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import AsyncIterator
+
+from fastapi import FastAPI
+from prometheus_client import CollectorRegistry, Counter, Gauge
+
+from sdfserver import __version__
+from sdfserver.api import errors, health, routes, stream
+from sdfserver.engine import Engine, EngineLimits, EngineMetrics, Journal
+from sdfserver.gpu import GpuContext
+from sdfserver.settings import Settings
+
+
+class ApiMetrics:
+    """What only the API sees, on the engine's registry (so /metrics shows both)."""
+
+    def __init__(self, registry: CollectorRegistry):
+        self.registry = registry
+        self.bytes_out = Counter("sdfserver_bytes_out", "Response and stream bytes sent (bodies and frames).",
+                                 registry=self.registry)
+        self.ws_clients = Gauge("sdfserver_websocket_clients", "Open WebSocket streams.", registry=self.registry)
+
+
+def engine_limits(settings: Settings) -> EngineLimits:
+    return EngineLimits(edits=settings.edit_limits(), max_world_voxels=settings.max_world_voxels,
+                        max_worlds=settings.max_worlds, max_read_voxels=settings.max_read_voxels,
+                        max_subscription_voxels=settings.max_subscription_voxels,
+                        max_wait_s=settings.max_wait_ms / 1e3)
+
+
+def build_engine(settings: Settings, journal: Journal | None = None,
+                 metrics: EngineMetrics | None = None) -> Engine:
+    """An engine on the device the settings name (not started)."""
+    gpu = GpuContext.create(settings.device or None, settings.memory_budget_bytes)
+    return Engine(gpu, engine_limits(settings), journal=journal, metrics=metrics)
+
+
+def create_app(settings: Settings, engine: Engine | None = None) -> FastAPI:
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        if app.state.engine is None:
+            app.state.engine = build_engine(settings, metrics=EngineMetrics(registry))
+        if not app.state.engine.started:
+            app.state.engine.start(warm_up=settings.warm_up)
+        try:
+            yield
+        finally:
+            app.state.engine.stop()
+
+    app = FastAPI(title="sdfserver", version=__version__, lifespan=lifespan,
+                  description="Chunked voxel worlds on an OpenCL device with exact Manhattan distance fields. "
+                              "See docs/api.md.")
+    app.state.settings = settings
+    app.state.engine = engine
+    registry = engine.metrics.registry if engine is not None else CollectorRegistry()
+    app.state.metrics = ApiMetrics(registry)
+    errors.install(app)
+    app.include_router(health.router)
+    app.include_router(routes.router)
+    app.include_router(stream.router)
+    return app

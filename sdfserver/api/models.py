@@ -1,0 +1,67 @@
+"""Request models for the JSON boundary (pydantic lives here and nowhere deeper)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, StrictInt, StrictStr
+
+Int3 = Annotated[list[StrictInt], Field(min_length=3, max_length=3, description="[x, y, z]")]
+Point3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
+Algorithm = Annotated[StrictStr, Field(description="exact, brute, fim, jfa or jfa_fim")]
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class FocusBody(Strict):
+    center: Int3 = Field(description="Focus centre, in chunks.")
+    size: Int3 = Field(description="Focus extent, in chunks.")
+
+
+class CreateWorldBody(Strict):
+    size: Int3 = Field(description="World size in voxels, each a multiple of chunk_size.")
+    chunk_size: StrictInt = Field(16, description="Chunk side in voxels: 8, 16, 32, 64 or 128.")
+    max_distance: StrictInt = Field(255, description="Distance cap, 1..255.")
+    algorithm: Algorithm = "exact"
+    lod_algorithm: Algorithm = "jfa"
+    focus: FocusBody | None = Field(None, description="Where `algorithm` runs; elsewhere `lod_algorithm`.")
+
+
+class PatchWorldBody(Strict):
+    algorithm: Algorithm | None = None
+    lod_algorithm: Algorithm | None = None
+    max_distance: StrictInt | None = None
+    focus: FocusBody | None = Field(None, description="null removes the focus; leave it out to keep it.")
+
+
+class EditOp(BaseModel):
+    """One operation: {op: voxels, voxels} | {op: box, min, max, colour} | {op: sphere, center, radius, colour}."""
+
+    op: Literal["voxels", "box", "sphere"]
+    voxels: Any = Field(None, description="N x 4 uint16 blob (msgpack) or [[x, y, z, colour], ...].")
+    min: list[int] | None = None
+    max: list[int] | None = Field(None, description="Box corner, exclusive.")
+    center: list[float] | None = None
+    radius: float | None = None
+    colour: int | None = Field(None, description="0 erases; 1..255 RGB332 colour.")
+
+
+class EditsBody(BaseModel):
+    """Documentation only: edit bodies are checked by sdfserver.edits.parse_edits."""
+
+    edits: list[EditOp]
+
+
+class QueryBody(Strict):
+    points: list[Point3] = Field(description="[[x, y, z], ...] in voxel units (a float32 N x 3 blob in msgpack).")
+
+
+def request_body(model: type[BaseModel]) -> dict[str, Any]:
+    """openapi_extra for a route that reads its body itself (JSON or msgpack)."""
+    schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
+    schema.pop("$defs", None)
+    content = {"schema": schema}
+    return {"requestBody": {"required": True, "content": {"application/json": content,
+                                                          "application/msgpack": content}}}

@@ -1,0 +1,186 @@
+"""HTTP API v1: worlds, edits, field and voxel reads, point queries.
+
+Handlers translate between requests and engine commands; they reach the engine
+only through ``request.app.state.engine`` and never touch the device.
+"""
+
+from __future__ import annotations
+
+import base64
+from typing import Any
+
+import numpy as np
+from fastapi import APIRouter, Query, Request
+from fastapi.responses import Response
+
+from sdfserver import wire
+from sdfserver.api.bodies import MSGPACK, OCTET, decode_body, respond
+from sdfserver.api.models import CreateWorldBody, EditsBody, PatchWorldBody, QueryBody, request_body
+from sdfserver.edits import parse_edits
+from sdfserver.engine import Engine
+from sdfserver.errors import InvalidEdit, InvalidInput, TooLarge
+from sdfserver.geometry import Box
+from sdfserver.world import Focus, WorldConfig
+
+router = APIRouter(prefix="/v1")
+
+
+def engine_of(request: Request) -> Engine:
+    return request.app.state.engine
+
+
+def _focus(body: Any) -> Focus | None:
+    return None if body is None else Focus(tuple(body.center), tuple(body.size))
+
+
+@router.post("/worlds", status_code=201, openapi_extra=request_body(CreateWorldBody),
+             summary="Create a world (version 0, all air)")
+async def create_world(request: Request) -> Response:
+    body = CreateWorldBody.model_validate(await decode_body(request))
+    config = WorldConfig(size=tuple(body.size), chunk_size=body.chunk_size, max_distance=body.max_distance,
+                         algorithm=body.algorithm, lod_algorithm=body.lod_algorithm, focus=_focus(body.focus))
+    described = await engine_of(request).create_world(config)
+    response = respond(request, described, status_code=201)
+    response.headers["Location"] = f"/v1/worlds/{described['id']}"
+    return response
+
+
+@router.get("/worlds", summary="List worlds")
+async def list_worlds(request: Request) -> Response:
+    return respond(request, {"worlds": await engine_of(request).list_worlds()})
+
+
+@router.get("/worlds/{world_id}", summary="Describe a world")
+async def describe_world(request: Request, world_id: str) -> Response:
+    return respond(request, await engine_of(request).describe(world_id))
+
+
+@router.patch("/worlds/{world_id}", openapi_extra=request_body(PatchWorldBody),
+              summary="Change algorithm, focus or cap (the field is recomputed)")
+async def patch_world(request: Request, world_id: str) -> Response:
+    body = PatchWorldBody.model_validate(await decode_body(request))
+    changes: dict[str, Any] = {k: getattr(body, k) for k in ("algorithm", "lod_algorithm", "max_distance")
+                               if getattr(body, k) is not None}
+    if "focus" in body.model_fields_set:
+        changes["focus"] = _focus(body.focus)
+    engine = engine_of(request)
+    if changes:
+        await engine.reconfigure(world_id, **changes)
+    return respond(request, await engine.describe(world_id))
+
+
+@router.delete("/worlds/{world_id}", status_code=204, summary="Delete a world")
+async def delete_world(request: Request, world_id: str) -> Response:
+    await engine_of(request).delete_world(world_id)
+    return Response(status_code=204)
+
+
+def _edits_wire(body: Any, max_ops: int) -> list[dict[str, Any]]:
+    if not isinstance(body, dict) or set(body) != {"edits"}:
+        raise InvalidEdit("the body must be an object with one field, 'edits'")
+    raw = body["edits"]
+    if isinstance(raw, list) and len(raw) > max_ops:
+        raise TooLarge(f"{len(raw)} operations in one batch; the limit is {max_ops}")
+    if isinstance(raw, list):
+        for i, op in enumerate(raw):
+            if isinstance(op, dict) and wire.is_blob(op.get("voxels")):
+                raw[i] = {**op, "voxels": wire.unpack_array(op["voxels"], f"edits[{i}].voxels")}
+    return raw
+
+
+@router.post("/worlds/{world_id}/edits", openapi_extra=request_body(EditsBody),
+             summary="Apply one edit batch atomically; answers the version it produced")
+async def post_edits(request: Request, world_id: str) -> Response:
+    settings = request.app.state.settings
+    raw = _edits_wire(await decode_body(request), settings.max_ops_per_batch)
+    edits = parse_edits(raw)
+    version = await engine_of(request).apply_edits(world_id, edits, raw)
+    return respond(request, {"version": version})
+
+
+def _vec3(text: str | None, name: str) -> tuple[int, int, int] | None:
+    if text is None:
+        return None
+    parts = text.split(",")
+    try:
+        if len(parts) != 3:
+            raise ValueError
+        return tuple(int(p) for p in parts)
+    except ValueError:
+        raise InvalidInput(f"{name} must be three integers 'x,y,z', got {text!r}") from None
+
+
+def _box(lo: str | None, hi: str | None) -> Box | None:
+    lo3, hi3 = _vec3(lo, "min"), _vec3(hi, "max")
+    if lo3 is None and hi3 is None:
+        return None
+    if lo3 is None or hi3 is None:
+        raise InvalidInput("give both min and max, or neither for the whole world")
+    return Box(lo3, hi3)
+
+
+def _array_response(request: Request, result: Any, dtype: str) -> Response:
+    """The read as msgpack {origin, shape, dtype, version, data}, raw bytes, or JSON with base64 data."""
+    array = result.array
+    facts = {"origin": list(result.origin), "shape": list(array.shape), "dtype": dtype, "version": result.version}
+    accept = request.headers.get("accept", "")
+    if OCTET in accept:
+        headers = {"X-Sdf-Origin": ",".join(map(str, facts["origin"])),
+                   "X-Sdf-Shape": ",".join(map(str, facts["shape"])),
+                   "X-Sdf-Dtype": dtype, "X-Sdf-Version": str(result.version)}
+        body = np.ascontiguousarray(array, dtype=np.dtype(dtype).newbyteorder("<")).tobytes()
+        response = Response(body, media_type=OCTET, headers=headers)
+    elif "application/json" in accept and MSGPACK not in accept:
+        facts["data"] = base64.b64encode(array.tobytes()).decode()
+        facts["encoding"] = "base64"
+        return respond(request, facts)
+    else:
+        facts["data"] = array.astype(np.dtype(dtype).newbyteorder("<"), copy=False).tobytes()
+        response = Response(wire.encode(facts), media_type=MSGPACK)
+    request.app.state.metrics.bytes_out.inc(len(response.body))
+    return response
+
+
+@router.get("/worlds/{world_id}/field", summary="Read the field of a box (max exclusive)")
+async def read_field(request: Request, world_id: str,
+                     min: str | None = Query(None, description="x,y,z (inclusive); default 0,0,0"),
+                     max: str | None = Query(None, description="x,y,z (exclusive); default the world size"),
+                     format: str = Query("distance", pattern="^(distance|packed)$",
+                                         description="distance: uint8; packed: uint16 (distance << 8) | colour"),
+                     min_version: int = Query(0, ge=0, description="wait until the field reflects this version")
+                     ) -> Response:
+    result = await engine_of(request).read(world_id, format, _box(min, max), min_version)
+    return _array_response(request, result, "uint8" if format == "distance" else "uint16")
+
+
+@router.get("/worlds/{world_id}/voxels", summary="Read the voxels of a box (max exclusive)")
+async def read_voxels(request: Request, world_id: str,
+                      min: str | None = Query(None, description="x,y,z (inclusive)"),
+                      max: str | None = Query(None, description="x,y,z (exclusive)"),
+                      min_version: int = Query(0, ge=0, description="wait until the voxels reflect this version")
+                      ) -> Response:
+    result = await engine_of(request).read(world_id, "voxels", _box(min, max), min_version)
+    return _array_response(request, result, "uint8")
+
+
+@router.post("/worlds/{world_id}/query", openapi_extra=request_body(QueryBody),
+             summary="Distance, colour and gradient direction at points")
+async def query(request: Request, world_id: str,
+                min_version: int = Query(0, ge=0, description="wait until the field reflects this version")
+                ) -> Response:
+    settings = request.app.state.settings
+    body = await decode_body(request)
+    points_raw = body.get("points") if isinstance(body, dict) else None
+    if wire.is_blob(points_raw):
+        if set(body) != {"points"}:
+            raise InvalidInput("the body must be an object with one field, 'points'")
+        points = wire.unpack_array(points_raw, "points")
+    else:
+        if isinstance(points_raw, list) and len(points_raw) > settings.max_query_points:
+            raise TooLarge(f"{len(points_raw)} points in one query; the limit is {settings.max_query_points}")
+        points = np.array(QueryBody.model_validate(body).points, dtype=np.float64).reshape(-1, 3)
+    if len(points) > settings.max_query_points:
+        raise TooLarge(f"{len(points)} points in one query; the limit is {settings.max_query_points}")
+    result = await engine_of(request).query(world_id, points, min_version)
+    return respond(request, {"version": result.version, "distances": result.distances,
+                             "colours": result.colours, "gradients": result.gradients})

@@ -1,0 +1,102 @@
+"""``sdfserver serve``: one uvicorn process, one engine, one device.
+
+Flags are generated from the Settings fields (``--max-request-bytes`` for
+``max_request_bytes``) and override ``SDFSERVER_*`` environment variables.
+Scale with one process per device, never with uvicorn workers on one device.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+import typing
+from typing import Any
+
+from pydantic import ValidationError
+
+from sdfserver.errors import SdfServerError
+from sdfserver.settings import Settings
+
+
+def _flag_type(annotation: Any) -> tuple[Any, list[str] | None]:
+    args = [a for a in typing.get_args(annotation) if a is not type(None)]
+    if typing.get_origin(annotation) is typing.Literal:
+        return str, [str(a) for a in typing.get_args(annotation)]
+    if args and annotation not in (int, float, str, bool):
+        return _flag_type(args[0])
+    return annotation, None
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="sdfserver serve",
+                                description="Run the sdfserver HTTP/WebSocket server. Every flag also reads "
+                                            "from SDFSERVER_<NAME>; see docs/configuration.md.")
+    for name, info in Settings.model_fields.items():
+        flag = "--" + name.replace("_", "-")
+        kind, choices = _flag_type(info.annotation)
+        help_text = f"{info.description} (default: {info.default!r})"
+        if kind is bool:
+            p.add_argument(flag, dest=name, action=argparse.BooleanOptionalAction, default=None, help=help_text)
+        else:
+            p.add_argument(flag, dest=name, type=kind, choices=choices, default=None, help=help_text)
+    return p
+
+
+def settings_from(argv: list[str]) -> Settings:
+    """Environment first, then flags on top."""
+    overrides = {k: v for k, v in vars(parser().parse_args(argv)).items() if v is not None}
+    return Settings(**overrides)
+
+
+class JsonFormatter(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        line = {"time": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(record.created)),
+                "level": record.levelname.lower(), "logger": record.name, "message": record.getMessage()}
+        if record.exc_info:
+            line["exception"] = self.formatException(record.exc_info)
+        return json.dumps(line)
+
+
+def configure_logging(settings: Settings) -> dict[str, Any]:
+    """Our handler on the root logger; uvicorn's loggers propagate to it."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(JsonFormatter() if settings.log_format == "json"
+                         else logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(settings.log_level.upper())
+    return {"version": 1, "disable_existing_loggers": False,
+            "loggers": {name: {"handlers": [], "propagate": True}
+                        for name in ("uvicorn", "uvicorn.error", "uvicorn.access")}}
+
+
+def main(argv: list[str] | None = None) -> int:
+    import uvicorn
+
+    from sdfserver.api.app import build_engine, create_app
+    from sdfserver.engine import EngineMetrics
+
+    try:
+        settings = settings_from(list(sys.argv[1:] if argv is None else argv))
+    except ValidationError as exc:
+        print(f"sdfserver serve: invalid settings:\n{exc}", file=sys.stderr)
+        return 2
+    log_config = configure_logging(settings)
+    try:
+        engine = build_engine(settings, metrics=EngineMetrics())
+    except SdfServerError as exc:  # no OpenCL device: say how to fix it and stop
+        print(f"sdfserver serve: {exc}", file=sys.stderr)
+        return 1
+    logging.getLogger("sdfserver").info("device: %s", engine.gpu.device_name)
+    app = create_app(settings, engine)
+    uvicorn.run(app, host=settings.host, port=settings.port, log_config=log_config,
+                log_level=settings.log_level, access_log=settings.access_log,
+                ws_max_size=settings.max_request_bytes, timeout_graceful_shutdown=5)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,175 @@
+"""WebSocket ``/v1/worlds/{id}/stream``: edits in, changed chunks out, binary msgpack frames.
+
+Every frame is a msgpack map with a ``type``. Client to server:
+
+- ``{type: "edits", id?, edits: [...]}``  -> ``{type: "ack", id, version}``
+- ``{type: "subscribe", id?, min, max, format?}`` (format "distance" or "packed"; the
+  region is widened to whole chunks) -> ``{type: "subscribed", id, min, max, chunk_size,
+  format, dtype}``, then the region's current chunks, then its changed chunks after
+  every recompute. A new subscribe replaces the old one.
+- ``{type: "unsubscribe", id?}`` -> ``{type: "unsubscribed", id}``
+- ``{type: "ping", id?}`` -> ``{type: "pong", id}``
+
+Server to client, besides the answers: ``{type: "chunks", world, version,
+chunk_size, format, chunks: [{chunk: [cx, cy, cz], origin: [x, y, z], data:
+<blob>}]}`` and ``{type: "error", id, error: {code, message}}`` for a frame that
+failed (the connection stays open). An unknown world closes the socket with
+4404; see errors.py for the close codes.
+
+Updates wait in the connection's single-slot mailbox (engine/mailbox.py): a
+client that reads slowly gets fewer, merged frames, never a growing queue.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from typing import Any
+
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+
+from sdfserver import wire
+from sdfserver.api.errors import body_for, close_code_for
+from sdfserver.api.routes import _edits_wire
+from sdfserver.edits import parse_edits
+from sdfserver.engine import Engine, Mailbox, Subscription
+from sdfserver.errors import InvalidInput, SdfServerError
+from sdfserver.geometry import Box
+
+router = APIRouter(prefix="/v1")
+
+
+@router.websocket("/worlds/{world_id}/stream")
+async def stream(websocket: WebSocket, world_id: str) -> None:
+    engine: Engine = websocket.app.state.engine
+    await websocket.accept()
+    try:
+        described = await engine.describe(world_id)
+    except SdfServerError as exc:
+        await websocket.close(code=close_code_for(exc), reason=str(exc)[:120])
+        return
+    metrics = websocket.app.state.metrics
+    metrics.ws_clients.inc()
+    session = StreamSession(websocket, engine, world_id, described["chunk_size"])
+    try:
+        await session.run()
+    finally:
+        metrics.ws_clients.dec()
+        session.close()
+
+
+class StreamSession:
+    def __init__(self, websocket: WebSocket, engine: Engine, world_id: str, chunk_size: int):
+        self.websocket = websocket
+        self.engine = engine
+        self.world_id = world_id
+        self.chunk_size = chunk_size
+        self.settings = websocket.app.state.settings
+        self.metrics = websocket.app.state.metrics
+        self.subscription: Subscription | None = None
+        self.loop = asyncio.get_running_loop()
+        self.wake = asyncio.Event()
+        self.send_lock = asyncio.Lock()
+
+    async def run(self) -> None:
+        sender = asyncio.create_task(self._send_updates())
+        try:
+            await self._receive()
+        finally:
+            sender.cancel()
+            with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect, RuntimeError):
+                await sender
+
+    def close(self) -> None:
+        if self.subscription is not None:
+            self.engine.unsubscribe(self.subscription)
+            self.subscription = None
+
+    async def send(self, message: dict[str, Any]) -> None:
+        data = wire.encode(message)
+        async with self.send_lock:
+            await self.websocket.send_bytes(data)
+        self.metrics.bytes_out.inc(len(data))
+
+    async def _receive(self) -> None:
+        limits = self.settings.wire_limits()
+        while True:
+            message = await self.websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+            frame_id = None
+            try:
+                data = message.get("bytes")
+                if data is None:
+                    raise InvalidInput("frames must be binary msgpack")
+                frame = wire.decode(data, limits)
+                if not isinstance(frame, dict):
+                    raise InvalidInput("a frame must be a map with a 'type'")
+                frame_id = frame.get("id")
+                await self._handle(frame)
+            except WebSocketDisconnect:
+                raise
+            except Exception as exc:  # every failure answers the frame; the connection stays
+                _, body = body_for(exc)
+                await self.send({"type": "error", "id": frame_id, **body})
+
+    async def _handle(self, frame: dict[str, Any]) -> None:
+        kind, frame_id = frame.get("type"), frame.get("id")
+        if kind == "edits":
+            raw = _edits_wire({"edits": frame.get("edits")}, self.settings.max_ops_per_batch)
+            version = await self.engine.apply_edits(self.world_id, parse_edits(raw), raw)
+            await self.send({"type": "ack", "id": frame_id, "version": version})
+        elif kind == "subscribe":
+            await self._subscribe(frame)
+        elif kind == "unsubscribe":
+            self.close()
+            await self.send({"type": "unsubscribed", "id": frame_id})
+        elif kind == "ping":
+            await self.send({"type": "pong", "id": frame_id})
+        else:
+            raise InvalidInput(f"unknown frame type {kind!r}; expected edits, subscribe, unsubscribe or ping")
+
+    async def _subscribe(self, frame: dict[str, Any]) -> None:
+        fmt = frame.get("format", "distance")
+        if fmt not in ("distance", "packed"):
+            raise InvalidInput(f"format must be 'distance' or 'packed', got {fmt!r}")
+        lo, hi = (_int3(frame.get(k), k) for k in ("min", "max"))
+        region = Box(lo, hi).snap(self.chunk_size)
+        self.close()
+        subscription = Subscription(self.world_id, region, fmt, Mailbox(self._notify))
+        # "subscribed" goes out before the engine can put the first chunks in the mailbox.
+        await self.send({"type": "subscribed", "id": frame.get("id"), "min": list(region.lo),
+                         "max": list(region.hi), "chunk_size": self.chunk_size, "format": fmt,
+                         "dtype": subscription.dtype})
+        self.subscription = subscription
+        try:
+            await self.engine.subscribe(subscription)
+        except BaseException:
+            self.subscription = None
+            raise
+
+    def _notify(self) -> None:  # engine thread
+        with contextlib.suppress(RuntimeError):  # the loop already closed: nobody to wake
+            self.loop.call_soon_threadsafe(self.wake.set)
+
+    async def _send_updates(self) -> None:
+        while True:
+            await self.wake.wait()
+            self.wake.clear()
+            subscription = self.subscription
+            update = subscription.mailbox.take() if subscription is not None else None
+            if update is None:
+                continue
+            cs, dtype = self.chunk_size, subscription.dtype
+            chunks = [{"chunk": list(key), "origin": [c * cs for c in key],
+                       "data": {"dtype": dtype, "shape": [cs, cs, cs], "data": data}}
+                      for key, data in sorted(update.chunks.items())]
+            await self.send({"type": "chunks", "world": self.world_id, "version": update.version,
+                             "chunk_size": cs, "format": subscription.format, "chunks": chunks})
+
+
+def _int3(value: Any, name: str) -> tuple[int, int, int]:
+    if (not isinstance(value, list) or len(value) != 3
+            or any(isinstance(v, bool) or not isinstance(v, int) for v in value)):
+        raise InvalidInput(f"{name} must be three integers [x, y, z], got {value!r}")
+    return tuple(value)

@@ -1,0 +1,106 @@
+"""What request handlers ask of the engine, and what it answers.
+
+Commands are plain data; the engine thread executes them. ``APPLY`` commands
+change worlds and run first in a step, in arrival order; the others run after
+the step's recompute, so they see every edit applied before them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Literal
+
+import numpy as np
+
+from sdfserver.edits import Edit, EditLimits
+from sdfserver.geometry import Box, Vec3
+from sdfserver.world import WorldConfig
+
+from sdfserver.engine.mailbox import Subscription
+
+ReadKind = Literal["packed", "distance", "voxels"]
+
+
+@dataclass(frozen=True)
+class EngineLimits:
+    edits: EditLimits = field(default_factory=EditLimits)
+    max_world_voxels: int = 1 << 30
+    max_worlds: int = 64
+    max_read_voxels: int = 1 << 27
+    max_subscription_voxels: int = 1 << 27
+    max_wait_s: float = 5.0
+
+
+@dataclass(frozen=True)
+class CreateWorld:
+    config: WorldConfig
+    world_id: str | None = None  # None: a fresh random id (restore passes the old one)
+
+
+@dataclass(frozen=True)
+class DeleteWorld:
+    world_id: str
+
+
+@dataclass(frozen=True)
+class Reconfigure:
+    world_id: str
+    changes: dict[str, Any]  # keyword arguments of World.reconfigure
+
+
+@dataclass(frozen=True)
+class ApplyEdits:
+    world_id: str
+    edits: list[Edit]
+    wire: list[dict[str, Any]]  # the batch as it arrived, for the journal
+
+
+@dataclass(frozen=True)
+class Describe:
+    world_id: str | None  # None: every world
+
+
+@dataclass(frozen=True)
+class Read:
+    world_id: str
+    kind: ReadKind
+    box: Box | None = None  # None: the whole world
+    min_version: int = 0
+    deadline: float = 0.0  # time.monotonic() after which an unmet min_version fails
+
+
+@dataclass(frozen=True)
+class Query:
+    world_id: str
+    points: np.ndarray  # (N, 3) voxel coordinates
+    min_version: int = 0
+    deadline: float = 0.0
+
+
+@dataclass(frozen=True)
+class Subscribe:
+    subscription: Subscription
+
+
+@dataclass(frozen=True)
+class OnDevice:
+    fn: Callable[[], Any]
+
+
+APPLY = (CreateWorld, DeleteWorld, Reconfigure, ApplyEdits)
+
+
+@dataclass(frozen=True)
+class ReadResult:
+    origin: Vec3  # (x, y, z) of element [0, 0, 0]
+    version: int  # voxels: the world's version; field: the version the field reflects
+    array: np.ndarray  # C-ordered (z, y, x)
+
+
+@dataclass
+class StepReport:
+    applied_batches: int = 0
+    rejected_batches: int = 0
+    recomputed: dict[str, Any] = field(default_factory=dict)  # world id -> RecomputeResult
+    served: int = 0
+    waiting: int = 0

@@ -1,0 +1,499 @@
+"""The engine: one thread owns the GpuContext and every World.
+
+Request handlers never touch the device. They ``submit`` a command (see
+``commands.py``) and await its future; the engine thread runs ``step()``
+whenever commands are queued:
+
+1. take every queued command;
+2. apply: create, delete and reconfigure worlds and apply edit batches, in
+   arrival order — each batch validated (and journaled) on its own, so a bad
+   batch fails alone and changes nothing, and acknowledged with its version;
+3. recompute each touched world once, however many batches it took;
+4. publish the chunks each recompute rewrote to the subscribers of those chunks;
+5. serve reads, point queries, subscriptions and ``run_on_device`` calls, which
+   therefore see every edit applied before them. A read whose ``min_version``
+   the field has not reached waits for later steps until its deadline.
+
+An OpenCL error from the device fails the step's commands with NotReady and
+marks the engine not ready for good (``/readyz`` answers 503).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import queue
+import secrets
+import threading
+import time
+from concurrent.futures import Future
+from dataclasses import asdict
+from typing import Any, Callable, TypeVar
+
+import numpy as np
+import pyopencl as cl
+
+from sdfserver.edits import Edit, parse_edits, validate_batch
+from sdfserver.engine.commands import (
+    APPLY, ApplyEdits, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Query, Read,
+    ReadResult, Reconfigure, StepReport, Subscribe,
+)
+from sdfserver.engine.journal import Journal
+from sdfserver.engine.mailbox import ChunkKey, Subscription
+from sdfserver.engine.metrics import EngineMetrics
+from sdfserver.engine.query import QueryResult, query_points
+from sdfserver.errors import InvalidInput, NotFound, NotReady, SdfServerError, TooLarge, VersionNotReached
+from sdfserver.geometry import Box
+from sdfserver.gpu import GpuContext
+from sdfserver.world import RecomputeResult, World, WorldConfig
+
+log = logging.getLogger("sdfserver.engine")
+T = TypeVar("T")
+Pending = tuple[Any, Future]
+
+
+def world_config_dict(config: WorldConfig) -> dict[str, Any]:
+    """A WorldConfig in wire form (the body of ``POST /v1/worlds``)."""
+    d = asdict(config)
+    d["size"] = list(config.size)
+    if config.focus is not None:
+        d["focus"] = {"center": list(config.focus.center), "size": list(config.focus.size)}
+    return d
+
+
+def new_world_id() -> str:
+    return secrets.token_urlsafe(6)
+
+
+class Engine:
+    def __init__(self, gpu: GpuContext, limits: EngineLimits = EngineLimits(), *,
+                 journal: Journal | None = None, metrics: EngineMetrics | None = None):
+        self.gpu = gpu
+        self.limits = limits
+        self.journal = journal
+        self.metrics = metrics or EngineMetrics()
+        self.worlds: dict[str, World] = {}  # engine thread only
+        self.last_recompute_ms: dict[str, float] = {}
+        self.device_error: str | None = None
+        self._commands: queue.SimpleQueue[Pending] = queue.SimpleQueue()
+        self._waiting: list[Pending] = []
+        self._subscribers: dict[str, set[Subscription]] = {}
+        self._subscribers_lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stopping = False
+        self._thread: threading.Thread | None = None
+        self._warm = threading.Event()
+        self.metrics.queue_depth.set_function(self._commands.qsize)
+
+    # -- lifetime -----------------------------------------------------------------------------
+
+    def start(self, warm_up: bool = True) -> None:
+        """Start the engine thread; from then on only it touches the device."""
+        self._thread = threading.Thread(target=self._run, args=(warm_up,), name="sdfserver-engine", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 30.0) -> None:
+        self._stopping = True
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+        else:
+            self._release_all()
+
+    @property
+    def started(self) -> bool:
+        return self._thread is not None
+
+    @property
+    def ready(self) -> bool:
+        alive = self._thread is not None and self._thread.is_alive() and not self._stopping
+        return alive and self._warm.is_set() and self.device_error is None
+
+    def not_ready_reason(self) -> str:
+        if self.device_error is not None:
+            return f"device error: {self.device_error}"
+        if self._thread is None or not self._thread.is_alive() or self._stopping:
+            return "the engine is not running"
+        return "the engine is warming up"
+
+    def _run(self, warm_up: bool) -> None:
+        try:
+            if warm_up:
+                self._warm_up()
+        except cl.Error as exc:
+            self._lose_device(exc, [])
+        self._warm.set()
+        while not self._stopping:
+            self._wake.wait(self._wait_timeout())
+            self._wake.clear()
+            if self._stopping:
+                break
+            self.step()
+        self._fail_all(NotReady("the server is shutting down"), self._drain())
+        self._release_all()
+
+    def _wait_timeout(self) -> float | None:
+        if not self._waiting:
+            return None
+        return max(0.0, min(c.deadline for c, _ in self._waiting) - time.monotonic()) + 1e-3
+
+    def _warm_up(self) -> None:
+        """Build the common kernels on a tiny world so the first request does not pay for it."""
+        world = World(self.gpu, WorldConfig(size=(16, 16, 16), chunk_size=8, max_distance=8))
+        try:
+            world.apply_edits(parse_edits([
+                {"op": "voxels", "voxels": np.array([[1, 2, 3, 9]])},
+                {"op": "box", "min": [4, 4, 4], "max": [6, 6, 6], "colour": 1},
+                {"op": "sphere", "center": [10, 10, 10], "radius": 2, "colour": 2}]))
+            world.recompute()
+            world.read_field(Box((0, 0, 0), (8, 8, 8)))
+            query_points(world, np.array([[1.0, 2.0, 3.0]]))
+        finally:
+            world.release()
+
+    def _release_all(self) -> None:
+        for world in self.worlds.values():
+            world.release()
+        self.worlds.clear()
+
+    # -- submitting (any thread) ----------------------------------------------------------------
+
+    def submit(self, command: Any) -> Future:
+        future: Future = Future()
+        if self.device_error is not None or self._stopping:
+            future.set_exception(NotReady(self.not_ready_reason()))
+            return future
+        self._commands.put((command, future))
+        self._wake.set()
+        return future
+
+    async def call(self, command: Any) -> Any:
+        return await asyncio.wrap_future(self.submit(command))
+
+    async def create_world(self, config: WorldConfig, world_id: str | None = None) -> dict[str, Any]:
+        return await self.call(CreateWorld(config, world_id))
+
+    async def delete_world(self, world_id: str) -> None:
+        await self.call(DeleteWorld(world_id))
+
+    async def reconfigure(self, world_id: str, **changes: Any) -> dict[str, Any]:
+        return await self.call(Reconfigure(world_id, changes))
+
+    async def describe(self, world_id: str) -> dict[str, Any]:
+        return await self.call(Describe(world_id))
+
+    async def list_worlds(self) -> list[dict[str, Any]]:
+        return await self.call(Describe(None))
+
+    async def apply_edits(self, world_id: str, edits: list[Edit], wire: list[dict[str, Any]]) -> int:
+        return await self.call(ApplyEdits(world_id, edits, wire))
+
+    async def read(self, world_id: str, kind: str, box: Box | None = None, min_version: int = 0) -> ReadResult:
+        return await self.call(Read(world_id, kind, box, min_version, self._deadline()))
+
+    async def query(self, world_id: str, points: np.ndarray, min_version: int = 0) -> QueryResult:
+        return await self.call(Query(world_id, points, min_version, self._deadline()))
+
+    async def subscribe(self, subscription: Subscription) -> None:
+        await self.call(Subscribe(subscription))
+
+    def unsubscribe(self, subscription: Subscription) -> None:
+        with self._subscribers_lock:
+            subs = self._subscribers.get(subscription.world_id)
+            if subs is not None:
+                subs.discard(subscription)
+        self._count_subscribers()
+
+    async def run_on_device(self, fn: Callable[[], T]) -> T:
+        """Run ``fn()`` on the engine thread between steps (after that step's recompute)."""
+        return await self.call(OnDevice(fn))
+
+    def _deadline(self) -> float:
+        return time.monotonic() + self.limits.max_wait_s
+
+    # -- the step (engine thread) -----------------------------------------------------------------
+
+    def step(self) -> StepReport:
+        """Apply queued edits, recompute touched worlds once each, publish, serve reads."""
+        commands = self._drain()
+        serve = self._waiting + [c for c in commands if not isinstance(c[0], APPLY)]
+        self._waiting = []
+        report = StepReport()
+        try:
+            touched = self._apply([c for c in commands if isinstance(c[0], APPLY)], report)
+            report.recomputed = self._recompute(touched)
+            self._publish(report.recomputed)
+            self._serve(serve, report)
+        except cl.Error as exc:
+            self._lose_device(exc, commands + serve + self._waiting)
+            self._waiting = []
+        self.metrics.steps.inc()
+        return report
+
+    def _drain(self) -> list[Pending]:
+        out = []
+        while True:
+            try:
+                out.append(self._commands.get_nowait())
+            except queue.Empty:
+                return out
+
+    def _apply(self, commands: list[Pending], report: StepReport) -> set[str]:
+        touched: set[str] = set()
+        for command, future in commands:
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                if isinstance(command, ApplyEdits):
+                    result = self._apply_edits(command)
+                    touched.add(command.world_id)
+                    report.applied_batches += 1
+                elif isinstance(command, CreateWorld):
+                    result = self._create_world(command)
+                elif isinstance(command, DeleteWorld):
+                    result = self._delete_world(command.world_id)
+                else:
+                    self._world(command.world_id).reconfigure(**command.changes)
+                    touched.add(command.world_id)
+                    result = None
+            except cl.Error:
+                raise
+            except Exception as exc:  # the command fails alone; the engine carries on
+                if isinstance(command, ApplyEdits):
+                    report.rejected_batches += 1
+                    self.metrics.rejected_batches.inc()
+                self._fail(future, exc)
+            else:
+                future.set_result(result)
+        return touched
+
+    def _apply_edits(self, command: ApplyEdits) -> int:
+        world = self._world(command.world_id)
+        validate_batch(command.edits, world.config.size, world.limits)
+        if self.journal is not None:
+            self.journal.record_batch(command.world_id, world.version + 1, command.wire)
+        version = world.apply_edits(command.edits)
+        self.metrics.edit_batches.inc()
+        self.metrics.edit_ops.inc(len(command.edits))
+        return version
+
+    def _create_world(self, command: CreateWorld) -> dict[str, Any]:
+        config = command.config.validated()
+        sx, sy, sz = config.size
+        if sx * sy * sz > self.limits.max_world_voxels:
+            raise TooLarge(f"a {sx}x{sy}x{sz} world has {sx * sy * sz} voxels; the limit is "
+                           f"{self.limits.max_world_voxels}")
+        if len(self.worlds) >= self.limits.max_worlds:
+            raise TooLarge(f"the server already holds {len(self.worlds)} worlds, its limit")
+        world_id = command.world_id or new_world_id()
+        while world_id in self.worlds:
+            if command.world_id:
+                raise InvalidInput(f"world {world_id!r} already exists")
+            world_id = new_world_id()
+        world = World(self.gpu, config, self.limits.edits)
+        if self.journal is not None:
+            try:
+                self.journal.record_create(world_id, world_config_dict(world.config))
+            except BaseException:
+                world.release()
+                raise
+        self.worlds[world_id] = world
+        self._count_worlds()
+        return self._describe(world_id)
+
+    def _delete_world(self, world_id: str) -> None:
+        world = self._world(world_id)
+        if self.journal is not None:
+            self.journal.record_delete(world_id)
+        del self.worlds[world_id]
+        self.last_recompute_ms.pop(world_id, None)
+        world.release()
+        with self._subscribers_lock:
+            self._subscribers.pop(world_id, None)
+        self._count_worlds()
+
+    def _recompute(self, touched: set[str]) -> dict[str, RecomputeResult]:
+        results = {}
+        worlds = {i: self.worlds[i] for i in touched if i in self.worlds}
+        self.metrics.dirty_chunks.set(sum(w.dirty_chunk_count for w in worlds.values()))
+        for world_id, world in worlds.items():
+            result = world.recompute()
+            algorithm = world.config.algorithm
+            self.metrics.recompute_seconds.labels(algorithm).observe(result.wall_ms / 1e3)
+            self.metrics.recompute_device_seconds.labels(algorithm).inc(result.device_ms / 1e3)
+            self.metrics.changed_chunks.inc(len(result.changed_chunks))
+            self.last_recompute_ms[world_id] = result.wall_ms
+            results[world_id] = result
+        return results
+
+    # -- publishing ---------------------------------------------------------------------------------
+
+    def _publish(self, recomputed: dict[str, RecomputeResult]) -> None:
+        for world_id, result in recomputed.items():
+            with self._subscribers_lock:
+                subs = list(self._subscribers.get(world_id, ()))
+            if not subs or not result.regions:
+                continue
+            world = self.worlds[world_id]
+            for region in result.regions:
+                readers = [s for s in subs if s.region.overlaps(region)]
+                if not readers:
+                    continue
+                box = region.intersect(_union([s.region for s in readers]))
+                field = world.read_field(box)
+                for sub in readers:
+                    part = region.intersect(sub.region)
+                    if part.empty:
+                        continue
+                    chunks = _chunks_of(field, box.lo, part, world.config.chunk_size, sub.format)
+                    self.metrics.merged_chunks.inc(sub.mailbox.put(world.field_version, chunks))
+        self._count_pending()
+
+    def _subscribe(self, sub: Subscription) -> None:
+        world = self._world(sub.world_id)
+        region = sub.region
+        if region.empty or not world.world_box.contains(region):
+            raise InvalidInput(f"region {list(region.lo)}..{list(region.hi)} is empty or outside the world "
+                               f"{list(world.config.size)}")
+        if region.volume > self.limits.max_subscription_voxels:
+            raise TooLarge(f"a subscription of {region.volume} voxels; the limit is "
+                           f"{self.limits.max_subscription_voxels}")
+        # The current state first, then every change: the subscriber never misses one.
+        field = world.read_field(region)
+        sub.mailbox.put(world.field_version, _chunks_of(field, region.lo, region, world.config.chunk_size,
+                                                         sub.format))
+        with self._subscribers_lock:
+            self._subscribers.setdefault(sub.world_id, set()).add(sub)
+        self._count_subscribers()
+
+    # -- serving -------------------------------------------------------------------------------------
+
+    def _serve(self, commands: list[Pending], report: StepReport) -> None:
+        now = time.monotonic()
+        for command, future in commands:
+            if future.cancelled():
+                continue
+            try:
+                if isinstance(command, (Read, Query)) and self._must_wait(command, now):
+                    self._waiting.append((command, future))
+                    continue
+                if not future.set_running_or_notify_cancel():
+                    continue
+                result = self._serve_one(command)
+            except cl.Error:
+                raise
+            except Exception as exc:
+                self._fail(future, exc)
+            else:
+                future.set_result(result)
+                report.served += 1
+        report.waiting = len(self._waiting)
+        self._count_pending()
+
+    def _must_wait(self, command: Read | Query, now: float) -> bool:
+        world = self._world(command.world_id)
+        have = world.version if isinstance(command, Read) and command.kind == "voxels" else world.field_version
+        if have >= command.min_version:
+            return False
+        if now < command.deadline:
+            return True
+        raise VersionNotReached(f"world {command.world_id!r} is at version {have}; min_version "
+                                f"{command.min_version} was not reached in {self.limits.max_wait_s:g} s")
+
+    def _serve_one(self, command: Any) -> Any:
+        if isinstance(command, Read):
+            return self._read(command)
+        if isinstance(command, Query):
+            return query_points(self._world(command.world_id), command.points)
+        if isinstance(command, Describe):
+            if command.world_id is None:
+                return [self._describe(i) for i in sorted(self.worlds)]
+            return self._describe(command.world_id)
+        if isinstance(command, Subscribe):
+            return self._subscribe(command.subscription)
+        if isinstance(command, OnDevice):
+            return command.fn()
+        raise TypeError(f"not an engine command: {command!r}")
+
+    def _read(self, command: Read) -> ReadResult:
+        world = self._world(command.world_id)
+        box = world.world_box if command.box is None else command.box
+        if box.volume > self.limits.max_read_voxels:
+            raise TooLarge(f"a read of {box.volume} voxels; the limit is {self.limits.max_read_voxels}")
+        if command.kind == "voxels":
+            return ReadResult(box.lo, world.version, world.read_voxels(box))
+        array = world.read_distance(box) if command.kind == "distance" else world.read_field(box)
+        return ReadResult(box.lo, world.field_version, array)
+
+    def _describe(self, world_id: str) -> dict[str, Any]:
+        world = self._world(world_id)
+        return {
+            "id": world_id,
+            **world_config_dict(world.config),
+            "version": world.version,
+            "field_version": world.field_version,
+            "dirty_chunks": world.dirty_chunk_count,
+            "last_recompute_ms": self.last_recompute_ms.get(world_id),
+            "device_bytes": world.device_bytes,
+        }
+
+    def _world(self, world_id: str) -> World:
+        try:
+            return self.worlds[world_id]
+        except (KeyError, TypeError):
+            raise NotFound(f"no world {world_id!r}") from None
+
+    # -- failures and gauges -----------------------------------------------------------------------
+
+    def _fail(self, future: Future, exc: BaseException) -> None:
+        if not isinstance(exc, SdfServerError):
+            log.exception("engine command failed unexpectedly", exc_info=exc)
+        if not future.done():
+            future.set_exception(exc)
+
+    def _fail_all(self, exc: BaseException, pending: list[Pending]) -> None:
+        for _, future in pending:
+            if not future.done() and (future.running() or future.set_running_or_notify_cancel()):
+                future.set_exception(exc)
+
+    def _lose_device(self, exc: cl.Error, pending: list[Pending]) -> None:
+        log.error("OpenCL device error; the engine stops serving: %s", exc)
+        self.device_error = str(exc)
+        self._fail_all(NotReady(f"device error: {exc}"), pending)
+
+    def _count_worlds(self) -> None:
+        self.metrics.worlds.set(len(self.worlds))
+        self.metrics.device_bytes.set(sum(w.device_bytes for w in self.worlds.values()))
+
+    def _count_subscribers(self) -> None:
+        with self._subscribers_lock:
+            self.metrics.subscribers.set(sum(len(s) for s in self._subscribers.values()))
+
+    def _count_pending(self) -> None:
+        with self._subscribers_lock:
+            subs = [s for group in self._subscribers.values() for s in group]
+        self.metrics.pending_chunks.set(sum(s.mailbox.pending_chunks for s in subs))
+        self.metrics.pending_bytes.set(sum(s.mailbox.pending_bytes for s in subs))
+
+
+def _union(boxes: list[Box]) -> Box:
+    out = boxes[0]
+    for b in boxes[1:]:
+        out = out.union(b)
+    return out
+
+
+def _chunks_of(field: np.ndarray, origin, part: Box, chunk_size: int, fmt: str) -> dict[ChunkKey, bytes]:
+    """Split the chunk-aligned ``part`` of ``field`` (element 0 at ``origin``) into per-chunk bytes.
+
+    This is the step's one loop over chunks.
+    """
+    block = field[part.slices_zyx(origin)]
+    if fmt == "distance":
+        block = (block >> 8).astype(np.uint8)
+    cs = chunk_size
+    nz, ny, nx = block.shape
+    tiles = block.reshape(nz // cs, cs, ny // cs, cs, nx // cs, cs).transpose(0, 2, 4, 1, 3, 5)
+    x0, y0, z0 = (v // cs for v in part.lo)
+    return {(x0 + cx, y0 + cy, z0 + cz): tiles[cz, cy, cx].tobytes()
+            for cz, cy, cx in np.ndindex(tiles.shape[:3])}

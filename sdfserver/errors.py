@@ -3,8 +3,10 @@
     SdfServerError
     ├── InvalidInput            bad request data; nothing was changed        (HTTP 422)
     │   └── InvalidEdit         an edit batch that cannot be applied
-    ├── NotFound                an unknown world                              (HTTP 404)
+    ├── Unauthorized            a missing or unknown API key                  (HTTP 401)
+    ├── NotFound                an unknown world (or another tenant's)        (HTTP 404)
     ├── TooLarge                a body, batch or region over a limit          (HTTP 413)
+    ├── RateLimited             a key over its request rate                   (HTTP 429)
     ├── DeviceMemoryExceeded    a world that does not fit the memory budget   (HTTP 507)
     ├── NotReady                the device cannot serve requests now          (HTTP 503)
     │   ├── NoOpenCLDevice      no OpenCL platform or no matching device
@@ -37,6 +39,18 @@ class InvalidEdit(InvalidInput):
 
 class NotFound(SdfServerError):
     code = "not_found"
+
+
+class Unauthorized(SdfServerError):
+    code = "unauthorized"
+
+
+class RateLimited(SdfServerError):
+    code = "rate_limited"
+
+    def __init__(self, message: str, retry_after_s: float = 1.0):
+        self.retry_after_s = retry_after_s
+        super().__init__(message)
 
 
 class TooLarge(SdfServerError):

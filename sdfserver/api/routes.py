@@ -14,6 +14,7 @@ from fastapi import APIRouter, Query, Request
 from fastapi.responses import Response
 
 from sdfserver import wire
+from sdfserver.api.auth import principal_of
 from sdfserver.api.bodies import MSGPACK, OCTET, decode_body, respond
 from sdfserver.api.models import CreateWorldBody, EditsBody, PatchWorldBody, QueryBody, request_body
 from sdfserver.edits import parse_edits
@@ -39,7 +40,12 @@ async def create_world(request: Request) -> Response:
     body = CreateWorldBody.model_validate(await decode_body(request))
     config = WorldConfig(size=tuple(body.size), chunk_size=body.chunk_size, max_distance=body.max_distance,
                          algorithm=body.algorithm, lod_algorithm=body.lod_algorithm, focus=_focus(body.focus))
-    described = await engine_of(request).create_world(config)
+    principal = principal_of(request)
+    engine = engine_of(request)
+    limit = request.app.state.settings.max_worlds_per_key
+    if not principal.admin and sum(o == principal.name for o in list(engine.owners.values())) >= limit:
+        raise TooLarge(f"API key {principal.name!r} already owns {limit} worlds, its limit")
+    described = await engine.create_world(config, owner=principal.name)
     response = respond(request, described, status_code=201)
     response.headers["Location"] = f"/v1/worlds/{described['id']}"
     return response
@@ -47,7 +53,9 @@ async def create_world(request: Request) -> Response:
 
 @router.get("/worlds", summary="List worlds")
 async def list_worlds(request: Request) -> Response:
-    return respond(request, {"worlds": await engine_of(request).list_worlds()})
+    principal = principal_of(request)
+    worlds = [w for w in await engine_of(request).list_worlds() if principal.sees(w["owner"])]
+    return respond(request, {"worlds": worlds})
 
 
 @router.get("/worlds/{world_id}", summary="Describe a world")

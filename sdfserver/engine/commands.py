@@ -35,6 +35,7 @@ class EngineLimits:
 class CreateWorld:
     config: WorldConfig
     world_id: str | None = None  # None: a fresh random id (restore passes the old one)
+    owner: str | None = None  # the API key name that owns the world (None: open server)
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,7 @@ from sdfserver.api.errors import body_for, close_code_for
 from sdfserver.api.routes import _edits_wire
 from sdfserver.edits import parse_edits
 from sdfserver.engine import Engine, Mailbox, Subscription
-from sdfserver.errors import InvalidInput, SdfServerError
+from sdfserver.errors import InvalidInput, SdfServerError, TooLarge
 from sdfserver.geometry import Box
 
 router = APIRouter(prefix="/v1")
@@ -54,7 +54,7 @@ async def stream(websocket: WebSocket, world_id: str) -> None:
         return
     metrics = websocket.app.state.metrics
     metrics.ws_clients.inc()
-    session = StreamSession(websocket, engine, world_id, described["chunk_size"])
+    session = StreamSession(websocket, engine, world_id, described["chunk_size"], tuple(described["size"]))
     session.principal = principal
     try:
         await session.run()
@@ -64,8 +64,10 @@ async def stream(websocket: WebSocket, world_id: str) -> None:
 
 
 class StreamSession:
-    def __init__(self, websocket: WebSocket, engine: Engine, world_id: str, chunk_size: int):
+    def __init__(self, websocket: WebSocket, engine: Engine, world_id: str, chunk_size: int,
+                 size: tuple[int, int, int]):
         self.websocket = websocket
+        self.world_box = Box.of_size(size)
         self.engine = engine
         self.world_id = world_id
         self.chunk_size = chunk_size
@@ -144,6 +146,12 @@ class StreamSession:
             raise InvalidInput(f"format must be 'distance' or 'packed', got {fmt!r}")
         lo, hi = (_int3(frame.get(k), k) for k in ("min", "max"))
         region = Box(lo, hi).snap(self.chunk_size)
+        if region.empty or not self.world_box.contains(region):
+            raise InvalidInput(f"region {list(lo)}..{list(hi)} is empty or outside the world "
+                               f"{list(self.world_box.hi)}")
+        if region.volume > self.settings.max_subscription_voxels:
+            raise TooLarge(f"a subscription of {region.volume} voxels; the limit is "
+                           f"{self.settings.max_subscription_voxels}")
         self.close()
         subscription = Subscription(self.world_id, region, fmt, Mailbox(self._notify))
         # "subscribed" goes out before the engine can put the first chunks in the mailbox.

@@ -1,0 +1,194 @@
+"""A real `sdfserver serve` process on loopback, shared by every test in this directory, and
+NumPy/SciPy references to check what it answers."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from scipy.ndimage import distance_transform_cdt
+
+from sdfserver import wire
+
+ROOT = Path(__file__).resolve().parents[2]
+MEMORY_BUDGET_BYTES = 32 << 20
+SERVER_FLAGS = [
+    "--memory-budget-bytes", str(MEMORY_BUDGET_BYTES),
+    "--max-request-bytes", str(1 << 20),
+    "--max-ops-per-batch", "64",
+    "--max-voxels-per-batch", "20000",
+    "--max-brush-radius-vox", "40",
+    "--max-world-voxels", str(1 << 24),
+    "--max-read-voxels", str(64 ** 3),
+    "--max-query-points", "1000",
+    "--max-wait-ms", "1500",
+]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Server:
+    def __init__(self, process: subprocess.Popen, url: str):
+        self.process = process
+        self.url = url
+        self.http = httpx.Client(base_url=url, timeout=30)
+
+    @property
+    def ws_url(self) -> str:
+        return self.url.replace("http://", "ws://")
+
+    def rss_bytes(self) -> int:
+        for line in Path(f"/proc/{self.process.pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) * 1024
+        raise RuntimeError("no VmRSS")
+
+    def metric(self, name: str) -> float:
+        for line in self.http.get("/metrics").text.splitlines():
+            if line.startswith(name + " "):
+                return float(line.split()[1])
+        raise KeyError(name)
+
+    # -- the API, in msgpack ---------------------------------------------------------------------
+
+    def post(self, path: str, body: Any, **kw) -> httpx.Response:
+        return self.http.post(path, content=wire.encode(body),
+                              headers={"content-type": wire.CONTENT_TYPE, "accept": wire.CONTENT_TYPE}, **kw)
+
+    def create_world(self, **body) -> dict:
+        r = self.http.post("/v1/worlds", json=body)
+        assert r.status_code == 201, r.text
+        return r.json()
+
+    def edit(self, world_id: str, edits: list, as_json: bool = False) -> int:
+        if as_json:
+            r = self.http.post(f"/v1/worlds/{world_id}/edits", json={"edits": edits})
+            assert r.status_code == 200, r.text
+            return r.json()["version"]
+        r = self.post(f"/v1/worlds/{world_id}/edits", {"edits": edits})
+        assert r.status_code == 200, r.text
+        return wire.decode(r.content)["version"]
+
+    def read(self, world_id: str, what: str = "field", min_version: int = 0, **params) -> tuple[np.ndarray, dict]:
+        r = self.http.get(f"/v1/worlds/{world_id}/{what}", params={"min_version": min_version, **params},
+                          headers={"accept": wire.CONTENT_TYPE})
+        assert r.status_code == 200, r.text
+        msg = wire.decode(r.content)
+        array = np.frombuffer(msg["data"], dtype=msg["dtype"]).reshape(msg["shape"])
+        return array, msg
+
+    def state(self, world_id: str) -> tuple[int, bytes]:
+        """(version, voxel bytes): what a rejected request must leave alone."""
+        version = self.http.get(f"/v1/worlds/{world_id}").json()["version"]
+        voxels, _ = self.read(world_id, "voxels")
+        return version, voxels.tobytes()
+
+
+@pytest.fixture(scope="session")
+def server() -> Server:
+    port = free_port()
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env.pop("SDFSERVER_PORT", None)
+    process = subprocess.Popen(
+        [sys.executable, "-m", "sdfserver", "serve", "--host", "127.0.0.1", "--port", str(port), *SERVER_FLAGS],
+        cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 120
+    while True:
+        if process.poll() is not None:
+            raise RuntimeError(f"server exited: {process.stdout.read().decode(errors='replace')}")
+        try:
+            if httpx.get(url + "/readyz", timeout=2).status_code == 200:
+                break
+        except httpx.TransportError:
+            pass
+        if time.monotonic() > deadline:
+            process.kill()
+            raise RuntimeError("server did not become ready")
+        time.sleep(0.1)
+    srv = Server(process, url)
+    yield srv
+    srv.http.close()
+    process.terminate()
+    try:
+        process.wait(15)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
+    process.stdout.close()
+
+
+# -- references -------------------------------------------------------------------------------------
+
+
+def apply_reference(voxels: np.ndarray, edits: list[dict]) -> None:
+    """Apply one batch to a (z, y, x) uint8 array in place, as the server defines the operations."""
+    sz, sy, sx = voxels.shape
+    for op in edits:
+        if op["op"] == "voxels":
+            rows = np.asarray(op["voxels"], dtype=np.int64).reshape(-1, 4)
+            # Later duplicates win: keep the last occurrence of each position.
+            flat = np.ravel_multi_index((rows[:, 2], rows[:, 1], rows[:, 0]), voxels.shape)
+            _, last = np.unique(flat[::-1], return_index=True)
+            keep = rows[::-1][last]
+            voxels[keep[:, 2], keep[:, 1], keep[:, 0]] = keep[:, 3]
+        elif op["op"] == "box":
+            lo = np.clip(op["min"], 0, (sx, sy, sz))
+            hi = np.clip(op["max"], 0, (sx, sy, sz))
+            voxels[lo[2]:hi[2], lo[1]:hi[1], lo[0]:hi[0]] = op["colour"]
+        else:
+            z, y, x = np.ogrid[:sz, :sy, :sx]
+            cx, cy, cz = op["center"]
+            inside = (x - cx) ** 2 + (y - cy) ** 2 + (z - cz) ** 2 <= op["radius"] ** 2
+            voxels[inside] = op["colour"]
+
+
+def distance_reference(voxels: np.ndarray, cap: int) -> np.ndarray:
+    """Capped Manhattan distance to the nearest solid voxel (scipy), outside the world is air."""
+    if not voxels.any():
+        return np.full(voxels.shape, cap, dtype=np.uint8)
+    d = distance_transform_cdt(voxels == 0, metric="taxicab")
+    return np.minimum(d, cap).astype(np.uint8)
+
+
+def random_batch(rng: np.random.Generator, size: tuple[int, int, int], blob: bool = True) -> list[dict]:
+    """A few random operations; spheres use integer centres and radius k + 0.5 (no ties)."""
+    sx, sy, sz = size
+    ops: list[dict] = []
+    for _ in range(int(rng.integers(1, 4))):
+        kind = rng.choice(["voxels", "box", "sphere"])
+        colour = int(rng.choice([0, int(rng.integers(1, 256))], p=[0.25, 0.75]))
+        if kind == "voxels":
+            n = int(rng.integers(1, 40))
+            rows = np.column_stack([rng.integers(0, sx, n), rng.integers(0, sy, n), rng.integers(0, sz, n),
+                                    rng.integers(0, 256, n)]).astype(np.uint16)
+            ops.append({"op": "voxels", "voxels": rows if blob else rows.tolist()})
+        elif kind == "box":
+            lo = [int(rng.integers(-4, s)) for s in size]
+            hi = [v + int(rng.integers(0, 8)) for v in lo]
+            ops.append({"op": "box", "min": lo, "max": hi, "colour": colour})
+        else:
+            center = [int(rng.integers(0, s)) for s in size]
+            ops.append({"op": "sphere", "center": center, "radius": int(rng.integers(0, 6)) + 0.5,
+                        "colour": colour})
+    return ops
+
+
+@pytest.fixture(scope="session")
+def ref():
+    """The reference functions above, for test modules (which cannot import conftest by name)."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(apply=apply_reference, distance=distance_reference, batch=random_batch)

@@ -36,7 +36,7 @@ from sdfserver.storage.snapshot import remove_snapshot_files, write_snapshot
 from sdfserver.storage.wal import Committer, WorldLog
 
 DEFAULT_DATA_DIR = "data"  # relative to the working directory; see docs/configuration.md
-WORLD_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
+WORLD_ID = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9_.-]{0,127}$")  # never a leading dot
 META_FILE = "world.json"
 _HIDDEN = "."  # prefix of directories being created or deleted
 

@@ -155,8 +155,11 @@ def test_catalog(storage):
         storage.create_world(name, {"config": CONFIG, "owner": name}).close()
     with pytest.raises(InvalidInput):
         storage.create_world("a", {"config": CONFIG})
-    with pytest.raises(InvalidInput):
-        storage.create_world("../escape", {"config": CONFIG})
+    for bad in ("../escape", ".hidden", "a/b", ""):
+        with pytest.raises(InvalidInput):
+            storage.create_world(bad, {"config": CONFIG})
+    storage.create_world("_x-Y.1", {"config": CONFIG}).close()  # what secrets.token_urlsafe makes
+    storage.delete_world("_x-Y.1")
     (storage.worlds_dir / ".new-c-1234").mkdir()  # a creation a crash interrupted
     storage.close()
     storage = Storage(storage.data_dir)

@@ -37,7 +37,7 @@ def parser() -> argparse.ArgumentParser:
     for name, info in Settings.model_fields.items():
         flag = "--" + name.replace("_", "-")
         kind, choices = _flag_type(info.annotation)
-        help_text = f"{info.description} (default: {info.default!r})"
+        help_text = f"{info.description} (default: {info.default!r})".replace("%", "%%")
         if kind is bool:
             p.add_argument(flag, dest=name, action=argparse.BooleanOptionalAction, default=None, help=help_text)
         else:

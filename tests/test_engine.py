@@ -1,0 +1,234 @@
+"""The engine without HTTP: step() driven by hand, the journal hook, run_on_device, mailboxes."""
+
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+import pytest
+from scipy.ndimage import distance_transform_cdt
+
+from sdfserver.edits import parse_edits
+from sdfserver.engine import Engine, EngineLimits, Mailbox, Subscription
+from sdfserver.engine.commands import ApplyEdits, CreateWorld, DeleteWorld, OnDevice, Read, Subscribe
+from sdfserver.errors import InvalidEdit, NotFound, NotReady, TooLarge, VersionNotReached
+from sdfserver.geometry import Box
+from sdfserver.gpu import GpuContext
+from sdfserver.world import WorldConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def gpu():
+    return GpuContext.create()
+
+
+@pytest.fixture
+def engine(gpu):
+    engine = Engine(gpu, EngineLimits(max_worlds=4))
+    yield engine
+    engine.stop()
+
+
+def create(engine: Engine, size=(16, 16, 16), cap=5) -> str:
+    future = engine.submit(CreateWorld(WorldConfig(size=size, chunk_size=8, max_distance=cap)))
+    engine.step()
+    return future.result()["id"]
+
+
+def edits(engine, world_id, raw):
+    return engine.submit(ApplyEdits(world_id, parse_edits(raw), raw))
+
+
+def oracle(voxels: np.ndarray, cap: int) -> np.ndarray:
+    return np.minimum(distance_transform_cdt(voxels == 0, metric="taxicab"), cap)
+
+
+def test_step_applies_each_batch_alone_and_recomputes_each_world_once(engine):
+    a, b = create(engine), create(engine)
+    rng = np.random.default_rng()
+    rows = np.column_stack([rng.integers(0, 16, (30, 3)), rng.integers(1, 256, 30)])
+    good1 = edits(engine, a, [{"op": "voxels", "voxels": rows}])
+    bad = edits(engine, a, [{"op": "box", "min": [0, 0, 0], "max": [16, 16, 16], "colour": 1},
+                            {"op": "voxels", "voxels": [[16, 0, 0, 1]]}])
+    good2 = edits(engine, a, [{"op": "box", "min": [2, 2, 2], "max": [5, 5, 5], "colour": 9}])
+    other = edits(engine, b, [{"op": "sphere", "center": [8, 8, 8], "radius": 3, "colour": 4}])
+    missing = edits(engine, "nope", [{"op": "sphere", "center": [8, 8, 8], "radius": 3, "colour": 4}])
+    field = engine.submit(Read(a, "distance"))
+    report = engine.step()
+    assert (good1.result(), good2.result(), other.result()) == (1, 2, 1)
+    with pytest.raises(InvalidEdit):
+        bad.result()
+    with pytest.raises(NotFound):
+        missing.result()
+    assert report.applied_batches == 3 and report.rejected_batches == 2
+    assert set(report.recomputed) == {a, b}
+    expected = np.zeros((16, 16, 16), np.uint8)
+    expected[rows[:, 2], rows[:, 1], rows[:, 0]] = rows[:, 3]
+    expected[2:5, 2:5, 2:5] = 9
+    result = field.result()
+    assert result.version == 2
+    np.testing.assert_array_equal(result.array, oracle(expected, 5))
+
+
+class RecordingJournal:
+    def __init__(self, fail_on_version: int | None = None):
+        self.calls = []
+        self.fail_on_version = fail_on_version
+
+    def record_create(self, world_id, config):
+        self.calls.append(("create", world_id, config))
+
+    def record_batch(self, world_id, version, edits):
+        if version == self.fail_on_version:
+            self.fail_on_version = None  # fails once
+            raise OSError("disk full")
+        self.calls.append(("batch", world_id, version, edits))
+
+    def record_delete(self, world_id):
+        self.calls.append(("delete", world_id))
+
+
+def test_journal_records_before_acknowledging(gpu):
+    journal = RecordingJournal(fail_on_version=2)
+    engine = Engine(gpu, journal=journal)
+    world_id = create(engine)
+    assert journal.calls == [("create", world_id, {"size": [16, 16, 16], "chunk_size": 8, "max_distance": 5,
+                                                   "algorithm": "exact", "focus": None, "lod_algorithm": "jfa"})]
+    raw = [{"op": "box", "min": [0, 0, 0], "max": [2, 2, 2], "colour": 3}]
+    first = edits(engine, world_id, raw)
+    seen_done = []
+    original = journal.record_batch
+
+    def record_and_look(world, version, batch):
+        seen_done.append(first.done())
+        original(world, version, batch)
+
+    journal.record_batch = record_and_look
+    failing = edits(engine, world_id, raw)
+    bad = edits(engine, world_id, [{"op": "voxels", "voxels": [[16, 0, 0, 1]]}])
+    engine.step()
+    assert first.result() == 1 and seen_done[0] is False
+    with pytest.raises(OSError):
+        failing.result()  # not journaled: not applied, not acknowledged
+    with pytest.raises(InvalidEdit):
+        bad.result()  # invalid batches never reach the journal
+    assert [c[:3] for c in journal.calls[1:]] == [("batch", world_id, 1)]
+    assert journal.calls[1][3] == raw
+    third = edits(engine, world_id, raw)
+    gone = engine.submit(DeleteWorld(world_id))
+    engine.step()
+    assert third.result() == 2 and gone.result() is None
+    assert journal.calls[-2][:3] == ("batch", world_id, 2) and journal.calls[-1] == ("delete", world_id)
+    engine.stop()
+
+
+def test_min_version_waits_then_answers(engine):
+    world_id = create(engine)
+    read = engine.submit(Read(world_id, "distance", Box((0, 0, 0), (4, 4, 4)), min_version=1,
+                              deadline=float("inf")))
+    report = engine.step()
+    assert not read.done() and report.waiting == 1
+    edits(engine, world_id, [{"op": "box", "min": [0, 0, 0], "max": [1, 1, 1], "colour": 3}])
+    engine.step()
+    assert read.result().version == 1 and read.result().array[0, 0, 0] == 0
+    expired = engine.submit(Read(world_id, "field", None, min_version=5, deadline=0.0))
+    engine.step()
+    with pytest.raises(VersionNotReached):
+        expired.result()
+
+
+def test_limits(engine):
+    with pytest.raises(TooLarge):
+        big = engine.submit(CreateWorld(WorldConfig(size=(2048, 2048, 2048))))
+        engine.step()
+        big.result()
+    ids = [create(engine) for _ in range(4)]
+    fifth = engine.submit(CreateWorld(WorldConfig(size=(16, 16, 16), chunk_size=8)))
+    engine.step()
+    with pytest.raises(TooLarge):
+        fifth.result()
+    assert len(set(ids)) == 4 and all(len(i) >= 8 for i in ids)
+
+
+def test_subscriptions_get_only_changed_chunks_merged(engine):
+    world_id = create(engine, size=(32, 32, 32), cap=3)
+    sub = Subscription(world_id, Box((0, 0, 0), (32, 32, 16)), "distance")
+    done = engine.submit(Subscribe(sub))
+    engine.step()
+    done.result()
+    initial = sub.mailbox.take()
+    assert initial.version == 0 and len(initial.chunks) == 4 * 4 * 2
+    assert all(np.frombuffer(c, np.uint8).tolist() == [3] * 512 for c in initial.chunks.values())
+    # Two steps the subscriber does not read: merged, newest wins.
+    edits(engine, world_id, [{"op": "voxels", "voxels": [[1, 1, 1, 5]]}])
+    engine.step()
+    edits(engine, world_id, [{"op": "voxels", "voxels": [[1, 1, 1, 0], [30, 1, 1, 5]]}])
+    engine.step()
+    edits(engine, world_id, [{"op": "voxels", "voxels": [[30, 30, 30, 5]]}])  # outside the region
+    engine.step()
+    update = sub.mailbox.take()
+    assert update.version == 2
+    assert set(update.chunks) == {(0, 0, 0), (3, 0, 0)}
+    assert np.frombuffer(update.chunks[(0, 0, 0)], np.uint8).reshape(8, 8, 8)[1, 1, 1] == 3
+    assert np.frombuffer(update.chunks[(3, 0, 0)], np.uint8).reshape(8, 8, 8)[1, 1, 6] == 0
+    assert sub.mailbox.merged_chunks == 1 and sub.mailbox.take() is None
+    engine.unsubscribe(sub)
+    edits(engine, world_id, [{"op": "voxels", "voxels": [[2, 2, 2, 5]]}])
+    engine.step()
+    assert sub.mailbox.take() is None
+
+
+def test_mailbox_notifies_once_per_pending_update():
+    calls = []
+    box = Mailbox(lambda: calls.append(1))
+    box.put(1, {(0, 0, 0): b"a", (1, 0, 0): b"b"})
+    box.put(2, {(0, 0, 0): b"c"})
+    assert calls == [1] and box.pending_chunks == 2 and box.pending_bytes == 2
+    update = box.take()
+    assert update.version == 2 and update.chunks == {(0, 0, 0): b"c", (1, 0, 0): b"b"}
+    box.put(3, {(2, 0, 0): b"d"})
+    assert calls == [1, 1]
+
+
+def test_thread_run_on_device_and_device_loss(gpu):
+    engine = Engine(gpu)
+    engine.start(warm_up=False)
+
+    async def scenario():
+        while not engine.ready:
+            await asyncio.sleep(0.01)
+        name = await engine.run_on_device(lambda: threading.current_thread().name)
+        world = await engine.create_world(WorldConfig(size=(16, 16, 16), chunk_size=8, max_distance=4))
+        version = await engine.apply_edits(world["id"], parse_edits(
+            [{"op": "box", "min": [0, 0, 0], "max": [3, 3, 3], "colour": 1}]), [])
+        field = await engine.read(world["id"], "distance", min_version=version)
+
+        def lose_device():
+            raise cl.RuntimeError("device lost")
+
+        with pytest.raises(NotReady):
+            await engine.run_on_device(lose_device)
+        return name, field
+
+    name, field = asyncio.run(scenario())
+    assert name == "sdfserver-engine" and field.array[0, 0, 0] == 0 and field.array[8, 8, 8] == 4
+    assert not engine.ready and "device lost" in engine.not_ready_reason()
+    with pytest.raises(NotReady):
+        engine.submit(OnDevice(lambda: None)).result()
+    engine.stop()
+
+
+def test_engine_and_world_do_not_import_the_web_stack():
+    code = ("import sys, sdfserver.engine, sdfserver.world; "
+            "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('fastapi', 'starlette', 'pydantic')); "
+            "print(bad); raise SystemExit(1 if bad else 0)")
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
+                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    assert done.returncode == 0, done.stdout + done.stderr

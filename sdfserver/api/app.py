@@ -12,10 +12,11 @@ import contextlib
 from typing import AsyncIterator
 
 from fastapi import Depends, FastAPI
+from fastapi.openapi.utils import get_openapi
 from prometheus_client import CollectorRegistry, Counter, Gauge
 
 from sdfserver import __version__
-from sdfserver.api import auth, errors, health, routes, stream
+from sdfserver.api import auth, errors, health, models, routes, stream
 from sdfserver.engine import Engine, EngineLimits, EngineMetrics, Journal
 from sdfserver.gpu import GpuContext
 from sdfserver.settings import Settings
@@ -71,4 +72,14 @@ def create_app(settings: Settings, engine: Engine | None = None) -> FastAPI:
     app.include_router(health.router)
     app.include_router(routes.router, dependencies=[Depends(auth.guard)])
     app.include_router(stream.router)  # authenticates in the handler (WebSocket close codes)
+
+    def openapi() -> dict:
+        if app.openapi_schema is None:
+            schema = get_openapi(title=app.title, version=app.version, description=app.description,
+                                 routes=app.routes)
+            schema.setdefault("components", {}).setdefault("schemas", {}).update(models.SCHEMAS)
+            app.openapi_schema = schema
+        return app.openapi_schema
+
+    app.openapi = openapi
     return app

@@ -58,10 +58,15 @@ class QueryBody(Strict):
     points: list[Point3] = Field(description="[[x, y, z], ...] in voxel units (a float32 N x 3 blob in msgpack).")
 
 
+# Schemas that request bodies refer to; create_app adds them to the OpenAPI components.
+SCHEMAS: dict[str, Any] = {}
+
+
 def request_body(model: type[BaseModel]) -> dict[str, Any]:
     """openapi_extra for a route that reads its body itself (JSON or msgpack)."""
     schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
-    schema.pop("$defs", None)
-    content = {"schema": schema}
+    SCHEMAS.update(schema.pop("$defs", {}))
+    SCHEMAS[model.__name__] = schema
+    content = {"schema": {"$ref": f"#/components/schemas/{model.__name__}"}}
     return {"requestBody": {"required": True, "content": {"application/json": content,
                                                           "application/msgpack": content}}}

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import Response
+from starlette.concurrency import run_in_threadpool
 
 from sdfserver import wire
 from sdfserver.api.auth import principal_of
@@ -96,12 +97,19 @@ def _edits_wire(body: Any, max_ops: int) -> list[dict[str, Any]]:
     return raw
 
 
+async def parse_edits_off_loop(raw: Any) -> list:
+    """parse_edits; long voxel lists (a Python loop over rows) are parsed on a worker thread."""
+    long_lists = isinstance(raw, list) and sum(
+        len(op["voxels"]) for op in raw if isinstance(op, dict) and isinstance(op.get("voxels"), list)) > 4096
+    return await run_in_threadpool(parse_edits, raw) if long_lists else parse_edits(raw)
+
+
 @router.post("/worlds/{world_id}/edits", openapi_extra=request_body(EditsBody),
              summary="Apply one edit batch atomically; answers the version it produced")
 async def post_edits(request: Request, world_id: str) -> Response:
     settings = request.app.state.settings
     raw = _edits_wire(await decode_body(request), settings.max_ops_per_batch)
-    edits = parse_edits(raw)
+    edits = await parse_edits_off_loop(raw)
     version = await engine_of(request).apply_edits(world_id, edits, raw)
     return respond(request, {"version": version})
 

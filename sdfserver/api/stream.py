@@ -31,8 +31,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from sdfserver import wire
 from sdfserver.api.auth import OPEN, bearer_token, check_owner
 from sdfserver.api.errors import body_for, close_code_for
-from sdfserver.api.routes import _edits_wire
-from sdfserver.edits import parse_edits
+from sdfserver.api.routes import _edits_wire, parse_edits_off_loop
 from sdfserver.engine import Engine, Mailbox, Subscription
 from sdfserver.errors import InvalidInput, SdfServerError, TooLarge
 from sdfserver.geometry import Box
@@ -128,7 +127,7 @@ class StreamSession:
         kind, frame_id = frame.get("type"), frame.get("id")
         if kind == "edits":
             raw = _edits_wire({"edits": frame.get("edits")}, self.settings.max_ops_per_batch)
-            version = await self.engine.apply_edits(self.world_id, parse_edits(raw), raw)
+            version = await self.engine.apply_edits(self.world_id, await parse_edits_off_loop(raw), raw)
             await self.send({"type": "ack", "id": frame_id, "version": version})
         elif kind == "subscribe":
             await self._subscribe(frame)

@@ -39,8 +39,9 @@ from sdfserver.engine.commands import (
     ReadResult, Reconfigure, StepReport, Subscribe,
 )
 from sdfserver.engine.journal import Journal
-from sdfserver.engine.mailbox import ChunkKey, Subscription
+from sdfserver.engine.mailbox import Subscription
 from sdfserver.engine.metrics import EngineMetrics
+from sdfserver.engine.publish import chunks_of, publish
 from sdfserver.engine.query import QueryResult, query_points
 from sdfserver.errors import (
     InvalidInput, NotFound, NotReady, SdfServerError, StorageError, TooLarge, VersionNotReached,
@@ -349,21 +350,8 @@ class Engine:
         for world_id, result in recomputed.items():
             with self._subscribers_lock:
                 subs = list(self._subscribers.get(world_id, ()))
-            if not subs or not result.regions:
-                continue
-            world = self.worlds[world_id]
-            for region in result.regions:
-                readers = [s for s in subs if s.region.overlaps(region)]
-                if not readers:
-                    continue
-                box = region.intersect(_union([s.region for s in readers]))
-                field = world.read_field(box)
-                for sub in readers:
-                    part = region.intersect(sub.region)
-                    if part.empty:
-                        continue
-                    chunks = _chunks_of(field, box.lo, part, world.config.chunk_size, sub.format)
-                    self.metrics.merged_chunks.inc(sub.mailbox.put(world.field_version, chunks))
+            if subs:
+                self.metrics.merged_chunks.inc(publish(self.worlds[world_id], result, subs))
         self._count_pending()
 
     def _subscribe(self, sub: Subscription) -> None:
@@ -377,8 +365,8 @@ class Engine:
                            f"{self.limits.max_subscription_voxels}")
         # The current state first, then every change: the subscriber never misses one.
         field = world.read_field(region)
-        sub.mailbox.put(world.field_version, _chunks_of(field, region.lo, region, world.config.chunk_size,
-                                                         sub.format))
+        sub.mailbox.put(world.field_version, chunks_of(field, region.lo, region, world.config.chunk_size,
+                                                        sub.format))
         with self._subscribers_lock:
             self._subscribers.setdefault(sub.world_id, set()).add(sub)
         self._count_subscribers()
@@ -529,25 +517,3 @@ class _Durable:
 
         self.durable.add_done_callback(done)
 
-
-def _union(boxes: list[Box]) -> Box:
-    out = boxes[0]
-    for b in boxes[1:]:
-        out = out.union(b)
-    return out
-
-
-def _chunks_of(field: np.ndarray, origin, part: Box, chunk_size: int, fmt: str) -> dict[ChunkKey, bytes]:
-    """Split the chunk-aligned ``part`` of ``field`` (element 0 at ``origin``) into per-chunk bytes.
-
-    This is the step's one loop over chunks.
-    """
-    block = field[part.slices_zyx(origin)]
-    if fmt == "distance":
-        block = (block >> 8).astype(np.uint8)
-    cs = chunk_size
-    nz, ny, nx = block.shape
-    tiles = block.reshape(nz // cs, cs, ny // cs, cs, nx // cs, cs).transpose(0, 2, 4, 1, 3, 5)
-    x0, y0, z0 = (v // cs for v in part.lo)
-    return {(x0 + cx, y0 + cy, z0 + cz): tiles[cz, cy, cx].tobytes()
-            for cz, cy, cx in np.ndindex(tiles.shape[:3])}

@@ -124,3 +124,22 @@ def test_world_lifecycle(server):
     assert server.http.get(f"/v1/worlds/{wid}").status_code == 404
     msg = wire.decode(server.http.get("/v1/worlds", headers={"accept": wire.CONTENT_TYPE}).content)
     assert wid not in [w["id"] for w in msg["worlds"]]
+
+
+def test_openapi_and_health(server):
+    assert server.http.get("/livez").json() == {"status": "ok"}
+    ready = server.http.get("/readyz").json()
+    assert ready["status"] == "ready" and ready["device"]
+    assert server.http.get("/docs").status_code == 200
+    schema = server.http.get("/openapi.json").json()
+    assert {"/v1/worlds", "/v1/worlds/{world_id}/edits", "/v1/worlds/{world_id}/field",
+            "/v1/worlds/{world_id}/query"} <= set(schema["paths"])
+    text = str(schema)
+    import re
+
+    for ref in set(re.findall(r"#/components/schemas/(\w+)", text)):
+        assert ref in schema["components"]["schemas"], f"dangling $ref {ref}"
+    metrics = server.http.get("/metrics").text
+    for name in ("sdfserver_edit_batches_total", "sdfserver_recompute_seconds_bucket", "sdfserver_queue_depth",
+                 "sdfserver_websocket_clients", "sdfserver_bytes_out_total", "sdfserver_dirty_chunks"):
+        assert name in metrics

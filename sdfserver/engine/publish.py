@@ -1,0 +1,49 @@
+"""Publishing a recompute: the rewritten chunks that subscribers hold go to their mailboxes."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sdfserver.engine.mailbox import ChunkKey, Subscription
+from sdfserver.geometry import Box, Vec3
+from sdfserver.world import RecomputeResult, World
+
+
+def publish(world: World, result: RecomputeResult, subs: list[Subscription]) -> int:
+    """Read each recomputed region once, hand each subscriber its chunks; returns chunks merged."""
+    merged = 0
+    for region in result.regions:
+        readers = [s for s in subs if s.region.overlaps(region)]
+        if not readers:
+            continue
+        box = region.intersect(_union([s.region for s in readers]))
+        field = world.read_field(box)
+        for sub in readers:
+            part = region.intersect(sub.region)
+            if not part.empty:
+                chunks = chunks_of(field, box.lo, part, world.config.chunk_size, sub.format)
+                merged += sub.mailbox.put(world.field_version, chunks)
+    return merged
+
+
+def _union(boxes: list[Box]) -> Box:
+    out = boxes[0]
+    for b in boxes[1:]:
+        out = out.union(b)
+    return out
+
+
+def chunks_of(field: np.ndarray, origin: Vec3, part: Box, chunk_size: int, fmt: str) -> dict[ChunkKey, bytes]:
+    """Split the chunk-aligned ``part`` of ``field`` (element 0 at ``origin``) into per-chunk bytes.
+
+    This is the step's one loop over chunks.
+    """
+    block = field[part.slices_zyx(origin)]
+    if fmt == "distance":
+        block = (block >> 8).astype(np.uint8)
+    cs = chunk_size
+    nz, ny, nx = block.shape
+    tiles = block.reshape(nz // cs, cs, ny // cs, cs, nx // cs, cs).transpose(0, 2, 4, 1, 3, 5)
+    x0, y0, z0 = (v // cs for v in part.lo)
+    return {(x0 + cx, y0 + cy, z0 + cz): tiles[cz, cy, cx].tobytes()
+            for cz, cy, cx in np.ndindex(tiles.shape[:3])}

@@ -16,7 +16,7 @@ from fastapi.openapi.utils import get_openapi
 from prometheus_client import CollectorRegistry, Counter, Gauge
 
 from sdfserver import __version__
-from sdfserver.api import auth, errors, health, models, routes, stream
+from sdfserver.api import auth, errors, health, models, routes, stream, transfer
 from sdfserver.engine import Engine, EngineLimits, EngineMetrics, Journal
 from sdfserver.gpu import GpuContext
 from sdfserver.settings import Settings
@@ -70,6 +70,7 @@ def create_app(settings: Settings, engine: Engine | None = None) -> FastAPI:
     app.state.metrics = ApiMetrics(registry)
     errors.install(app)
     app.include_router(health.router)
+    app.include_router(transfer.router, dependencies=[Depends(auth.guard)])  # before /worlds/{id}
     app.include_router(routes.router, dependencies=[Depends(auth.guard)])
     app.include_router(stream.router)  # authenticates in the handler (WebSocket close codes)
 

@@ -28,7 +28,7 @@ from pathlib import Path
 from fastapi import Request
 from starlette.requests import HTTPConnection
 
-from sdfserver.errors import InvalidInput, NotFound, RateLimited, Unauthorized
+from sdfserver.errors import InvalidInput, NotFound, RateLimited, TooLarge, Unauthorized
 
 
 @dataclass(frozen=True)
@@ -173,3 +173,13 @@ async def guard(request: Request) -> None:
 
 def principal_of(request: Request) -> Principal:
     return getattr(request.state, "principal", OPEN)
+
+
+def check_world_quota(request: Request) -> Principal:
+    """The principal creating a world, after checking ``max_worlds_per_key``."""
+    principal = principal_of(request)
+    limit = request.app.state.settings.max_worlds_per_key
+    owners = list(request.app.state.engine.owners.values())
+    if not principal.admin and sum(o == principal.name for o in owners) >= limit:
+        raise TooLarge(f"API key {principal.name!r} already owns {limit} worlds, its limit")
+    return principal

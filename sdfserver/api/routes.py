@@ -15,7 +15,7 @@ from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
 from sdfserver import wire
-from sdfserver.api.auth import principal_of
+from sdfserver.api.auth import check_world_quota, principal_of
 from sdfserver.api.bodies import MSGPACK, OCTET, decode_body, respond
 from sdfserver.api.models import CreateWorldBody, EditsBody, PatchWorldBody, QueryBody, request_body
 from sdfserver.edits import parse_edits
@@ -41,12 +41,8 @@ async def create_world(request: Request) -> Response:
     body = CreateWorldBody.model_validate(await decode_body(request))
     config = WorldConfig(size=tuple(body.size), chunk_size=body.chunk_size, max_distance=body.max_distance,
                          algorithm=body.algorithm, lod_algorithm=body.lod_algorithm, focus=_focus(body.focus))
-    principal = principal_of(request)
-    engine = engine_of(request)
-    limit = request.app.state.settings.max_worlds_per_key
-    if not principal.admin and sum(o == principal.name for o in list(engine.owners.values())) >= limit:
-        raise TooLarge(f"API key {principal.name!r} already owns {limit} worlds, its limit")
-    described = await engine.create_world(config, owner=principal.name)
+    principal = check_world_quota(request)
+    described = await engine_of(request).create_world(config, owner=principal.name)
     response = respond(request, described, status_code=201)
     response.headers["Location"] = f"/v1/worlds/{described['id']}"
     return response

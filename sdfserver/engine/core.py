@@ -176,8 +176,8 @@ class Engine:
         return await asyncio.wrap_future(self.submit(command))
 
     async def create_world(self, config: WorldConfig, world_id: str | None = None,
-                           owner: str | None = None) -> dict[str, Any]:
-        return await self.call(CreateWorld(config, world_id, owner))
+                           owner: str | None = None, voxels: np.ndarray | None = None) -> dict[str, Any]:
+        return await self.call(CreateWorld(config, world_id, owner, voxels))
 
     async def delete_world(self, world_id: str) -> None:
         await self.call(DeleteWorld(world_id))
@@ -256,6 +256,8 @@ class Engine:
                     report.applied_batches += 1
                 elif isinstance(command, CreateWorld):
                     result = self._create_world(command)
+                    if command.voxels is not None:
+                        touched.add(result["id"])  # an import: compute its field this step
                 elif isinstance(command, DeleteWorld):
                     result = self._delete_world(command.world_id)
                 else:
@@ -304,12 +306,17 @@ class Engine:
                 raise InvalidInput(f"world {world_id!r} already exists")
             world_id = new_world_id()
         world = World(self.gpu, config, self.limits.edits)
-        if self.journal is not None:
-            try:
+        try:
+            if command.voxels is not None:
+                world.load_voxels(command.voxels)
+            if self.journal is not None and command.voxels is None:
                 self.journal.record_create(world_id, world_config_dict(world.config), command.owner)
-            except BaseException:
-                world.release()
-                raise
+            elif self.journal is not None:
+                self.journal.record_create(world_id, world_config_dict(world.config), command.owner,
+                                           voxels=command.voxels, version=world.version)
+        except BaseException:
+            world.release()
+            raise
         self.worlds[world_id] = world
         self.owners[world_id] = command.owner
         self._count_worlds()

@@ -2,7 +2,8 @@
 
 The engine calls these on its own thread, in the order things happen:
 
-- ``record_create(world_id, config)`` after a world was created; ``config`` is the
+- ``record_create(world_id, config, owner)`` after a world was created (an import adds
+  ``voxels=`` and ``version=``, the world's initial voxels and version); ``config`` is the
   world's description as ``world_config_dict`` returns it (the body of
   ``POST /v1/worlds``: size, chunk_size, max_distance, algorithm, lod_algorithm, focus).
 - ``record_batch(world_id, version, edits)`` after a batch passed validation and
@@ -31,7 +32,8 @@ import numpy as np
 
 
 class Journal(Protocol):
-    def record_create(self, world_id: str, config: dict[str, Any], owner: str | None = None) -> None: ...
+    def record_create(self, world_id: str, config: dict[str, Any], owner: str | None = None, *,
+                      voxels: np.ndarray | None = None, version: int = 0) -> None: ...
 
     def record_batch(self, world_id: str, version: int, edits: list[dict[str, Any]]) -> Future | None: ...
 

@@ -49,8 +49,10 @@ class StorageJournal:
 
     # -- the engine's hook ------------------------------------------------------------------------
 
-    def record_create(self, world_id: str, config: dict[str, Any], owner: str | None = None) -> None:
-        self.stores[world_id] = self.storage.create_world(world_id, {"config": config, "owner": owner})
+    def record_create(self, world_id: str, config: dict[str, Any], owner: str | None = None, *,
+                      voxels: np.ndarray | None = None, version: int = 0) -> None:
+        self.stores[world_id] = self.storage.create_world(world_id, {"config": config, "owner": owner},
+                                                          voxels=voxels, version=version)
         self.owners[world_id] = owner
 
     def record_batch(self, world_id: str, version: int, edits: list[dict[str, Any]]) -> Future:

@@ -38,8 +38,8 @@ STATUS: dict[type[SdfServerError], int] = {
     RateLimited: 429,
 }
 
-HTTP_CODES = {401: "unauthorized", 404: "not_found", 405: "method_not_allowed", 406: "not_acceptable", 413: "too_large",
-              415: "unsupported_media_type", 422: "invalid_input"}
+HTTP_CODES = {401: "unauthorized", 404: "not_found", 405: "method_not_allowed", 406: "not_acceptable",
+              413: "too_large", 415: "unsupported_media_type", 422: "invalid_input"}
 
 
 def status_for(exc: BaseException) -> int:

@@ -25,7 +25,9 @@ from sdfserver.api.auth import check_world_quota
 from sdfserver.api.bodies import OCTET, read_body, respond
 from sdfserver.engine.restore import config_from_dict
 from sdfserver.errors import InvalidInput
-from sdfserver.storage import decode_upload, dump_npy, dump_vox, encode_snapshot, load_npy, load_vox, pad_to_chunks
+from sdfserver.storage import (
+    decode_upload, dump_npy, dump_vox, encode_snapshot, load_npy, load_vox, pad_to_chunks,
+)
 from sdfserver.world import WorldConfig
 
 router = APIRouter(prefix="/v1")

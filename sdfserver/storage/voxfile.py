@@ -65,7 +65,10 @@ def _chunks(data: bytes, start: int, end: int):
         offset = body + n + m
 
 
-def parse_vox(data: bytes, *, max_voxels: int | None = None) -> tuple[list[tuple[tuple[int, int, int], np.ndarray]], np.ndarray]:
+Model = tuple[tuple[int, int, int], np.ndarray]  # (size xyz, xyzi (N, 4) uint8)
+
+
+def parse_vox(data: bytes, *, max_voxels: int | None = None) -> tuple[list[Model], np.ndarray]:
     """([(size xyz, xyzi (N, 4) uint8)] per model, palette (256, 3) RGB by colour index)."""
     if len(data) < 8 or data[:4] != VOX_MAGIC:
         raise InvalidInput(".vox: missing 'VOX ' magic")

@@ -97,7 +97,8 @@ def test_hostile_websocket_frames(target):
     url = server.url.replace("http://", "ws://") + f"/v1/worlds/{world}/stream"
     with connect(url, max_size=None) as ws:
         for name, body in HOSTILE.items():
-            frame = body if name == "nesting bomb" else body.replace(b"\x81\xa5edits", b"\x82\xa4type\xa5edits\xa5edits", 1)
+            typed = b"\x82\xa4type\xa5edits\xa5edits"  # {type: "edits", edits: ...}
+            frame = body if name == "nesting bomb" else body.replace(b"\x81\xa5edits", typed, 1)
             ws.send(frame)
             answer = wire.decode(ws.recv(timeout=10))
             assert answer["type"] == "error" and answer["error"]["code"] in (

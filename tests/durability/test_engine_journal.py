@@ -141,3 +141,40 @@ def test_a_corrupt_world_is_refused_and_the_others_restore(gpu, journal, tmp_pat
     assert segment.read_bytes() == bytes(data)  # left untouched for an operator
     fresh.stop()
     fresh_journal.close()
+
+
+def test_the_api_says_writes_are_disabled(gpu, journal, monkeypatch):
+    import asyncio
+
+    import httpx
+
+    from sdfserver.api.app import create_app
+    from sdfserver.settings import Settings
+
+    engine = Engine(gpu, journal=journal)
+    app = create_app(Settings(), engine)
+    app.state.journal = journal
+    engine.start(warm_up=False)
+
+    async def scenario():
+        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t") as http:
+            world = (await http.post("/v1/worlds", json={"size": [8, 8, 8], "chunk_size": 8})).json()["id"]
+            box = {"edits": [{"op": "box", "min": [0, 0, 0], "max": [2, 2, 2], "colour": 3}]}
+            assert (await http.post(f"/v1/worlds/{world}/edits", json=box)).json() == {"version": 1}
+            assert (await http.get("/readyz")).status_code == 200
+
+            def broken(fd):
+                raise OSError(28, "No space left on device")
+
+            monkeypatch.setattr(os, "fdatasync", broken)
+            for _ in range(2):  # the failing sync, then a refusal without trying
+                r = await http.post(f"/v1/worlds/{world}/edits", json=box)
+                assert r.status_code == 503 and r.json()["error"]["code"] == "writes_disabled", r.text
+            ready = await http.get("/readyz")
+            assert ready.status_code == 503 and "No space left" in ready.json()["error"]["message"]
+            assert (await http.get(f"/v1/worlds/{world}")).status_code == 200  # reads keep working
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        engine.stop()

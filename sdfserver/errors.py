@@ -3,13 +3,18 @@
     SdfServerError
     ├── InvalidInput            bad request data; nothing was changed        (HTTP 422)
     │   └── InvalidEdit         an edit batch that cannot be applied
-    ├── NotFound                an unknown world                              (HTTP 404)
+    ├── Unauthorized            a missing or unknown API key                  (HTTP 401)
+    ├── NotFound                an unknown world (or another tenant's)        (HTTP 404)
     ├── TooLarge                a body, batch or region over a limit          (HTTP 413)
+    ├── RateLimited             a key over its request rate                   (HTTP 429)
     ├── DeviceMemoryExceeded    a world that does not fit the memory budget   (HTTP 507)
     ├── NotReady                the device cannot serve requests now          (HTTP 503)
     │   ├── NoOpenCLDevice      no OpenCL platform or no matching device
-    │   └── VersionNotReached   a read's min_version was not reached in time
-    └── KernelBuildError        an OpenCL program failed to build             (HTTP 500)
+    │   ├── VersionNotReached   a read's min_version was not reached in time
+    │   └── WritesDisabled      the write-ahead log failed; no edit is accepted
+    ├── KernelBuildError        an OpenCL program failed to build             (HTTP 500)
+    └── StorageError            the data directory cannot be used            (HTTP 500)
+        └── CorruptData         a log or snapshot fails its checks; names file and offset
 
 The mapping to HTTP status codes lives in the API layer, in one place; the
 engine raises these and knows nothing of HTTP.
@@ -36,6 +41,18 @@ class NotFound(SdfServerError):
     code = "not_found"
 
 
+class Unauthorized(SdfServerError):
+    code = "unauthorized"
+
+
+class RateLimited(SdfServerError):
+    code = "rate_limited"
+
+    def __init__(self, message: str, retry_after_s: float = 1.0):
+        self.retry_after_s = retry_after_s
+        super().__init__(message)
+
+
 class TooLarge(SdfServerError):
     code = "too_large"
 
@@ -54,6 +71,30 @@ class NoOpenCLDevice(NotReady):
 
 class VersionNotReached(NotReady):
     code = "version_not_reached"
+
+
+class WritesDisabled(NotReady):
+    """A sync or write of the write-ahead log failed. Nothing is retried and acknowledged:
+    every later write is refused with this error until the server is restarted."""
+
+    code = "writes_disabled"
+
+
+class StorageError(SdfServerError):
+    code = "storage_error"
+
+
+class CorruptData(StorageError):
+    """A log or snapshot on disk fails its checks; the message names the file and offset."""
+
+    code = "corrupt_data"
+
+    def __init__(self, path: str, offset: int | None, reason: str):
+        self.path = str(path)
+        self.offset = offset
+        self.reason = reason
+        where = self.path if offset is None else f"{self.path} at offset {offset}"
+        super().__init__(f"corrupt data in {where}: {reason}")
 
 
 class KernelBuildError(SdfServerError):

@@ -52,6 +52,30 @@ class Settings(BaseSettings):
         1 << 27, ge=1, description="Largest region one WebSocket subscription may cover, in voxels "
                                    "(bounds each subscriber's mailbox).")
     warm_up: bool = Field(True, description="Build the kernels on a tiny world before /readyz answers 200.")
+    # -- durability (sdfserver/storage) --
+    persist: bool = Field(True, description="Keep every world on disk (write-ahead log and snapshots in "
+                                            "data_dir) and restore them at start-up; off: worlds live in memory only.")
+    data_dir: str = Field("data", description="Directory of the worlds' logs, snapshots and catalog; created if "
+                                              "missing; a relative path starts at the working directory.")
+    sync: bool = Field(True, description="fdatasync the log before an edit batch is acknowledged (batches that "
+                                         "arrive together share one sync). Off only for measurements: a crash "
+                                         "can then lose acknowledged edits.")
+    commit_window_ms: float = Field(0.0, ge=0, le=100, description="Extra wait before each log sync so that more "
+                                    "batches share it, in milliseconds (0: sync as soon as one is waiting).")
+    snapshot_every_batches: int = Field(5000, ge=1, description="Snapshot a world's voxels (and trim its log) "
+                                        "after this many logged batches; bounds replay time at start-up.")
+    # -- access (sdfserver/api/auth.py) --
+    api_keys: str = Field("", description="API keys, comma-separated 'name:token' (16+ character tokens; "
+                                          "'name:token:admin' for a key that sees every world). None here or in "
+                                          "api_key_file: the server is open and listens on loopback only.")
+    api_key_file: str = Field("", description="A file of API keys, one 'name token [admin]' per line, "
+                                              "'#' comments; adds to api_keys.")
+    max_worlds_per_key: int = Field(16, ge=1, description="Most worlds one (non-admin) API key may own "
+                                                          "(413 above it).")
+    rate_limit_per_s: float = Field(0.0, ge=0, description="Requests (and WebSocket frames) per second each "
+                                    "API key may make, a token bucket; 0 turns the limit off (429 above it).")
+    rate_limit_burst: int = Field(200, ge=1, description="Token-bucket size of the per-key rate limit: the "
+                                                         "requests a key may make at once after being idle.")
 
     def edit_limits(self) -> EditLimits:
         return EditLimits(max_ops_per_batch=self.max_ops_per_batch,

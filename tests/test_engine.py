@@ -82,7 +82,7 @@ class RecordingJournal:
         self.calls = []
         self.fail_on_version = fail_on_version
 
-    def record_create(self, world_id, config):
+    def record_create(self, world_id, config, owner=None):
         self.calls.append(("create", world_id, config))
 
     def record_batch(self, world_id, version, edits):
@@ -93,6 +93,15 @@ class RecordingJournal:
 
     def record_delete(self, world_id):
         self.calls.append(("delete", world_id))
+
+    def record_config(self, world_id, config):
+        self.calls.append(("config", world_id, config))
+
+    def wants_snapshot(self, world_id):
+        return False
+
+    def record_snapshot(self, world_id, version, config, voxels):
+        raise AssertionError("wants_snapshot said no")
 
 
 def test_journal_records_before_acknowledging(gpu):

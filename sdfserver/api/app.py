@@ -11,12 +11,12 @@ from __future__ import annotations
 import contextlib
 from typing import AsyncIterator
 
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI
 from fastapi.openapi.utils import get_openapi
 from prometheus_client import CollectorRegistry, Counter, Gauge
 
 from sdfserver import __version__
-from sdfserver.api import errors, health, models, render_routes, routes, stream
+from sdfserver.api import auth, errors, health, models, render_routes, routes, stream, transfer
 from sdfserver.engine import Engine, EngineLimits, EngineMetrics, Journal
 from sdfserver.gpu import GpuContext
 from sdfserver.settings import Settings
@@ -63,13 +63,18 @@ def create_app(settings: Settings, engine: Engine | None = None) -> FastAPI:
                               "See docs/api.md.")
     app.state.settings = settings
     app.state.engine = engine
+    app.state.gatekeeper = auth.Gatekeeper(auth.parse_keys(settings.api_keys, settings.api_key_file),
+                                           settings.rate_limit_per_s, settings.rate_limit_burst)
+    app.state.journal = None  # set by `sdfserver serve` when worlds persist (see durability.py)
     registry = engine.metrics.registry if engine is not None else CollectorRegistry()
     app.state.metrics = ApiMetrics(registry)
     errors.install(app)
     app.include_router(health.router)
-    app.include_router(routes.router)
-    app.include_router(stream.router)
-    render_routes.install(app)  # render/pick routes, the web demo at / (issue 4)
+    app.include_router(transfer.router, dependencies=[Depends(auth.guard)])  # before /worlds/{id}
+    app.include_router(routes.router, dependencies=[Depends(auth.guard)])
+    app.include_router(stream.router)  # authenticates in the handler (WebSocket close codes)
+    # render/pick routes and the web demo at / (issue 4)
+    render_routes.install(app, dependencies=[Depends(auth.guard)])
 
     def openapi() -> dict:
         if app.openapi_schema is None:

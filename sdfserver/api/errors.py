@@ -20,7 +20,8 @@ from pydantic import ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from sdfserver.errors import (
-    DeviceMemoryExceeded, InvalidInput, KernelBuildError, NotFound, NotReady, SdfServerError, TooLarge,
+    DeviceMemoryExceeded, InvalidInput, KernelBuildError, NotFound, NotReady, RateLimited, SdfServerError,
+    TooLarge, Unauthorized,
 )
 from sdfserver.wire import WireError
 
@@ -33,10 +34,12 @@ STATUS: dict[type[SdfServerError], int] = {
     DeviceMemoryExceeded: 507,
     NotReady: 503,
     KernelBuildError: 500,
+    Unauthorized: 401,
+    RateLimited: 429,
 }
 
-HTTP_CODES = {404: "not_found", 405: "method_not_allowed", 406: "not_acceptable", 413: "too_large",
-              415: "unsupported_media_type", 422: "invalid_input"}
+HTTP_CODES = {401: "unauthorized", 404: "not_found", 405: "method_not_allowed", 406: "not_acceptable",
+              413: "too_large", 415: "unsupported_media_type", 422: "invalid_input"}
 
 
 def status_for(exc: BaseException) -> int:
@@ -79,6 +82,10 @@ def body_for(exc: BaseException) -> tuple[int, dict[str, Any]]:
 def error_response(exc: BaseException) -> JSONResponse:
     status, body = body_for(exc)
     headers = {"Retry-After": "1"} if status == 503 else None
+    if isinstance(exc, RateLimited):
+        headers = {"Retry-After": str(max(1, round(exc.retry_after_s)))}
+    elif isinstance(exc, Unauthorized):
+        headers = {"WWW-Authenticate": 'Bearer realm="sdfserver"'}
     return JSONResponse(body, status_code=status, headers=headers)
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Request
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from sdfserver.api.errors import error_response
@@ -23,9 +23,12 @@ async def readyz(request: Request) -> JSONResponse:
     if engine is None or not engine.ready:
         reason = engine.not_ready_reason() if engine is not None else "the engine is not started"
         return error_response(NotReady(reason))
+    journal = request.app.state.journal
+    if journal is not None and journal.storage.committer.failure is not None:
+        return error_response(journal.storage.committer.failure)  # writes are disabled
     return JSONResponse({"status": "ready", "device": engine.gpu.device_name})
 
 
-@router.get("/metrics", summary="Prometheus metrics")
+@router.get("/metrics", summary="Prometheus metrics", response_class=PlainTextResponse)
 async def metrics(request: Request) -> Response:
     return Response(generate_latest(request.app.state.metrics.registry), media_type=CONTENT_TYPE_LATEST)

@@ -43,10 +43,10 @@ router = APIRouter(prefix="/v1")
 _encode_pool: ThreadPoolExecutor | None = None
 
 
-def install(app: FastAPI) -> None:
-    """The render routes, the static files and the demo page at ``/``."""
+def install(app: FastAPI, dependencies: list | None = None) -> None:
+    """The render routes (behind ``dependencies``: the API-key guard), the static files and the demo page at ``/``."""
     app.state.renderer = None
-    app.include_router(router)
+    app.include_router(router, dependencies=dependencies or [])
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
 
     @app.get("/", include_in_schema=False)

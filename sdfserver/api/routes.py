@@ -15,6 +15,7 @@ from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
 from sdfserver import wire
+from sdfserver.api.auth import check_world_quota, principal_of
 from sdfserver.api.bodies import MSGPACK, OCTET, decode_body, respond
 from sdfserver.api.models import CreateWorldBody, EditsBody, PatchWorldBody, QueryBody, request_body
 from sdfserver.edits import parse_edits
@@ -40,7 +41,8 @@ async def create_world(request: Request) -> Response:
     body = CreateWorldBody.model_validate(await decode_body(request))
     config = WorldConfig(size=tuple(body.size), chunk_size=body.chunk_size, max_distance=body.max_distance,
                          algorithm=body.algorithm, lod_algorithm=body.lod_algorithm, focus=_focus(body.focus))
-    described = await engine_of(request).create_world(config)
+    principal = check_world_quota(request)
+    described = await engine_of(request).create_world(config, owner=principal.name)
     response = respond(request, described, status_code=201)
     response.headers["Location"] = f"/v1/worlds/{described['id']}"
     return response
@@ -48,7 +50,9 @@ async def create_world(request: Request) -> Response:
 
 @router.get("/worlds", summary="List worlds")
 async def list_worlds(request: Request) -> Response:
-    return respond(request, {"worlds": await engine_of(request).list_worlds()})
+    principal = principal_of(request)
+    worlds = [w for w in await engine_of(request).list_worlds() if principal.sees(w["owner"])]
+    return respond(request, {"worlds": worlds})
 
 
 @router.get("/worlds/{world_id}", summary="Describe a world")

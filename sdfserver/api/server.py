@@ -77,6 +77,8 @@ def main(argv: list[str] | None = None) -> int:
     import uvicorn
 
     from sdfserver.api.app import build_engine, create_app
+    from sdfserver.api.auth import is_loopback, parse_keys
+    from sdfserver.api.durability import open_journal, restore
     from sdfserver.engine import EngineMetrics
 
     try:
@@ -86,15 +88,37 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     log_config = configure_logging(settings)
     try:
-        engine = build_engine(settings, metrics=EngineMetrics())
-    except SdfServerError as exc:  # no OpenCL device: say how to fix it and stop
+        keys = parse_keys(settings.api_keys, settings.api_key_file)
+    except SdfServerError as exc:
         print(f"sdfserver serve: {exc}", file=sys.stderr)
+        return 2
+    if not keys and not is_loopback(settings.host):
+        print(f"sdfserver serve: refusing to listen on {settings.host} with no API keys configured; set "
+              "SDFSERVER_API_KEYS / --api-keys or --api-key-file, or listen on 127.0.0.1", file=sys.stderr)
+        return 2
+    journal = None
+    try:
+        journal = open_journal(settings)
+        engine = build_engine(settings, journal=journal, metrics=EngineMetrics())
+    except SdfServerError as exc:  # no OpenCL device, unusable data directory: say so and stop
+        print(f"sdfserver serve: {exc}", file=sys.stderr)
+        if journal is not None:
+            journal.close()
         return 1
     logging.getLogger("sdfserver").info("device: %s", engine.gpu.device_name)
+    if journal is not None:
+        logging.getLogger("sdfserver").info("data directory: %s (sync %s)", journal.storage.data_dir,
+                                            "on" if settings.sync else "OFF")
+        restore(engine, journal)
     app = create_app(settings, engine)
-    uvicorn.run(app, host=settings.host, port=settings.port, log_config=log_config,
-                log_level=settings.log_level, access_log=settings.access_log,
-                ws_max_size=settings.max_request_bytes, timeout_graceful_shutdown=5)
+    app.state.journal = journal
+    try:
+        uvicorn.run(app, host=settings.host, port=settings.port, log_config=log_config,
+                    log_level=settings.log_level, access_log=settings.access_log,
+                    ws_max_size=settings.max_request_bytes, timeout_graceful_shutdown=5)
+    finally:
+        if journal is not None:
+            journal.close()
     return 0
 
 

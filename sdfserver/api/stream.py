@@ -30,6 +30,7 @@ from typing import Any
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from sdfserver import wire
+from sdfserver.api.auth import OPEN, bearer_token, check_owner
 from sdfserver.api.errors import body_for, close_code_for
 from sdfserver.api.render_routes import FrameStream
 from sdfserver.api.routes import _edits_wire, parse_edits_off_loop
@@ -43,8 +44,11 @@ router = APIRouter(prefix="/v1")
 @router.websocket("/worlds/{world_id}/stream")
 async def stream(websocket: WebSocket, world_id: str) -> None:
     engine: Engine = websocket.app.state.engine
+    gate = websocket.app.state.gatekeeper
     await websocket.accept()
     try:
+        principal = gate.authenticate(bearer_token(websocket, allow_query=True))
+        check_owner(websocket, principal, world_id)
         described = await engine.describe(world_id)
     except SdfServerError as exc:
         await websocket.close(code=close_code_for(exc), reason=str(exc)[:120])
@@ -52,6 +56,7 @@ async def stream(websocket: WebSocket, world_id: str) -> None:
     metrics = websocket.app.state.metrics
     metrics.ws_clients.inc()
     session = StreamSession(websocket, engine, world_id, described["chunk_size"], tuple(described["size"]))
+    session.principal = principal
     try:
         await session.run()
     finally:
@@ -68,6 +73,9 @@ class StreamSession:
         self.world_id = world_id
         self.chunk_size = chunk_size
         self.settings = websocket.app.state.settings
+        self.gate = websocket.app.state.gatekeeper
+        self.principal = OPEN
+        self.client = websocket.client.host if websocket.client else "unknown"
         self.metrics = websocket.app.state.metrics
         self.subscription: Subscription | None = None
         self.loop = asyncio.get_running_loop()
@@ -111,6 +119,7 @@ class StreamSession:
                 if not isinstance(frame, dict):
                     raise InvalidInput("a frame must be a map with a 'type'")
                 frame_id = frame.get("id")
+                self.gate.throttle(self.principal, self.client)
                 await self._handle(frame)
             except WebSocketDisconnect:
                 raise

@@ -35,6 +35,8 @@ class EngineLimits:
 class CreateWorld:
     config: WorldConfig
     world_id: str | None = None  # None: a fresh random id (restore passes the old one)
+    owner: str | None = None  # the API key name that owns the world (None: open server)
+    voxels: np.ndarray | None = None  # initial voxels, uint8 (z, y, x): an import, version 1
 
 
 @dataclass(frozen=True)

@@ -43,7 +43,9 @@ from sdfserver.engine.mailbox import Subscription
 from sdfserver.engine.metrics import EngineMetrics
 from sdfserver.engine.publish import chunks_of, publish
 from sdfserver.engine.query import QueryResult, query_points
-from sdfserver.errors import InvalidInput, NotFound, NotReady, SdfServerError, TooLarge, VersionNotReached
+from sdfserver.errors import (
+    InvalidInput, NotFound, NotReady, SdfServerError, StorageError, TooLarge, VersionNotReached,
+)
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
 from sdfserver.world import RecomputeResult, World, WorldConfig
@@ -74,6 +76,8 @@ class Engine:
         self.journal = journal
         self.metrics = metrics or EngineMetrics()
         self.worlds: dict[str, World] = {}  # engine thread only
+        self.owners: dict[str, str | None] = {}  # written by the engine thread, read by any
+        self.refused: dict[str, str] = {}  # worlds on disk that could not be restored, and why
         self.last_recompute_ms: dict[str, float] = {}
         self.device_error: str | None = None
         self._commands: queue.SimpleQueue[Pending] = queue.SimpleQueue()
@@ -171,8 +175,9 @@ class Engine:
     async def call(self, command: Any) -> Any:
         return await asyncio.wrap_future(self.submit(command))
 
-    async def create_world(self, config: WorldConfig, world_id: str | None = None) -> dict[str, Any]:
-        return await self.call(CreateWorld(config, world_id))
+    async def create_world(self, config: WorldConfig, world_id: str | None = None,
+                           owner: str | None = None, voxels: np.ndarray | None = None) -> dict[str, Any]:
+        return await self.call(CreateWorld(config, world_id, owner, voxels))
 
     async def delete_world(self, world_id: str) -> None:
         await self.call(DeleteWorld(world_id))
@@ -251,10 +256,15 @@ class Engine:
                     report.applied_batches += 1
                 elif isinstance(command, CreateWorld):
                     result = self._create_world(command)
+                    if command.voxels is not None:
+                        touched.add(result["id"])  # an import: compute its field this step
                 elif isinstance(command, DeleteWorld):
                     result = self._delete_world(command.world_id)
                 else:
-                    self._world(command.world_id).reconfigure(**command.changes)
+                    world = self._world(command.world_id)
+                    world.reconfigure(**command.changes)
+                    if self.journal is not None:
+                        self.journal.record_config(command.world_id, world_config_dict(world.config))
                     touched.add(command.world_id)
                     result = None
             except cl.Error:
@@ -265,18 +275,22 @@ class Engine:
                     self.metrics.rejected_batches.inc()
                 self._fail(future, exc)
             else:
-                future.set_result(result)
+                if isinstance(result, _Durable):  # acknowledged once the journal has it on disk
+                    result.acknowledge(future)
+                else:
+                    future.set_result(result)
         return touched
 
     def _apply_edits(self, command: ApplyEdits) -> int:
         world = self._world(command.world_id)
         validate_batch(command.edits, world.config.size, world.limits)
+        durable = None
         if self.journal is not None:
-            self.journal.record_batch(command.world_id, world.version + 1, command.wire)
+            durable = self.journal.record_batch(command.world_id, world.version + 1, command.wire)
         version = world.apply_edits(command.edits)
         self.metrics.edit_batches.inc()
         self.metrics.edit_ops.inc(len(command.edits))
-        return version
+        return version if durable is None else _Durable(version, durable)
 
     def _create_world(self, command: CreateWorld) -> dict[str, Any]:
         config = command.config.validated()
@@ -292,13 +306,19 @@ class Engine:
                 raise InvalidInput(f"world {world_id!r} already exists")
             world_id = new_world_id()
         world = World(self.gpu, config, self.limits.edits)
-        if self.journal is not None:
-            try:
-                self.journal.record_create(world_id, world_config_dict(world.config))
-            except BaseException:
-                world.release()
-                raise
+        try:
+            if command.voxels is not None:
+                world.load_voxels(command.voxels)
+            if self.journal is not None and command.voxels is None:
+                self.journal.record_create(world_id, world_config_dict(world.config), command.owner)
+            elif self.journal is not None:
+                self.journal.record_create(world_id, world_config_dict(world.config), command.owner,
+                                           voxels=command.voxels, version=world.version)
+        except BaseException:
+            world.release()
+            raise
         self.worlds[world_id] = world
+        self.owners[world_id] = command.owner
         self._count_worlds()
         return self._describe(world_id)
 
@@ -307,6 +327,7 @@ class Engine:
         if self.journal is not None:
             self.journal.record_delete(world_id)
         del self.worlds[world_id]
+        self.owners.pop(world_id, None)
         self.last_recompute_ms.pop(world_id, None)
         world.release()
         with self._subscribers_lock:
@@ -325,6 +346,9 @@ class Engine:
             self.metrics.changed_chunks.inc(len(result.changed_chunks))
             self.last_recompute_ms[world_id] = result.wall_ms
             results[world_id] = result
+            if self.journal is not None and self.journal.wants_snapshot(world_id):
+                self.journal.record_snapshot(world_id, world.version, world_config_dict(world.config),
+                                             world.read_voxels())
         return results
 
     # -- publishing ---------------------------------------------------------------------------------
@@ -423,12 +447,31 @@ class Engine:
             "dirty_chunks": world.dirty_chunk_count,
             "last_recompute_ms": self.last_recompute_ms.get(world_id),
             "device_bytes": world.device_bytes,
+            "owner": self.owners.get(world_id),
         }
 
     def _world(self, world_id: str) -> World:
         try:
             return self.worlds[world_id]
         except (KeyError, TypeError):
+            if isinstance(world_id, str) and world_id in self.refused:
+                raise StorageError(f"world {world_id!r} was not restored: {self.refused[world_id]}") from None
+            raise NotFound(f"no world {world_id!r}") from None
+
+    def adopt_world(self, world_id: str, world: World, owner: str | None) -> None:
+        """Register a world restored from disk; only before ``start()``."""
+        if self.started:
+            raise RuntimeError("adopt_world is for start-up, before the engine thread runs")
+        self.worlds[world_id] = world
+        self.owners[world_id] = owner
+        self._count_worlds()
+
+    def owner_of(self, world_id: str) -> str | None:
+        """The owning key's name (any thread); NotFound for an unknown world."""
+        try:
+            return self.owners[world_id]
+        except KeyError:
+            self._world(world_id)
             raise NotFound(f"no world {world_id!r}") from None
 
     # -- failures and gauges -----------------------------------------------------------------------
@@ -462,3 +505,22 @@ class Engine:
             subs = [s for group in self._subscribers.values() for s in group]
         self.metrics.pending_chunks.set(sum(s.mailbox.pending_chunks for s in subs))
         self.metrics.pending_bytes.set(sum(s.mailbox.pending_bytes for s in subs))
+
+
+class _Durable:
+    """An applied batch whose acknowledgement waits for the journal's durable future."""
+
+    def __init__(self, version: int, durable: Future):
+        self.version = version
+        self.durable = durable
+
+    def acknowledge(self, future: Future) -> None:
+        def done(durable: Future) -> None:
+            exc = durable.exception()
+            if exc is not None:
+                future.set_exception(exc)
+            else:
+                future.set_result(self.version)
+
+        self.durable.add_done_callback(done)
+

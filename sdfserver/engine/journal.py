@@ -2,7 +2,8 @@
 
 The engine calls these on its own thread, in the order things happen:
 
-- ``record_create(world_id, config)`` after a world was created; ``config`` is the
+- ``record_create(world_id, config, owner)`` after a world was created (an import adds
+  ``voxels=`` and ``version=``, the world's initial voxels and version); ``config`` is the
   world's description as ``world_config_dict`` returns it (the body of
   ``POST /v1/worlds``: size, chunk_size, max_distance, algorithm, lod_algorithm, focus).
 - ``record_batch(world_id, version, edits)`` after a batch passed validation and
@@ -10,19 +11,37 @@ The engine calls these on its own thread, in the order things happen:
   produce, ``edits`` the batch in wire form (a list of op maps as
   ``sdfserver.edits.parse_edits`` accepts; ``voxels`` as an (N, 4) integer NumPy
   array). If it raises, the batch is neither applied nor acknowledged.
+  It may return a ``concurrent.futures.Future`` that completes once the batch is durable;
+  the engine then acknowledges the batch only when that future completes (and fails it
+  if the future fails). Returning None acknowledges at once.
+- ``record_config(world_id, config)`` after a world was reconfigured.
 - ``record_delete(world_id)`` after a world was deleted.
+- ``wants_snapshot(world_id)`` after a world's recompute; when it answers True the
+  engine calls ``record_snapshot(world_id, version, config, voxels)`` with a host copy
+  of the voxels (uint8, (z, y, x)) at that version.
 
 A journal must not call back into the engine.
 """
 
 from __future__ import annotations
 
+from concurrent.futures import Future
 from typing import Any, Protocol
+
+import numpy as np
 
 
 class Journal(Protocol):
-    def record_create(self, world_id: str, config: dict[str, Any]) -> None: ...
+    def record_create(self, world_id: str, config: dict[str, Any], owner: str | None = None, *,
+                      voxels: np.ndarray | None = None, version: int = 0) -> None: ...
 
-    def record_batch(self, world_id: str, version: int, edits: list[dict[str, Any]]) -> None: ...
+    def record_batch(self, world_id: str, version: int, edits: list[dict[str, Any]]) -> Future | None: ...
+
+    def record_config(self, world_id: str, config: dict[str, Any]) -> None: ...
 
     def record_delete(self, world_id: str) -> None: ...
+
+    def wants_snapshot(self, world_id: str) -> bool: ...
+
+    def record_snapshot(self, world_id: str, version: int, config: dict[str, Any],
+                        voxels: np.ndarray) -> Any: ...

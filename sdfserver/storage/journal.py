@@ -1,0 +1,102 @@
+"""The engine's durability hook (``sdfserver.engine.journal.Journal``) on the storage layer.
+
+The engine calls it on its own thread:
+
+- ``record_create`` creates the world's directory (catalog entry and an empty log);
+- ``record_batch`` appends the batch to the world's log and returns the future that
+  completes once it is durable — the engine acknowledges the batch only then;
+- ``record_config`` rewrites the catalog entry after a reconfiguration;
+- ``record_delete`` removes the world's directory;
+- ``wants_snapshot`` / ``record_snapshot``: after a recompute, a world with
+  ``snapshot_every_batches`` records since its last snapshot hands over a copy of its
+  voxels; a background thread writes the snapshot and trims the log.
+
+``adopt`` registers a world restored at start-up (``sdfserver.engine.restore``).
+"""
+
+from __future__ import annotations
+
+import logging
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from sdfserver.errors import NotFound
+from sdfserver.storage.store import Storage, WorldStore
+
+log = logging.getLogger("sdfserver.storage")
+
+
+class StorageJournal:
+    def __init__(self, storage: Storage, *, snapshot_every_batches: int = 5000):
+        self.storage = storage
+        self.snapshot_every_batches = snapshot_every_batches
+        self.stores: dict[str, WorldStore] = {}
+        self.owners: dict[str, str | None] = {}
+        self._snapshotting: dict[str, Future] = {}
+        self._snapshots = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sdfserver-snapshot")
+
+    def _store(self, world_id: str) -> WorldStore:
+        try:
+            return self.stores[world_id]
+        except KeyError:
+            raise NotFound(f"world {world_id!r} has no log") from None
+
+    def adopt(self, world_id: str, store: WorldStore, owner: str | None) -> None:
+        self.stores[world_id] = store
+        self.owners[world_id] = owner
+
+    # -- the engine's hook ------------------------------------------------------------------------
+
+    def record_create(self, world_id: str, config: dict[str, Any], owner: str | None = None, *,
+                      voxels: np.ndarray | None = None, version: int = 0) -> None:
+        self.stores[world_id] = self.storage.create_world(world_id, {"config": config, "owner": owner},
+                                                          voxels=voxels, version=version)
+        self.owners[world_id] = owner
+
+    def record_batch(self, world_id: str, version: int, edits: list[dict[str, Any]]) -> Future:
+        return self._store(world_id).append(version, edits)
+
+    def record_config(self, world_id: str, config: dict[str, Any]) -> None:
+        self._store(world_id).write_meta({"config": config, "owner": self.owners.get(world_id)})
+
+    def record_delete(self, world_id: str) -> None:
+        self._wait_snapshot(world_id)
+        store = self.stores.pop(world_id, None)
+        self.owners.pop(world_id, None)
+        self.storage.delete_world(world_id, store)
+
+    def wants_snapshot(self, world_id: str) -> bool:
+        store = self.stores.get(world_id)
+        busy = world_id in self._snapshotting and not self._snapshotting[world_id].done()
+        return (store is not None and not busy and self.storage.committer.failure is None
+                and store.records_since_snapshot >= self.snapshot_every_batches)
+
+    def record_snapshot(self, world_id: str, version: int, config: dict[str, Any], voxels: np.ndarray) -> Future:
+        store = self._store(world_id)
+        future = self._snapshots.submit(self._snapshot, store, version, config, voxels)
+        self._snapshotting[world_id] = future
+        return future
+
+    # -- the rest ------------------------------------------------------------------------------------
+
+    @staticmethod
+    def _snapshot(store: WorldStore, version: int, config: dict[str, Any], voxels: np.ndarray) -> None:
+        try:
+            store.snapshot(version, config, voxels)
+        except Exception:  # the log still holds everything; the next snapshot tries again
+            log.exception("snapshot of world %s at version %d failed", store.world_id, version)
+            raise
+
+    def _wait_snapshot(self, world_id: str) -> None:
+        future = self._snapshotting.pop(world_id, None)
+        if future is not None:
+            future.exception()  # waits; a failure was logged by _snapshot
+
+    def close(self) -> None:
+        self._snapshots.shutdown(wait=True)
+        for store in self.stores.values():
+            store.close()
+        self.stores.clear()
+        self.storage.close()

@@ -1,0 +1,145 @@
+"""Snapshots of a world's voxels: the on-disk file, and the download / upload format.
+
+Layout (one format for both)::
+
+    b"SDFSNAP1" | u32 header length | header (UTF-8 JSON) | body
+
+The header holds ``format`` (1), ``version`` (the world version the voxels reflect),
+``config`` (the world's configuration: ``size`` [sx, sy, sz], ``chunk_size``,
+``max_distance``, ``algorithm``, ...), ``compression`` ("zlib"), ``dtype`` ("uint8"),
+``order`` ("zyx"), ``body_bytes`` and ``body_crc32``. The body is the voxels, shape
+(z, y, x), compressed with zlib. Reading checks every field and the CRC, and bounds the
+decompressed size by the declared world size before inflating anything.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sdfserver.errors import CorruptData, InvalidInput, TooLarge
+from sdfserver.storage.fsutil import fsync_dir, write_atomic
+
+SNAPSHOT_MAGIC = b"SDFSNAP1"
+SNAPSHOT_PATTERN = "snap-*.sdfsnap"
+_HEADER_LENGTH = struct.Struct("<I")
+MAX_HEADER_BYTES = 1 << 16
+COMPRESSION_LEVEL = 1  # voxel worlds are mostly air; level 1 is fast and already small
+
+
+def snapshot_name(version: int) -> str:
+    return f"snap-{version:020d}.sdfsnap"
+
+
+def snapshot_version(path: Path) -> int:
+    return int(path.stem.split("-", 1)[1])
+
+
+@dataclass
+class Snapshot:
+    version: int
+    config: dict[str, Any]
+    voxels: np.ndarray  # uint8, (z, y, x)
+
+
+def encode_snapshot(version: int, config: dict[str, Any], voxels: np.ndarray) -> bytes:
+    size = [int(v) for v in config["size"]]
+    if voxels.dtype != np.uint8 or voxels.shape != tuple(size[::-1]):
+        raise InvalidInput(f"snapshot voxels must be uint8 with shape {tuple(size[::-1])}, "
+                           f"got {voxels.dtype} {voxels.shape}")
+    body = zlib.compress(np.ascontiguousarray(voxels), COMPRESSION_LEVEL)
+    header = json.dumps({
+        "format": 1, "version": int(version), "config": config, "compression": "zlib",
+        "dtype": "uint8", "order": "zyx", "body_bytes": len(body), "body_crc32": zlib.crc32(body),
+    }, sort_keys=True).encode()
+    return SNAPSHOT_MAGIC + _HEADER_LENGTH.pack(len(header)) + header + body
+
+
+def decode_snapshot(data: bytes | memoryview, where: str = "snapshot", *,
+                    max_voxels: int | None = None, corrupt=CorruptData) -> Snapshot:
+    """Parse and check a snapshot. ``corrupt`` picks the error: ``CorruptData`` for files on
+    disk, an ``InvalidInput`` for uploads (see ``decode_upload``)."""
+    view = memoryview(data)
+
+    def fail(offset: int | None, reason: str):
+        return corrupt(where, offset, reason) if corrupt is CorruptData else corrupt(f"{where}: {reason}")
+
+    head = len(SNAPSHOT_MAGIC) + _HEADER_LENGTH.size
+    if len(view) < head or bytes(view[:8]) != SNAPSHOT_MAGIC:
+        raise fail(0, "not an sdfserver snapshot (bad magic)")
+    (header_len,) = _HEADER_LENGTH.unpack_from(view, 8)
+    if header_len > MAX_HEADER_BYTES or head + header_len > len(view):
+        raise fail(8, f"header length {header_len} is out of range")
+    try:
+        header = json.loads(bytes(view[head:head + header_len]))
+        version, config = int(header["version"]), dict(header["config"])
+        size = [int(v) for v in config["size"]]
+        body_bytes, body_crc = int(header["body_bytes"]), int(header["body_crc32"])
+        fmt = (header["format"], header["compression"], header["dtype"], header["order"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise fail(head, f"bad header: {exc!r}") from None
+    if fmt != (1, "zlib", "uint8", "zyx"):
+        raise fail(head, f"unsupported format {fmt}")
+    if version < 0 or len(size) != 3 or min(size) <= 0:
+        raise fail(head, f"bad version {version} or size {size}")
+    raw_bytes = size[0] * size[1] * size[2]
+    if max_voxels is not None and raw_bytes > max_voxels:
+        raise TooLarge(f"{where}: a {size} world has {raw_bytes} voxels; the limit is {max_voxels}")
+    body_at = head + header_len
+    body = view[body_at:]
+    if len(body) != body_bytes:
+        raise fail(body_at, f"body is {len(body)} bytes, header says {body_bytes}")
+    if zlib.crc32(body) != body_crc:
+        raise fail(body_at, "body CRC mismatch")
+    inflater = zlib.decompressobj()
+    try:
+        raw = inflater.decompress(body, raw_bytes + 1)
+    except zlib.error as exc:
+        raise fail(body_at, f"cannot decompress body: {exc}") from None
+    if len(raw) != raw_bytes or inflater.unconsumed_tail or not inflater.eof:
+        raise fail(body_at, f"body inflates to a size other than the declared {raw_bytes} bytes")
+    voxels = np.frombuffer(raw, dtype=np.uint8).reshape(size[::-1]).copy()
+    return Snapshot(version, config, voxels)
+
+
+def decode_upload(data: bytes, max_voxels: int | None = None) -> Snapshot:
+    """A snapshot sent by a client: any defect is the client's (422 / 413)."""
+    return decode_snapshot(data, "uploaded snapshot", max_voxels=max_voxels, corrupt=InvalidInput)
+
+
+def write_snapshot(directory: Path, version: int, config: dict[str, Any], voxels: np.ndarray) -> Path:
+    """Write durably (temporary file, fsync, rename, directory fsync), then drop older ones."""
+    path = Path(directory) / snapshot_name(version)
+    write_atomic(path, encode_snapshot(version, config, voxels))
+    older = [p for p in Path(directory).glob(SNAPSHOT_PATTERN) if snapshot_version(p) < version]
+    for p in older:
+        p.unlink()
+    if older:
+        fsync_dir(directory)
+    return path
+
+
+def read_latest_snapshot(directory: Path) -> Snapshot | None:
+    """The newest snapshot, or None. A damaged newest snapshot is an error: the log before it
+    may have been trimmed, so falling back to an older one could lose acknowledged edits."""
+    paths = sorted(Path(directory).glob(SNAPSHOT_PATTERN), key=snapshot_version)
+    if not paths:
+        return None
+    path = paths[-1]
+    snap = decode_snapshot(path.read_bytes(), str(path))
+    if snap.version != snapshot_version(path):
+        raise CorruptData(str(path), None, f"file name says version {snapshot_version(path)}, "
+                          f"header says {snap.version}")
+    return snap
+
+
+def remove_snapshot_files(directory: Path) -> None:
+    for p in Path(directory).glob(SNAPSHOT_PATTERN):
+        os.unlink(p)

@@ -1,0 +1,184 @@
+"""The data directory: a catalog of worlds, each with its log and snapshots.
+
+Layout::
+
+    <data_dir>/
+      worlds/<world id>/world.json            the catalog entry: config, owner, ... (atomic)
+      worlds/<world id>/snap-<version>.sdfsnap  the latest snapshot of its voxels
+      worlds/<world id>/wal-<base>.log          log segments, records after <base>
+
+A world exists exactly when its directory holds ``world.json``. Creation builds the
+directory under a temporary name and renames it into place; deletion renames it away
+before removing it, so a crash never leaves half a world in the catalog.
+
+``Storage`` owns the group-commit thread shared by every world's log; ``WorldStore`` is one
+world's handle: ``append`` a batch (a future that completes once it is durable), ``snapshot``
+the voxels (then the log is trimmed), ``close``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import uuid
+from concurrent.futures import Future
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sdfserver.errors import CorruptData, InvalidInput, NotFound, StorageError
+from sdfserver.storage.codec import encode_batch
+from sdfserver.storage.fsutil import fsync_dir, write_atomic
+from sdfserver.storage.recovery import Recovered, recover_world
+from sdfserver.storage.snapshot import remove_snapshot_files, write_snapshot
+from sdfserver.storage.wal import Committer, WorldLog
+
+DEFAULT_DATA_DIR = "data"  # relative to the working directory; see docs/configuration.md
+WORLD_ID = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9_.-]{0,127}$")  # never a leading dot
+META_FILE = "world.json"
+_HIDDEN = "."  # prefix of directories being created or deleted
+
+
+def check_world_id(world_id: str) -> str:
+    if not isinstance(world_id, str) or not WORLD_ID.match(world_id):
+        raise InvalidInput(f"world id must match {WORLD_ID.pattern}, got {world_id!r}")
+    return world_id
+
+
+class WorldStore:
+    """One world's durable state. ``append`` is thread-safe; ``snapshot`` and ``close`` are
+    meant for the thread that owns the world."""
+
+    def __init__(self, world_id: str, directory: Path, log: WorldLog):
+        self.world_id = world_id
+        self.directory = directory
+        self.log = log
+        self.snapshot_version = 0
+        self.records_since_snapshot = 0
+
+    @property
+    def last_version(self) -> int:
+        return self.log.last_version
+
+    def append(self, version: int, edits_wire: Any) -> Future:
+        """Log one batch; the future completes when it is durable (acknowledge after that)."""
+        future = self.log.append(version, encode_batch(edits_wire))
+        self.records_since_snapshot += 1
+        return future
+
+    def snapshot(self, version: int, config: dict[str, Any], voxels: np.ndarray) -> None:
+        """Persist the voxels at ``version`` and trim the log to the records after it.
+
+        ``version`` at most the last logged version is an ordinary checkpoint; a version
+        above it records a replacement of the whole world (an import or upload)."""
+        self.log.committer.check()
+        if version > self.log.last_version:
+            write_snapshot(self.directory, version, config, voxels)
+            self.log.rotate(version)
+        else:
+            self.log.rotate()
+            write_snapshot(self.directory, version, config, voxels)
+        self.log.trim(version)
+        self.snapshot_version = version
+        self.records_since_snapshot = self.log.last_version - version
+
+    def write_meta(self, meta: dict[str, Any]) -> None:
+        write_atomic(self.directory / META_FILE, json.dumps(meta, sort_keys=True, indent=1).encode())
+
+    def close(self) -> None:
+        self.log.close()
+
+
+class Storage:
+    def __init__(self, data_dir: str | Path = DEFAULT_DATA_DIR, *, sync: bool = True,
+                 commit_window_ms: float = 0.0):
+        self.data_dir = Path(data_dir).expanduser().resolve()
+        self.worlds_dir = self.data_dir / "worlds"
+        try:
+            self.worlds_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise StorageError(f"cannot create the data directory {self.worlds_dir}: {exc}") from None
+        self.committer = Committer(sync=sync, window_ms=commit_window_ms)
+        self._sweep()
+
+    def _sweep(self) -> None:
+        """Finish what a crash interrupted: half-created or half-deleted world directories."""
+        for leftover in self.worlds_dir.glob(_HIDDEN + "*"):
+            shutil.rmtree(leftover, ignore_errors=True)
+
+    def _dir(self, world_id: str) -> Path:
+        return self.worlds_dir / check_world_id(world_id)
+
+    # -- the catalog -------------------------------------------------------------------------
+
+    def world_ids(self) -> list[str]:
+        return sorted(p.parent.name for p in self.worlds_dir.glob("*/" + META_FILE)
+                      if not p.parent.name.startswith(_HIDDEN))
+
+    def read_meta(self, world_id: str) -> dict[str, Any]:
+        path = self._dir(world_id) / META_FILE
+        try:
+            return json.loads(path.read_bytes())
+        except FileNotFoundError:
+            raise NotFound(f"no stored world {world_id!r}") from None
+        except ValueError as exc:
+            raise CorruptData(str(path), None, f"catalog entry is not JSON: {exc}") from None
+
+    def catalog(self) -> dict[str, dict[str, Any]]:
+        return {world_id: self.read_meta(world_id) for world_id in self.world_ids()}
+
+    # -- worlds ------------------------------------------------------------------------------
+
+    def create_world(self, world_id: str, meta: dict[str, Any], *, voxels: np.ndarray | None = None,
+                     version: int = 0) -> WorldStore:
+        """A new world at ``version`` (with an initial snapshot when ``voxels`` is given)."""
+        final = self._dir(world_id)
+        if final.exists():
+            raise InvalidInput(f"world {world_id!r} already exists in {self.worlds_dir}")
+        staging = self.worlds_dir / f"{_HIDDEN}new-{world_id}-{uuid.uuid4().hex[:8]}"
+        staging.mkdir()
+        write_atomic(staging / META_FILE, json.dumps(meta, sort_keys=True, indent=1).encode())
+        if voxels is not None:
+            write_snapshot(staging, version, meta["config"], voxels)
+        WorldLog.create_segment(staging, version)
+        fsync_dir(staging)
+        staging.rename(final)
+        fsync_dir(self.worlds_dir)
+        return self._attach(world_id, final, Recovered(version, voxels, last_version=version))
+
+    def open_world(self, world_id: str) -> tuple[WorldStore, Recovered]:
+        """Recover a stored world; raises ``CorruptData`` when it cannot be trusted."""
+        directory = self._dir(world_id)
+        if not (directory / META_FILE).exists():
+            raise NotFound(f"no stored world {world_id!r}")
+        recovered = recover_world(directory)
+        return self._attach(world_id, directory, recovered), recovered
+
+    def _attach(self, world_id: str, directory: Path, recovered: Recovered) -> WorldStore:
+        segment, end = recovered.segment, recovered.segment_end
+        if segment is None:  # the snapshot is newer than the log: continue in a fresh segment
+            segment = WorldLog.create_segment(directory, recovered.last_version)
+            end = segment.stat().st_size
+        log = WorldLog(directory, self.committer, segment, end, recovered.last_version)
+        store = WorldStore(world_id, directory, log)
+        store.snapshot_version = recovered.snapshot_version
+        store.records_since_snapshot = recovered.last_version - recovered.snapshot_version
+        log.trim(recovered.snapshot_version)
+        return store
+
+    def delete_world(self, world_id: str, store: WorldStore | None = None) -> None:
+        if store is not None:
+            store.close()
+        directory = self._dir(world_id)
+        if not directory.exists():
+            raise NotFound(f"no stored world {world_id!r}")
+        doomed = self.worlds_dir / f"{_HIDDEN}del-{world_id}-{uuid.uuid4().hex[:8]}"
+        directory.rename(doomed)
+        fsync_dir(self.worlds_dir)
+        remove_snapshot_files(doomed)
+        shutil.rmtree(doomed)
+
+    def close(self) -> None:
+        self.committer.close()

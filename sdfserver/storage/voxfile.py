@@ -1,0 +1,140 @@
+"""MagicaVoxel ``.vox`` models (the RIFF-like format of ephtracy/voxel-model's
+``MagicaVoxel-file-format-vox.txt``).
+
+Layout: ``"VOX "``, int32 version, then the ``MAIN`` chunk whose children are an optional
+``PACK`` (model count), one ``SIZE`` (x, y, z; z is up) and ``XYZI`` (count, then x, y, z,
+colour index as bytes) per model, and an optional ``RGBA`` palette (256 RGBA entries; entry
+``i`` is colour index ``i + 1``). Every chunk is id, int32 content bytes, int32 children
+bytes. Other chunks (scene graph, materials, layers) are skipped.
+
+Import: z-up becomes y-up keeping the handedness — world (x, y, z) = (vx, vz, sy - 1 - vy) —
+and each palette colour maps to RGB332, ``(r >> 5) << 5 | (g >> 5) << 2 | b >> 6``. Colour
+index 0 is air; a solid voxel whose colour quantises to 0 (black) becomes 0x01, the darkest
+non-air colour, so it does not vanish. Export writes one model with the RGB332 palette
+(colour ``c`` is palette index ``c``), for worlds up to 256 voxels a side.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+
+from sdfserver.errors import InvalidInput, TooLarge
+
+VOX_MAGIC = b"VOX "
+_CHUNK = struct.Struct("<4sii")
+MAX_SIDE = 256
+
+
+def default_palette() -> np.ndarray:
+    """MagicaVoxel's default palette as (256, 3) uint8 RGB, indexed by colour index."""
+    levels = np.array([0xFF, 0xCC, 0x99, 0x66, 0x33, 0x00], dtype=np.uint8)
+    r, g, b = np.meshgrid(levels, levels, levels, indexing="ij")  # blue varies fastest
+    cube = np.stack([r.ravel(), g.ravel(), b.ravel()], axis=1)[:-1]  # 215 colours, no black
+    ramp = np.array([0xEE, 0xDD, 0xBB, 0xAA, 0x88, 0x77, 0x55, 0x44, 0x22, 0x11], dtype=np.uint8)
+    zeros = np.zeros_like(ramp)
+    ramps = [np.stack(c, axis=1) for c in ((ramp, zeros, zeros), (zeros, ramp, zeros),
+                                           (zeros, zeros, ramp), (ramp, ramp, ramp))]
+    return np.concatenate([np.zeros((1, 3), np.uint8), cube, *ramps])
+
+
+def rgb_to_rgb332(rgb: np.ndarray) -> np.ndarray:
+    rgb = rgb.astype(np.uint8)
+    return ((rgb[..., 0] >> 5) << 5 | (rgb[..., 1] >> 5) << 2 | rgb[..., 2] >> 6).astype(np.uint8)
+
+
+def rgb332_to_rgb(colour: np.ndarray) -> np.ndarray:
+    """Each RGB332 level spread over 0..255 (the inverse of ``rgb_to_rgb332`` up to rounding)."""
+    c = colour.astype(np.uint16)
+    rgb = np.stack([(c >> 5) * 255 // 7, ((c >> 2) & 7) * 255 // 7, (c & 3) * 255 // 3], axis=-1)
+    return rgb.astype(np.uint8)
+
+
+def _chunks(data: bytes, start: int, end: int):
+    """Yield (id, content, children range) for the chunks in data[start:end]."""
+    offset = start
+    while offset < end:
+        if end - offset < _CHUNK.size:
+            raise InvalidInput(f".vox: truncated chunk header at offset {offset}")
+        cid, n, m = _CHUNK.unpack_from(data, offset)
+        body = offset + _CHUNK.size
+        if n < 0 or m < 0 or body + n + m > end:
+            raise InvalidInput(f".vox: chunk {cid!r} at offset {offset} overruns its parent")
+        yield cid, data[body:body + n], (body + n, body + n + m)
+        offset = body + n + m
+
+
+Model = tuple[tuple[int, int, int], np.ndarray]  # (size xyz, xyzi (N, 4) uint8)
+
+
+def parse_vox(data: bytes, *, max_voxels: int | None = None) -> tuple[list[Model], np.ndarray]:
+    """([(size xyz, xyzi (N, 4) uint8)] per model, palette (256, 3) RGB by colour index)."""
+    if len(data) < 8 or data[:4] != VOX_MAGIC:
+        raise InvalidInput(".vox: missing 'VOX ' magic")
+    chunks = list(_chunks(data, 8, len(data)))
+    if not chunks or chunks[0][0] != b"MAIN":
+        raise InvalidInput(".vox: the first chunk must be MAIN")
+    models, size, palette = [], None, default_palette()
+    for cid, content, (lo, hi) in _chunks(data, *chunks[0][2]):
+        if cid == b"SIZE":
+            if len(content) < 12:
+                raise InvalidInput(".vox: SIZE chunk shorter than 12 bytes")
+            size = struct.unpack_from("<3i", content)
+            if min(size) <= 0 or max(size) > MAX_SIDE:
+                raise InvalidInput(f".vox: model size {list(size)} out of range 1..{MAX_SIDE}")
+            if max_voxels is not None and size[0] * size[1] * size[2] > max_voxels:
+                raise TooLarge(f".vox: a {list(size)} model exceeds the limit of {max_voxels} voxels")
+        elif cid == b"XYZI":
+            if size is None:
+                raise InvalidInput(".vox: XYZI chunk before its SIZE chunk")
+            (count,) = struct.unpack_from("<i", content) if len(content) >= 4 else (-1,)
+            if count < 0 or 4 + 4 * count > len(content):
+                raise InvalidInput(f".vox: XYZI declares {count} voxels in {len(content)} bytes")
+            xyzi = np.frombuffer(content, dtype=np.uint8, count=4 * count, offset=4).reshape(-1, 4)
+            if (xyzi[:, :3] >= np.array(size)).any():
+                raise InvalidInput(f".vox: a voxel lies outside its model size {list(size)}")
+            models.append((tuple(size), xyzi))
+            size = None
+        elif cid == b"RGBA":
+            if len(content) < 1024:
+                raise InvalidInput(".vox: RGBA chunk shorter than 1024 bytes")
+            rgba = np.frombuffer(content, dtype=np.uint8, count=1024).reshape(256, 4)
+            palette = np.concatenate([np.zeros((1, 3), np.uint8), rgba[:255, :3]])
+    if not models:
+        raise InvalidInput(".vox: no model (SIZE + XYZI) found")
+    return models, palette
+
+
+def load_vox(data: bytes, *, model: int = 0, max_voxels: int | None = None) -> np.ndarray:
+    """One model as world voxels, uint8 RGB332, shape (z, y, x) = (vy, vz, vx) sizes."""
+    models, palette = parse_vox(data, max_voxels=max_voxels)
+    if not 0 <= model < len(models):
+        raise InvalidInput(f".vox: model {model} requested, the file has {len(models)}")
+    (sx, sy, sz), xyzi = models[model]
+    colours = rgb_to_rgb332(palette)
+    colours[1:][colours[1:] == 0] = 0x01
+    solid = xyzi[xyzi[:, 3] != 0].astype(np.int64)
+    voxels = np.zeros((sy, sz, sx), dtype=np.uint8)  # world (z, y, x)
+    voxels[sy - 1 - solid[:, 1], solid[:, 2], solid[:, 0]] = colours[solid[:, 3]]
+    return voxels
+
+
+def dump_vox(voxels: np.ndarray) -> bytes:
+    """World voxels (z, y, x) as a one-model .vox file with the RGB332 palette."""
+    nz, ny, nx = voxels.shape
+    if max(voxels.shape) > MAX_SIDE:
+        raise TooLarge(f".vox export holds at most {MAX_SIDE} voxels a side, got {list(voxels.shape[::-1])}")
+    z, y, x = np.nonzero(voxels)
+    xyzi = np.stack([x, nz - 1 - z, y, voxels[z, y, x]], axis=1).astype(np.uint8)
+
+    def chunk(cid: bytes, content: bytes, children: bytes = b"") -> bytes:
+        return _CHUNK.pack(cid, len(content), len(children)) + content + children
+
+    rgba = np.zeros((256, 4), dtype=np.uint8)
+    rgba[:255, :3] = rgb332_to_rgb(np.arange(1, 256))
+    rgba[:255, 3] = 255
+    children = (chunk(b"SIZE", struct.pack("<3i", nx, nz, ny))
+                + chunk(b"XYZI", struct.pack("<i", len(xyzi)) + xyzi.tobytes())
+                + chunk(b"RGBA", rgba.tobytes()))
+    return VOX_MAGIC + struct.pack("<i", 150) + chunk(b"MAIN", b"", children)

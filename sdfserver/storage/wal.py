@@ -1,0 +1,227 @@
+"""The write-ahead log of one world, and the group-commit thread shared by every log.
+
+``WorldLog.append(version, payload)`` writes one framed record with ``os.write`` (under the
+log's lock, so records of one world are in version order) and hands the file to the
+``Committer``; it returns a ``concurrent.futures.Future`` that completes once the record is
+durable. Block on it with ``.result()`` or await it with ``asyncio.wrap_future``; acknowledge
+the batch only after that.
+
+Group commit: the committer thread takes every record waiting (optionally after a short
+window), calls ``fdatasync`` once per file, and completes all their futures together. While
+one sync runs, the appends that arrive queue up for the next, so under load many batches
+share one sync.
+
+A failed write or sync is never retried: the committer enters a failed state, every waiting
+future and every later append raises ``WritesDisabled`` naming the file and the OS error.
+What reached the disk before the failure is recovered at the next start as usual.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+
+from sdfserver.errors import WritesDisabled
+from sdfserver.storage.framing import encode_record, encode_segment_header
+from sdfserver.storage.fsutil import fsync_dir, write_atomic
+
+SEGMENT_PATTERN = "wal-*.log"
+SYNC_THREADS = 8
+
+
+def segment_name(base_version: int) -> str:
+    return f"wal-{base_version:020d}.log"
+
+
+def segment_base(path: Path) -> int:
+    return int(path.stem.split("-", 1)[1])
+
+
+class Committer:
+    """One thread that makes appended records durable, many at a time."""
+
+    def __init__(self, *, sync: bool = True, window_ms: float = 0.0):
+        self.sync = sync
+        self.window_s = max(0.0, window_ms) / 1e3
+        self._cond = threading.Condition()
+        self._pending: list[tuple[int, str, Future]] = []
+        self._failure: WritesDisabled | None = None
+        self._closed = False
+        self.syncs = 0  # fdatasync calls made
+        self.records = 0  # records made durable
+        self._pool = ThreadPoolExecutor(max_workers=SYNC_THREADS, thread_name_prefix="sdfserver-fdatasync")
+        self._thread = threading.Thread(target=self._run, name="sdfserver-wal-sync", daemon=True)
+        self._thread.start()
+
+    @property
+    def failure(self) -> WritesDisabled | None:
+        return self._failure
+
+    def check(self) -> None:
+        if self._failure is not None:
+            raise self._failure
+        if self._closed:
+            raise WritesDisabled("the write-ahead log is closed")
+
+    def fail(self, path: str, what: str, exc: BaseException) -> WritesDisabled:
+        with self._cond:
+            if self._failure is None:
+                self._failure = WritesDisabled(
+                    f"writes are disabled: {what} of {path} failed ({exc}); nothing after the last "
+                    "acknowledged edit is kept, and no edit is accepted until the server is restarted")
+                pending, self._pending = self._pending, []
+                for _, _, future in pending:
+                    future.set_exception(self._failure)
+            return self._failure
+
+    def submit(self, fd: int, path: str) -> Future:
+        """A future completed once everything written to ``fd`` so far is durable."""
+        future: Future = Future()
+        if not self.sync:
+            future.set_result(None)
+            return future
+        with self._cond:
+            self.check()
+            self._pending.append((fd, path, future))
+            self._cond.notify()
+        return future
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._pending and not self._closed:
+                    self._cond.wait()
+                if not self._pending:
+                    return
+            if self.window_s:
+                time.sleep(self.window_s)
+            with self._cond:
+                batch, self._pending = self._pending, []
+            files = {fd: path for fd, path, _ in batch}
+            # Several files (worlds) sync side by side, so the file system can merge them.
+            errors = [e for e in self._pool.map(self._sync_one, files.items()) if e is not None]
+            if errors:
+                failure = self.fail(*errors[0])
+                for _, _, future in batch:
+                    future.set_exception(failure)
+            else:
+                self.syncs += len(files)
+                self.records += len(batch)
+                for _, _, future in batch:
+                    future.set_result(None)
+
+    @staticmethod
+    def _sync_one(item: tuple[int, str]) -> tuple[str, str, OSError] | None:
+        fd, path = item
+        try:
+            os.fdatasync(fd)
+        except OSError as exc:
+            return path, "fdatasync", exc
+        return None
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+        self._thread.join()
+        self._pool.shutdown()
+
+
+class WorldLog:
+    """Appends to the newest segment of one world's log directory."""
+
+    def __init__(self, directory: Path, committer: Committer, segment: Path, end: int, last_version: int):
+        self.directory = Path(directory)
+        self.committer = committer
+        self._lock = threading.Lock()
+        self._path = segment
+        self._fd = os.open(segment, os.O_WRONLY | os.O_APPEND)
+        self._end = end
+        os.ftruncate(self._fd, end)  # drop a torn tail recovery decided to truncate
+        os.fsync(self._fd)
+        self.last_version = last_version
+
+    @staticmethod
+    def create_segment(directory: Path, base_version: int) -> Path:
+        """A new, empty segment, created atomically and durably."""
+        path = Path(directory) / segment_name(base_version)
+        write_atomic(path, encode_segment_header(base_version))
+        return path
+
+    @property
+    def segment(self) -> Path:
+        return self._path
+
+    def segments(self) -> list[Path]:
+        return sorted(self.directory.glob(SEGMENT_PATTERN), key=segment_base)
+
+    def append(self, version: int, payload: bytes) -> Future:
+        frame = encode_record(version, payload)
+        with self._lock:
+            self.committer.check()
+            if self._fd < 0:
+                raise WritesDisabled(f"the log of {self.directory.name} is closed")
+            if version != self.last_version + 1:
+                raise ValueError(f"log of {self.directory.name}: version {version} follows "
+                                 f"{self.last_version}; versions must be continuous")
+            view = memoryview(frame)
+            try:
+                while view:
+                    view = view[os.write(self._fd, view):]
+            except OSError as exc:
+                try:  # leave no partial record for a later append to follow
+                    os.ftruncate(self._fd, self._end)
+                except OSError:
+                    pass  # the failed state below refuses every later append anyway
+                raise self.committer.fail(str(self._path), "write", exc) from None
+            self._end += len(frame)
+            self.last_version = version
+            return self.committer.submit(self._fd, str(self._path))
+
+    def _flush_locked(self) -> None:
+        self.committer.submit(self._fd, str(self._path)).result()
+
+    def flush(self) -> None:
+        """Wait until everything appended so far is durable."""
+        with self._lock:
+            self._flush_locked()
+
+    def rotate(self, base_version: int | None = None) -> None:
+        """Continue in a new segment based at ``base_version`` (default: the last version).
+        A base above the last version starts over after a snapshot that replaced the world."""
+        with self._lock:
+            base = self.last_version if base_version is None else base_version
+            if base < self.last_version:
+                raise ValueError(f"cannot rotate to base {base} below the last version {self.last_version}")
+            if base == self.last_version and self._end == len(encode_segment_header(0)) \
+                    and segment_base(self._path) == base:
+                return  # already an empty segment at that base
+            self.committer.check()
+            self._flush_locked()
+            path = self.create_segment(self.directory, base)
+            os.close(self._fd)
+            self._fd = os.open(path, os.O_WRONLY | os.O_APPEND)
+            self._path, self._end, self.last_version = path, len(encode_segment_header(0)), base
+
+    def trim(self, upto_version: int) -> list[Path]:
+        """Delete the segments whose records are all ``<= upto_version``; returns them."""
+        with self._lock:
+            segments = self.segments()
+            doomed = [seg for seg, nxt in zip(segments, segments[1:])
+                      if segment_base(nxt) <= upto_version and seg != self._path]
+            for seg in doomed:
+                seg.unlink()
+            if doomed:
+                fsync_dir(self.directory)
+            return doomed
+
+    def close(self) -> None:
+        with self._lock:
+            if self._fd >= 0:
+                if self.committer.failure is None and not self.committer._closed:
+                    self._flush_locked()
+                os.close(self._fd)
+                self._fd = -1

@@ -1,0 +1,180 @@
+"""The storage journal inside the engine, without HTTP: a batch is acknowledged only once its
+log record is durable, a failed sync fails it and refuses every later batch, snapshots are taken
+after recomputes, and restore_worlds rebuilds the same worlds in a fresh engine."""
+
+from __future__ import annotations
+
+import os
+import threading
+
+import numpy as np
+import pytest
+
+from sdfserver.edits import parse_edits
+from sdfserver.engine import Engine
+from sdfserver.engine.commands import ApplyEdits, CreateWorld, Read
+from sdfserver.engine.restore import restore_worlds
+from sdfserver.errors import WritesDisabled
+from sdfserver.gpu import GpuContext
+from sdfserver.storage import Storage
+from sdfserver.storage.journal import StorageJournal
+from sdfserver.world import WorldConfig
+
+from durable_server import apply_reference, random_batch
+
+
+@pytest.fixture(scope="module")
+def gpu():
+    return GpuContext.create()
+
+
+@pytest.fixture
+def journal(tmp_path):
+    journal = StorageJournal(Storage(tmp_path / "data"), snapshot_every_batches=3)
+    yield journal
+    journal.close()
+
+
+def edits(engine, world_id, raw):
+    return engine.submit(ApplyEdits(world_id, parse_edits(raw), raw))
+
+
+def test_acknowledged_only_when_durable(gpu, journal, monkeypatch):
+    engine = Engine(gpu, journal=journal)
+    created = engine.submit(CreateWorld(WorldConfig(size=(16, 16, 16), chunk_size=8, max_distance=6),
+                                        owner="alice"))
+    engine.step()
+    world_id = created.result()["id"]
+    assert created.result()["owner"] == "alice"
+    gate, real = threading.Event(), os.fdatasync
+    monkeypatch.setattr(os, "fdatasync", lambda fd: (gate.wait(10), real(fd)))
+    first = edits(engine, world_id, [{"op": "box", "min": [0, 0, 0], "max": [2, 2, 2], "colour": 3}])
+    engine.step()
+    assert not first.done(), "acknowledged before the log record was durable"
+    gate.set()
+    assert first.result(timeout=10) == 1
+
+    def broken(fd):
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(os, "fdatasync", broken)
+    failing = edits(engine, world_id, [{"op": "box", "min": [4, 4, 4], "max": [5, 5, 5], "colour": 1}])
+    engine.step()
+    with pytest.raises(WritesDisabled):
+        failing.result(timeout=10)
+    refused = edits(engine, world_id, [{"op": "box", "min": [6, 6, 6], "max": [7, 7, 7], "colour": 1}])
+    engine.step()
+    with pytest.raises(WritesDisabled, match="writes are disabled"):
+        refused.result(timeout=10)
+    engine.stop()
+
+
+def test_snapshots_and_restore_into_a_fresh_engine(gpu, journal, tmp_path):
+    rng = np.random.default_rng()
+    engine = Engine(gpu, journal=journal)
+    created = engine.submit(CreateWorld(WorldConfig(size=(16, 24, 8), chunk_size=8, max_distance=7)))
+    engine.step()
+    world_id = created.result()["id"]
+    expected = np.zeros((8, 24, 16), np.uint8)
+    for _ in range(11):
+        batch = random_batch(rng, (16, 24, 8))
+        future = edits(engine, world_id, batch)
+        engine.step()
+        future.result(timeout=10)
+        apply_reference(expected, batch)
+    journal._wait_snapshot(world_id)
+    directory = tmp_path / "data" / "worlds" / world_id
+    snaps = sorted(directory.glob("snap-*"))
+    assert snaps and int(snaps[-1].stem.split("-")[1]) >= 9
+    field = engine.submit(Read(world_id, "distance"))
+    engine.step()
+    before = field.result().array
+    engine.stop()
+    journal.close()
+
+    fresh_journal = StorageJournal(Storage(tmp_path / "data"))
+    fresh = Engine(gpu, journal=fresh_journal)
+    report = restore_worlds(fresh, fresh_journal.storage, fresh_journal)
+    assert report.restored == [world_id] and not report.refused
+    voxels, field = fresh.submit(Read(world_id, "voxels")), fresh.submit(Read(world_id, "distance"))
+    fresh.step()
+    assert voxels.result().version == 11
+    np.testing.assert_array_equal(voxels.result().array, expected)
+    np.testing.assert_array_equal(field.result().array, before)
+    nxt = edits(fresh, world_id, [{"op": "box", "min": [0, 0, 0], "max": [1, 1, 1], "colour": 2}])
+    fresh.step()
+    assert nxt.result(timeout=10) == 12
+    fresh.stop()
+    fresh_journal.close()
+
+
+def test_a_corrupt_world_is_refused_and_the_others_restore(gpu, journal, tmp_path):
+    from sdfserver.errors import StorageError
+
+    engine = Engine(gpu, journal=journal)
+    ids = []
+    for _ in range(2):
+        created = engine.submit(CreateWorld(WorldConfig(size=(8, 8, 8), chunk_size=8, max_distance=4)))
+        engine.step()
+        ids.append(created.result()["id"])
+    for v in range(2):  # below snapshot_every_batches: everything stays in the log
+        for world_id in ids:
+            future = edits(engine, world_id, [{"op": "box", "min": [v, 0, 0], "max": [v + 1, 1, 1], "colour": 5}])
+            engine.step()
+            future.result(timeout=10)
+    engine.stop()
+    journal.close()
+    segment = next((tmp_path / "data" / "worlds" / ids[0]).glob("wal-*"))
+    data = bytearray(segment.read_bytes())
+    data[16 + 20] ^= 0xFF  # inside the first record; the second is intact
+    segment.write_bytes(bytes(data))
+
+    fresh_journal = StorageJournal(Storage(tmp_path / "data"))
+    fresh = Engine(gpu, journal=fresh_journal)
+    report = restore_worlds(fresh, fresh_journal.storage, fresh_journal)
+    assert report.restored == [ids[1]] and set(report.refused) == {ids[0]}
+    assert str(segment) in report.refused[ids[0]] and "offset 16" in report.refused[ids[0]]
+    refused = fresh.submit(Read(ids[0], "voxels"))
+    fresh.step()
+    with pytest.raises(StorageError, match="not restored"):
+        refused.result()
+    assert segment.read_bytes() == bytes(data)  # left untouched for an operator
+    fresh.stop()
+    fresh_journal.close()
+
+
+def test_the_api_says_writes_are_disabled(gpu, journal, monkeypatch):
+    import asyncio
+
+    import httpx
+
+    from sdfserver.api.app import create_app
+    from sdfserver.settings import Settings
+
+    engine = Engine(gpu, journal=journal)
+    app = create_app(Settings(), engine)
+    app.state.journal = journal
+    engine.start(warm_up=False)
+
+    async def scenario():
+        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t") as http:
+            world = (await http.post("/v1/worlds", json={"size": [8, 8, 8], "chunk_size": 8})).json()["id"]
+            box = {"edits": [{"op": "box", "min": [0, 0, 0], "max": [2, 2, 2], "colour": 3}]}
+            assert (await http.post(f"/v1/worlds/{world}/edits", json=box)).json() == {"version": 1}
+            assert (await http.get("/readyz")).status_code == 200
+
+            def broken(fd):
+                raise OSError(28, "No space left on device")
+
+            monkeypatch.setattr(os, "fdatasync", broken)
+            for _ in range(2):  # the failing sync, then a refusal without trying
+                r = await http.post(f"/v1/worlds/{world}/edits", json=box)
+                assert r.status_code == 503 and r.json()["error"]["code"] == "writes_disabled", r.text
+            ready = await http.get("/readyz")
+            assert ready.status_code == 503 and "No space left" in ready.json()["error"]["message"]
+            assert (await http.get(f"/v1/worlds/{world}")).status_code == 200  # reads keep working
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        engine.stop()

@@ -39,7 +39,9 @@
 #define GROUP_SHAPE __attribute__((reqd_work_group_size(LOCAL_X, LOCAL_Y, 1)))
 
 /* Forward and backward sweeps of one segment, with the carries between the
- * segments of a line passed through local memory. T is int or an int vector: native
+ * segments of a line passed through local memory; NSEG (segments per line) is
+ * a compile-time constant so the carry loops unroll and their local reads
+ * overlap. T is int or an int vector: native
  * 32-bit min and add (saturating byte arithmetic costs several instructions a
  * step on NVIDIA, and this kernel is bound by instruction issue, not bytes). */
 #define SWEEP_SEGMENT(T, d, seg_end, seg, nseg)                                        \
@@ -52,8 +54,9 @@
         seg_end[seg] = run_;                                                           \
         barrier(CLK_LOCAL_MEM_FENCE);                                                  \
         T carry_ = (T)(BIG);                                                           \
-        for (int j = 0; j < seg; ++j)                                                  \
-            carry_ = min(carry_, seg_end[j] + (seg - 1 - j) * SEG);                    \
+        _Pragma("unroll") for (int j = 0; j < NSEG - 1; ++j)                           \
+            if (j < seg)                                                               \
+                carry_ = min(carry_, seg_end[j] + (seg - 1 - j) * SEG);                \
         barrier(CLK_LOCAL_MEM_FENCE);                                                  \
         run_ = (T)(BIG);                                                               \
         carry_ += 1;                                                                   \
@@ -64,8 +67,9 @@
         seg_end[seg] = run_;                                                           \
         barrier(CLK_LOCAL_MEM_FENCE);                                                  \
         carry_ = (T)(BIG);                                                             \
-        for (int j = seg + 1; j < nseg; ++j)                                           \
-            carry_ = min(carry_, seg_end[j] + (j - seg - 1) * SEG);                    \
+        _Pragma("unroll") for (int j = 1; j < NSEG; ++j)                               \
+            if (j > seg)                                                               \
+                carry_ = min(carry_, seg_end[j] + (j - seg - 1) * SEG);                \
         carry_ += SEG;                                                                 \
         _Pragma("unroll") for (int k = 0; k < SEG; ++k)                                \
             d[k] = min(d[k], carry_ - k);                                              \
@@ -82,6 +86,7 @@
                                               d[c + 4], d[c + 5], d[c + 6], d[c + 7]), (int8)(cap)))
 
 #ifndef VEC
+#define NSEG LOCAL_X
 /* x: lines are contiguous; each work-item loads SEG bytes as uchar8 vectors. */
 __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *voxels,
                      __global const ushort *field, int4 dims, int4 w_lo, int4 w_n,
@@ -131,6 +136,7 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
 }
 
 #else
+#define NSEG LOCAL_Y
 /* y or z: each work-item sweeps VEC adjacent x-columns (VEC = 2 or 4), so a
  * warp touches 32 * VEC contiguous bytes of a row. */
 #define CAT_(a, b) a##b

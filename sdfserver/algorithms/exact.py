@@ -40,7 +40,7 @@ class PassShape:
 PASS_SHAPES = {
     0: PassShape(segments=16, min_seg=8, max_seg=32),
     1: PassShape(segments=16, min_seg=4, max_seg=32, vec=2, lanes=8),
-    2: PassShape(segments=32, min_seg=4, max_seg=16, vec=4, lanes=8),
+    2: PassShape(segments=32, min_seg=4, max_seg=16, vec=4, lanes=4),
 }
 X_PASS_THREADS = 256  # work-items per work-group for the x pass
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 import sys
 import time
 import typing
@@ -60,9 +61,24 @@ class JsonFormatter(logging.Formatter):
         return json.dumps(line)
 
 
+class RedactTokens(logging.Filter):
+    """Keys in a query string (``?access_token=`` on a WebSocket, ``?key=`` on the demo page) must
+    not reach the log: uvicorn logs a WebSocket's path with its query."""
+
+    PATTERN = re.compile(r"([?&](?:access_token|key)=)[^&\s\"']*")
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        redacted = self.PATTERN.sub(r"\1[redacted]", message)
+        if redacted != message:
+            record.msg, record.args = redacted, None
+        return True
+
+
 def configure_logging(settings: Settings) -> dict[str, Any]:
     """Our handler on the root logger; uvicorn's loggers propagate to it."""
     handler = logging.StreamHandler(sys.stderr)
+    handler.addFilter(RedactTokens())
     handler.setFormatter(JsonFormatter() if settings.log_format == "json"
                          else logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root = logging.getLogger()

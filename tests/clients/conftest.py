@@ -17,10 +17,12 @@ READY_TIMEOUT_S = 120.0  # PoCL builds the kernels while the server warms up
 @pytest.fixture(scope="module")
 def server_url(tmp_path_factory):
     port = free_port()
-    log_path = tmp_path_factory.mktemp("server") / "server.log"
+    home = tmp_path_factory.mktemp("server")
+    log_path = home / "server.log"
     log = open(log_path, "wb")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sdfserver", "serve", "--host", "127.0.0.1", "--port", str(port)],
+        [sys.executable, "-m", "sdfserver", "serve", "--host", "127.0.0.1", "--port", str(port),
+         "--data-dir", str(home / "data")],  # its own: worlds are durable
         cwd=ROOT, env=env_with_paths(), stdout=log, stderr=subprocess.STDOUT,
     )
     url = f"http://127.0.0.1:{port}"

@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # One packed measurement session on the lent GPU machine (see docs/benchmarks.md).
 # Usage there: source .whl/activate.sh; bash tools/gpu_session.sh [sections]
-# Sections: tests bench render service (default: all). Results go under $OUT.
+# Sections: tests bench render service (default: all). Results: $OUT/results.tgz.
 set -uo pipefail
 export PYTHONPATH=$PWD:${PYTHONPATH:-} PYTHONUNBUFFERED=1
-OUT=${OUT:-/tmp/sdfserver-out}; mkdir -p "$OUT"
+FINAL=${OUT:-/tmp/sdfserver-out}; OUT=$(mktemp -d); mkdir -p "$FINAL"
+trap 'tar czf "$FINAL/results.tgz" -C "$OUT" . ; rm -rf "$OUT"' EXIT
 sections=${1:-tests,bench,render,service}
 has() { [[ ",$sections," == *",$1,"* ]]; }
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"

@@ -60,7 +60,8 @@ class Exact:
     exact = True
 
     def launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int,
-                     seg: int | None = None, lanes: int | None = None, vec: int | None = None):
+                     seg: int | None = None, lanes: int | None = None, vec: int | None = None,
+                     x_threads: int = X_PASS_THREADS):
         """The kernel, segments per line, and global/local sizes for one pass.
 
         Each pass is compiled for its work-group shape (reqd_work_group_size),
@@ -71,7 +72,7 @@ class Exact:
         seg = seg or segment_length(line_len, shape)
         nseg = -(-line_len // seg)
         if axis == 0:
-            per_group = max(1, X_PASS_THREADS // nseg)
+            per_group = max(1, x_threads // nseg)
             local = (nseg, per_group)
             global_ = (nseg, -(-(ny * nz) // per_group) * per_group)
             kernel = gpu.programs.kernel("exact.cl", "pass_x", SEG=seg, LOCAL_X=local[0], LOCAL_Y=local[1])

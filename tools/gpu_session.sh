@@ -32,7 +32,9 @@ if has service; then
     --duration 15 --size 256 256 256 --read-every 0 --quiet --json "$OUT/load-64.json" > "$OUT/load-64.txt" 2>&1
   timeout 40 python3 clients/loadtest.py --url http://127.0.0.1:$port --clients 1 --duration 10 \
     --size 256 256 256 --read-every 1 --read-size 16 --quiet --json "$OUT/load-rtt.json" > "$OUT/load-rtt.txt" 2>&1
+  timeout 40 python3 tools/ws_frames.py --url http://127.0.0.1:$port --size 512 --duration 10 \
+    --json "$OUT/ws-frames.json" > "$OUT/ws-frames.txt" 2>&1
   curl -s http://127.0.0.1:$port/metrics > "$OUT/metrics.txt"
   kill $server; wait $server 2>/dev/null
 fi
-for f in bench.txt render.txt load-64.txt load-rtt.txt; do [ -f "$OUT/$f" ] && { echo "== $f"; cat "$OUT/$f"; }; done
+for f in bench.txt render.txt load-64.txt load-rtt.txt ws-frames.txt; do [ -f "$OUT/$f" ] && { echo "== $f"; cat "$OUT/$f"; }; done

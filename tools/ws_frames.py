@@ -2,9 +2,10 @@
 
     python tools/ws_frames.py --url http://127.0.0.1:8000 --size 512 --duration 10
 
-Creates a world with a floor and some spheres, sends a camera on the stream, and answers every
-frame received with a brush edit on the same stream. Reports frames per second, inter-frame
-times and the versions the frames show (so it is visible that the field kept up).
+Creates a world with a floor and some spheres, sends a camera on the stream, and sends a brush
+edit on the same stream at --edit-hz (default 60: an edit for every frame at the target rate)
+while counting the frames that arrive. Reports frames per second, inter-frame times and the
+versions the frames show (so it is visible that the field kept up).
 """
 
 from __future__ import annotations
@@ -40,7 +41,20 @@ async def run(args) -> dict:
                                      "target": [n / 2, 0, n / 2], "width": args.width, "height": args.height,
                                      "max_fps": args.max_fps, "format": "jpeg"}))
         start = time.perf_counter()
-        edit_id = 10
+
+        async def send_edits() -> None:
+            edit_id = 10
+            next_at = time.perf_counter()
+            while time.perf_counter() - start < args.duration:
+                edit_id += 1
+                center = [float(v) for v in rng.uniform(n * 0.2, n * 0.8, 3)]
+                await ws.send(msgpack.packb({"type": "edits", "id": edit_id, "edits": [
+                    {"op": "sphere", "center": center, "radius": 3.0,
+                     "colour": int(rng.integers(1, 256)) if edit_id % 2 else 0}]}))
+                next_at += 1.0 / args.edit_hz
+                await asyncio.sleep(max(0.0, next_at - time.perf_counter()))
+
+        sender = asyncio.create_task(send_edits())
         while time.perf_counter() - start < args.duration:
             message = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 10), raw=False)
             kind = message.get("type")
@@ -49,13 +63,9 @@ async def run(args) -> dict:
             elif kind == "frame":
                 frame_times.append(time.perf_counter())
                 versions.append(message["version"])
-                edit_id += 1
-                center = [float(v) for v in rng.uniform(n * 0.2, n * 0.8, 3)]
-                await ws.send(msgpack.packb({"type": "edits", "id": edit_id, "edits": [
-                    {"op": "sphere", "center": center, "radius": 3.0,
-                     "colour": int(rng.integers(1, 256)) if edit_id % 2 else 0}]}))
             elif kind == "error":
                 raise RuntimeError(message)
+        await sender
     dt = np.diff(frame_times) * 1e3
     elapsed = frame_times[-1] - frame_times[0] if len(frame_times) > 1 else float("nan")
     return {"frames": len(frame_times), "fps": (len(frame_times) - 1) / elapsed, "acks": acks,
@@ -74,6 +84,7 @@ def main() -> int:
     p.add_argument("--height", type=int, default=720)
     p.add_argument("--max-fps", type=int, default=240)
     p.add_argument("--duration", type=float, default=10.0)
+    p.add_argument("--edit-hz", type=float, default=60.0, help="edits sent per second on the stream")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--json", default=None)
     args = p.parse_args()

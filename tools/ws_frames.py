@@ -56,7 +56,8 @@ async def run(args) -> dict:
 
         sender = asyncio.create_task(send_edits())
         while time.perf_counter() - start < args.duration:
-            message = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 10), raw=False)
+            # Generous: the first frame may wait for kernels to build.
+            message = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 60), raw=False)
             kind = message.get("type")
             if kind == "ack":
                 acks += 1

@@ -19,7 +19,7 @@ if has bench; then
   python3 tools/tune_exact.py --device nvidia --size 512 --reps 20 > "$OUT/tune-512.txt" 2>&1
 fi
 if has render; then
-  timeout 120 python3 -m sdfserver.render.bench --device nvidia --sizes 256,512 --algorithms exact \
+  timeout 120 python3 -m sdfserver bench render --device nvidia --sizes 256,512 --algorithms exact \
     --duration 4 --width 1280 --height 720 --json "$OUT/render.json" > "$OUT/render.txt" 2>&1
 fi
 if has service; then

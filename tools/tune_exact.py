@@ -27,6 +27,7 @@ def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--segs", default="0", help="SEG of every pass, or XSEG:YZSEG[:VEC], comma list (0: tuned)")
+    p.add_argument("--x-threads", type=int, default=64, help="work-items per x-pass work-group")
     p.add_argument("--lanes", default="0", help="x-lanes of the y/z passes, comma list (0: tuned)")
     p.add_argument("--reps", type=int, default=20)
     p.add_argument("--device", default=None)
@@ -52,7 +53,8 @@ def main() -> None:
             continue
         for axis in range(3):
             kernel, nseg, global_, local = exact.launch_shape(gpu, axis, n, n, n, n, seg=(yzseg if axis else xseg) or None,
-                                                                lanes=lanes or None, vec=vec or None)
+                                                                lanes=lanes or None, vec=vec or None,
+                                                                x_threads=args.x_threads)
             info = {k: kernel.get_work_group_info(getattr(cl.kernel_work_group_info, k), gpu.device)
                     for k in ("WORK_GROUP_SIZE", "PRIVATE_MEM_SIZE", "LOCAL_MEM_SIZE")}
             launches.append((axis, kernel, nseg, global_, local, info))

@@ -42,7 +42,7 @@ PASS_SHAPES = {
     1: PassShape(segments=16, min_seg=4, max_seg=32, vec=2, lanes=8),
     2: PassShape(segments=32, min_seg=4, max_seg=16, vec=4, lanes=4),
 }
-X_PASS_THREADS = 256  # work-items per work-group for the x pass
+X_PASS_THREADS = 64  # work-items per work-group for the x pass (tuned: 64 < 128 < 256 < 512 in time)
 
 
 def segment_length(line_len: int, shape: PassShape) -> int:
@@ -60,7 +60,8 @@ class Exact:
     exact = True
 
     def launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int,
-                     seg: int | None = None, lanes: int | None = None, vec: int | None = None):
+                     seg: int | None = None, lanes: int | None = None, vec: int | None = None,
+                     x_threads: int = X_PASS_THREADS):
         """The kernel, segments per line, and global/local sizes for one pass.
 
         Each pass is compiled for its work-group shape (reqd_work_group_size),
@@ -71,7 +72,7 @@ class Exact:
         seg = seg or segment_length(line_len, shape)
         nseg = -(-line_len // seg)
         if axis == 0:
-            per_group = max(1, X_PASS_THREADS // nseg)
+            per_group = max(1, x_threads // nseg)
             local = (nseg, per_group)
             global_ = (nseg, -(-(ny * nz) // per_group) * per_group)
             kernel = gpu.programs.kernel("exact.cl", "pass_x", SEG=seg, LOCAL_X=local[0], LOCAL_Y=local[1])

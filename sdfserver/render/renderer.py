@@ -49,7 +49,7 @@ class Pick:
 
 
 def _float4(v) -> np.ndarray:
-    return cltypes.make_float4(*(float(c) for c in v), 0.0)
+    return np.array((*(float(c) for c in v), 0.0), dtype=cltypes.float4)
 
 
 class _Target:

@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# One packed measurement session on the lent GPU machine (see docs/benchmarks.md).
+# Usage there: source .whl/activate.sh; bash tools/gpu_session.sh [sections]
+# Sections: tests bench render service (default: all). Results: $OUT/results.tgz.
+set -uo pipefail
+export PYTHONPATH=$PWD:${PYTHONPATH:-} PYTHONUNBUFFERED=1
+FINAL=${OUT:-/tmp/sdfserver-out}; OUT=$(mktemp -d); mkdir -p "$FINAL"
+trap 'tar czf "$FINAL/results.tgz" -C "$OUT" . ; rm -rf "$OUT"' EXIT
+sections=${1:-tests,bench,render,service}
+has() { [[ ",$sections," == *",$1,"* ]]; }
+nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
+
+if has tests; then
+  timeout 200 python3 -m pytest tests/core -q -p no:cacheprovider > "$OUT/core-tests.txt" 2>&1
+  tail -1 "$OUT/core-tests.txt"
+fi
+if has bench; then
+  timeout 300 python3 -m sdfserver bench --device nvidia --json "$OUT/bench.json" 2>/dev/null > "$OUT/bench.txt"
+  python3 tools/tune_exact.py --device nvidia --size 512 --reps 20 > "$OUT/tune-512.txt" 2>&1
+fi
+if has render; then
+  timeout 120 python3 -m sdfserver bench render --device nvidia --sizes 256,512 --algorithms exact \
+    --duration 4 --width 1280 --height 720 --json "$OUT/render.json" > "$OUT/render.txt" 2>&1
+fi
+if has service; then
+  port=8765
+  python3 -m sdfserver serve --device nvidia --port $port --data-dir /tmp/sdfserver-data \
+    > "$OUT/server.log" 2>&1 &
+  server=$!
+  for _ in $(seq 120); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.5; done
+  timeout 60 python3 clients/loadtest.py --url http://127.0.0.1:$port --clients 64 --processes 8 \
+    --duration 15 --size 256 256 256 --read-every 0 --quiet --json "$OUT/load-64.json" > "$OUT/load-64.txt" 2>&1
+  timeout 40 python3 clients/loadtest.py --url http://127.0.0.1:$port --clients 1 --duration 10 \
+    --size 256 256 256 --read-every 1 --read-size 16 --quiet --json "$OUT/load-rtt.json" > "$OUT/load-rtt.txt" 2>&1
+  timeout 40 python3 tools/ws_frames.py --url http://127.0.0.1:$port --size 512 --duration 10 \
+    --json "$OUT/ws-frames.json" > "$OUT/ws-frames.txt" 2>&1
+  curl -s http://127.0.0.1:$port/metrics > "$OUT/metrics.txt"
+  kill $server; wait $server 2>/dev/null
+fi
+for f in bench.txt render.txt load-64.txt load-rtt.txt ws-frames.txt; do [ -f "$OUT/$f" ] && { echo "== $f"; cat "$OUT/$f"; }; done

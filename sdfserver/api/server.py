@@ -96,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     from sdfserver.api.auth import is_loopback, parse_keys
     from sdfserver.api.durability import open_journal, restore
     from sdfserver.engine import EngineMetrics
+    from sdfserver.storage.lock import lock_data_dir
 
     try:
         settings = settings_from(list(sys.argv[1:] if argv is None else argv))
@@ -115,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     journal = None
     try:
         journal = open_journal(settings)
+        data_dir_lock = lock_data_dir(journal.storage.data_dir) if journal is not None else None
         engine = build_engine(settings, journal=journal, metrics=EngineMetrics())
     except SdfServerError as exc:  # no OpenCL device, unusable data directory: say so and stop
         print(f"sdfserver serve: {exc}", file=sys.stderr)
@@ -135,6 +137,8 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if journal is not None:
             journal.close()
+        if data_dir_lock is not None:
+            data_dir_lock.close()
     return 0
 
 

@@ -89,7 +89,7 @@
 #define NSEG LOCAL_X
 /* x: lines are contiguous; each work-item loads SEG bytes as uchar8 vectors. */
 __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *voxels,
-                     __global const ushort *field, int4 dims, int4 w_lo, int4 w_n,
+                     __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
                      int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
 {
     __local int ends[LOCAL_X * LOCAL_Y];
@@ -109,6 +109,7 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
     _Pragma("unroll") for (int c = 0; c < SEG; c += 8) {
         const int t = t0 + c;
         if (valid && t < w_n.x) {
+#if FIRST
             const uchar8 v = *(__global const uchar8 *)(voxels + world_row + t);
             UNPACK8(d, c, v);
             const int wx = w_lo.x + t;
@@ -120,6 +121,11 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
                         d[c + k] = min((int)(field[world_row + t + k] >> 8), cap);
                 }
             }
+#else
+            const int8 v = convert_int8(*(__global const uchar8 *)(work + work_row + t));
+            d[c] = v.s0; d[c + 1] = v.s1; d[c + 2] = v.s2; d[c + 3] = v.s3;
+            d[c + 4] = v.s4; d[c + 5] = v.s5; d[c + 6] = v.s6; d[c + 7] = v.s7;
+#endif
         } else {
             _Pragma("unroll") for (int k = 0; k < 8; ++k)
                 d[c + k] = BIG;
@@ -130,8 +136,21 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
 
     _Pragma("unroll") for (int c = 0; c < SEG; c += 8) {
         const int t = t0 + c;
-        if (valid && t < w_n.x)
-            *(__global uchar8 *)(work + work_row + t) = PACK8(d, c);
+        if (!valid || t >= w_n.x)
+            continue;
+#if LAST
+        /* R's x-bounds are multiples of 8, like t: a group of 8 is all in R or all out. */
+        const int wx = w_lo.x + t;
+        if (line_in_r && wx >= r_lo.x && wx < r_hi.x) {
+            const uchar8 out = PACK8(d, c);
+            /* Only solids (distance 0) carry a colour: air-only groups skip the voxel read. */
+            const ushort8 colour = any(out == (uchar8)(0))
+                ? convert_ushort8(*(__global const uchar8 *)(voxels + world_row + t)) : (ushort8)(0);
+            *(__global ushort8 *)(field + world_row + t) = (convert_ushort8(out) << (ushort)8) | colour;
+        }
+#else
+        *(__global uchar8 *)(work + work_row + t) = PACK8(d, c);
+#endif
     }
 }
 
@@ -169,11 +188,33 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
     const size_t base = box_index(lx, ly, lz, w_n);
     const int t0 = seg * SEG;
 
+#if AXIS == 1
+#define WORLD_AT(t) world_index(w_lo.x + lx, w_lo.y + (t), w_lo.z + lz, dims)
+#define IN_R(t) (lane_in_r && w_lo.y + (t) >= r_lo.y && w_lo.y + (t) < r_hi.y)
+    const int lane_in_r = w_lo.z + lz >= r_lo.z && w_lo.z + lz < r_hi.z;
+#else
+#define WORLD_AT(t) world_index(w_lo.x + lx, w_lo.y + ly, w_lo.z + (t), dims)
+#define IN_R(t) (lane_in_r && w_lo.z + (t) >= r_lo.z && w_lo.z + (t) < r_hi.z)
+    const int lane_in_r = w_lo.y + ly >= r_lo.y && w_lo.y + ly < r_hi.y;
+#endif
+    /* x-lanes are VEC-aligned and R's x-bounds are multiples of 8: a lane is all in or all out. */
+    const int lane_x_in_r = w_lo.x + lx >= r_lo.x && w_lo.x + lx < r_hi.x;
+
     intV d[SEG];
     _Pragma("unroll") for (int k = 0; k < SEG; ++k) {
         const int t = t0 + k;
-        d[k] = (valid && t < len) ? convert_intV(*(__global const ucharV *)(work + base + (size_t)t * stride))
-                                  : (intV)(BIG);
+        if (valid && t < len) {
+#if FIRST
+            const size_t i = WORLD_AT(t);
+            d[k] = select((intV)(cap), (intV)(0), convert_intV(*(__global const ucharV *)(voxels + i)) != (intV)(0));
+            if (seeded && !(lane_x_in_r && IN_R(t)))  /* the seed shell */
+                d[k] = min(convert_intV(*(__global const ushortV *)(field + i) >> (ushort)8), (intV)(cap));
+#else
+            d[k] = convert_intV(*(__global const ucharV *)(work + base + (size_t)t * stride));
+#endif
+        } else {
+            d[k] = (intV)(BIG);
+        }
     }
 
     SWEEP_SEGMENT(intV, d, seg_end, seg, nseg);
@@ -184,11 +225,9 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
         if (!valid || t >= len)
             continue;
         const intV out = min(d[k], capv);
-#if AXIS == 2
-        /* x-lanes are VEC-aligned and R's x-bounds are multiples of 8: a lane is all in or all out. */
-        const int wx = w_lo.x + lx, wy = w_lo.y + ly, wz = w_lo.z + t;
-        if (in_box(wx, wy, wz, r_lo, r_hi)) {
-            const size_t i = world_index(wx, wy, wz, dims);
+#if LAST
+        if (lane_x_in_r && IN_R(t)) {
+            const size_t i = WORLD_AT(t);
             /* Only solids (distance 0) carry a colour: air-only lanes skip the voxel read. */
             const ushortV colour = any(out == (intV)(0))
                 ? convert_ushortV(*(__global const ucharV *)(voxels + i)) : (ushortV)(0);

@@ -27,6 +27,7 @@ def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--segs", default="0", help="SEG of every pass, or XSEG:YZSEG[:VEC], comma list (0: tuned)")
+    p.add_argument("--order", default="012", help="pass order, axes as digits (x=0): e.g. 012 or 120")
     p.add_argument("--x-threads", type=int, default=64, help="work-items per x-pass work-group")
     p.add_argument("--lanes", default="0", help="x-lanes of the y/z passes, comma list (0: tuned)")
     p.add_argument("--reps", type=int, default=20)
@@ -41,7 +42,6 @@ def main() -> None:
     reference = world.read_field()
     job = RegionJob.seeded_region(world.buffers, world.world_box, 255)
     exact = Exact()
-    bytes_moved = {0: 2 * n**3, 1: 2 * n**3, 2: 4 * n**3}
     print(f"{gpu.device_name}, {n}^3")
     for spec, lanes in [(s, int(l)) for s in args.segs.split(",") for l in args.lanes.split(",")]:
         parts = [int(v) for v in spec.split(":")]
@@ -51,10 +51,15 @@ def main() -> None:
         if yzseg and lanes * -(-n // yzseg) > 1024:
             print(f"SEG={xseg}:{yzseg} vec={vec} lanes={lanes}: work-group over 1024, skipped")
             continue
-        for axis in range(3):
+        order = [int(c) for c in args.order]
+        # Bytes each pass must move: uchar in and out; the last writes the uint16 field instead
+        # (its voxel reads, only where solids are, are not counted).
+        bytes_moved = {axis: (3 if position == 2 else 2) * n**3 for position, axis in enumerate(order)}
+        for position, axis in enumerate(order):
             kernel, nseg, global_, local = exact.launch_shape(gpu, axis, n, n, n, n, seg=(yzseg if axis else xseg) or None,
                                                                 lanes=lanes or None, vec=vec or None,
-                                                                x_threads=args.x_threads)
+                                                                x_threads=args.x_threads,
+                                                                first=position == 0, last=position == 2)
             info = {k: kernel.get_work_group_info(getattr(cl.kernel_work_group_info, k), gpu.device)
                     for k in ("WORK_GROUP_SIZE", "PRIVATE_MEM_SIZE", "LOCAL_MEM_SIZE")}
             launches.append((axis, kernel, nseg, global_, local, info))

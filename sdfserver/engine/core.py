@@ -33,7 +33,7 @@ from typing import Any, Callable, TypeVar
 import numpy as np
 import pyopencl as cl
 
-from sdfserver.edits import Edit, parse_edits, validate_batch
+from sdfserver.edits import Edit, parse_edits
 from sdfserver.engine.commands import (
     APPLY, ApplyEdits, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Query, Read,
     ReadResult, Reconfigure, StepReport, Subscribe,
@@ -283,11 +283,11 @@ class Engine:
 
     def _apply_edits(self, command: ApplyEdits) -> int:
         world = self._world(command.world_id)
-        validate_batch(command.edits, world.config.size, world.limits)
+        plan = world.plan_edits(command.edits)  # raises for a bad batch: nothing logged or applied
         durable = None
         if self.journal is not None:
             durable = self.journal.record_batch(command.world_id, world.version + 1, command.wire)
-        version = world.apply_edits(command.edits)
+        version = world.apply_plan(plan)
         self.metrics.edit_batches.inc()
         self.metrics.edit_ops.inc(len(command.edits))
         return version if durable is None else _Durable(version, durable)

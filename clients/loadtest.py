@@ -10,6 +10,9 @@ total ``--rate``; the run stops at ``--duration`` seconds or after
 
     python clients/loadtest.py --url http://127.0.0.1:8000 --clients 64 --duration 30 --json out.json
 
+Against a server with API keys, set ``SDFSERVER_API_KEY`` (or ``--api-key``); a
+``429`` counts as a ``rate_limited`` error and the client waits its Retry-After.
+
 Reports throughput, p50/p95/p99 latency and errors per request kind; prints a
 progress line once a second (to stderr); ``--json`` writes everything. Exits 1
 when any request failed. Latency is measured from the moment a request is
@@ -32,17 +35,17 @@ import queue
 import random
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import httpx  # noqa: E402
 
-from sdfclient import AsyncClient, Client, SdfClientError, ServerError, edits  # noqa: E402
+from loadtest_report import ProgressLine, format_report, latency_summary, report  # noqa: E402,F401
+from sdfclient import AsyncClient, Client, RateLimited, SdfClientError, ServerError, edits  # noqa: E402
 
 MAX_DURATION_S = 3600.0
-PERCENTILES = (50, 95, 99)
 
 
 @dataclass(frozen=True)
@@ -65,6 +68,7 @@ class LoadConfig:
     seed: int = 0
     timeout_s: float = 30.0
     edits_over: str = "http"  # http: POST /edits; ws: the WebSocket stream (reads stay HTTP)
+    api_key: str | None = field(default=None, repr=False)  # sent as a bearer token; never reported
 
 
 # -- the brushes --------------------------------------------------------------------------------
@@ -146,7 +150,8 @@ async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget,
     edits_sent = 0
     async with contextlib.AsyncExitStack() as stack:
         client = await stack.enter_async_context(
-            AsyncClient(cfg.url, timeout=cfg.timeout_s, limits=httpx.Limits(max_connections=1)))
+            AsyncClient(cfg.url, api_key=cfg.api_key, timeout=cfg.timeout_s,
+                        limits=httpx.Limits(max_connections=1)))
         if cfg.edits_over == "ws":
             stream = await stack.enter_async_context(client.stream(cfg.world_id))
             send_edit = stream.edit
@@ -181,6 +186,9 @@ async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget,
                     pending_read = (brushes.read_box(center), version)
             except (SdfClientError, TimeoutError) as exc:
                 tally.error(exc)
+                if isinstance(exc, RateLimited):  # a well-behaved game client waits as told
+                    pause = exc.retry_after_s if exc.retry_after_s is not None else 1.0
+                    await asyncio.sleep(max(0.0, min(pause, budget.deadline - time.perf_counter())))
 
 
 async def run_clients(cfg: LoadConfig, indices: list[int], requests: int, tally: Tally,
@@ -215,30 +223,6 @@ def _worker(cfg: LoadConfig, indices: list[int], requests: int, out: "multiproce
 
 
 # -- driving and reporting --------------------------------------------------------------------------
-
-
-class ProgressLine:
-    """One line on stderr, rewritten with \\r at most once a second."""
-
-    def __init__(self, enabled: bool, requests: int, duration_s: float):
-        self.enabled, self.requests, self.duration_s = enabled, requests, duration_s
-        self.start = self.last = time.perf_counter()
-        self.last_count = 0
-
-    def update(self, count: int, errors: int, force: bool = False) -> None:
-        now = time.perf_counter()
-        if not self.enabled or (now - self.last < 1.0 and not force):
-            return
-        rate = (count - self.last_count) / max(now - self.last, 1e-9)
-        self.last, self.last_count = now, count
-        goal = f"/{self.requests}" if self.requests else ""
-        sys.stderr.write(f"\r{now - self.start:6.1f}s/{self.duration_s:g}s  requests {count}{goal}  "
-                         f"{rate:9.1f}/s  errors {errors}   ")
-        sys.stderr.flush()
-
-    def finish(self) -> None:
-        if self.enabled:
-            sys.stderr.write("\n")
 
 
 def _shares(total: int, parts: int) -> list[int]:
@@ -304,48 +288,6 @@ def drive(cfg: LoadConfig, processes: int = 1, show_progress: bool = True) -> tu
     return tally, elapsed
 
 
-def latency_summary(samples: array.array, elapsed_s: float) -> dict:
-    import numpy as np
-
-    ms = np.frombuffer(samples, dtype=np.float64) if len(samples) else np.zeros(0)
-    summary = {"count": int(ms.size), "throughput_per_s": ms.size / elapsed_s if elapsed_s > 0 else 0.0}
-    if ms.size:
-        pct = np.percentile(ms, PERCENTILES)
-        summary["latency_ms"] = {**{f"p{p}": float(v) for p, v in zip(PERCENTILES, pct)},
-                                 "mean": float(ms.mean()), "min": float(ms.min()), "max": float(ms.max())}
-    return summary
-
-
-def report(cfg: LoadConfig, tally: Tally, elapsed_s: float, world: dict) -> dict:
-    error_count = sum(tally.errors.values())
-    return {
-        "url": cfg.url,
-        "world": world,
-        "config": asdict(cfg),
-        "elapsed_s": elapsed_s,
-        "requests": tally.count,
-        "throughput_rps": tally.count / elapsed_s if elapsed_s > 0 else 0.0,
-        "edits": latency_summary(tally.edit_ms, elapsed_s),
-        "reads": latency_summary(tally.read_ms, elapsed_s),
-        "errors": {"count": error_count, "by_code": dict(sorted(tally.errors.items()))},
-    }
-
-
-def format_report(result: dict) -> str:
-    lines = [f"{result['requests']} requests in {result['elapsed_s']:.2f} s: "
-             f"{result['throughput_rps']:.1f} requests/s, {result['errors']['count']} errors"]
-    for kind in ("edits", "reads"):
-        s = result[kind]
-        if s["count"]:
-            lat = s["latency_ms"]
-            lines.append(f"  {kind:5s} {s['count']:8d}  {s['throughput_per_s']:9.1f}/s  "
-                         f"p50 {lat['p50']:.2f} ms  p95 {lat['p95']:.2f} ms  p99 {lat['p99']:.2f} ms  "
-                         f"max {lat['max']:.2f} ms")
-    for code, n in result["errors"]["by_code"].items():
-        lines.append(f"  error {code}: {n}")
-    return "\n".join(lines)
-
-
 # -- the command line ---------------------------------------------------------------------------------
 
 
@@ -353,6 +295,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("--url", default="http://127.0.0.1:8000", help="the server's base URL")
+    ap.add_argument("--api-key", default=None,
+                    help="the server's API key, sent as a bearer token (default: $SDFSERVER_API_KEY; the "
+                         "variable keeps it out of the process list)")
     ap.add_argument("--world", default="", help="use this world id instead of creating one")
     ap.add_argument("--size", type=int, nargs=3, default=(64, 64, 64), metavar=("SX", "SY", "SZ"),
                     help="size of the world created for the run")
@@ -390,6 +335,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             ap.error(f"--{name.replace('_', '-')} must not be negative")
     if not 0 <= args.brush_min <= args.brush_max:
         ap.error("need 0 <= --brush-min <= --brush-max")
+    if args.api_key is None:
+        args.api_key = os.environ.get("SDFSERVER_API_KEY") or None
     return args
 
 
@@ -397,7 +344,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     created = not args.world
     try:
-        with Client(args.url, timeout=args.timeout) as client:
+        with Client(args.url, api_key=args.api_key, timeout=args.timeout) as client:
             info = (client.create_world(args.size, chunk_size=args.chunk_size, max_distance=args.max_distance,
                                         algorithm=args.algorithm)
                     if created else client.get_world(args.world))
@@ -411,13 +358,13 @@ def main(argv: list[str] | None = None) -> int:
         read_size=args.read_size, read_format=args.read_format, ops_per_batch=args.ops_per_batch,
         brush_min=args.brush_min, brush_max=args.brush_max, delete_fraction=args.delete_fraction,
         sphere_fraction=args.sphere_fraction, seed=args.seed, timeout_s=args.timeout,
-        edits_over=args.edits_over,
+        edits_over=args.edits_over, api_key=args.api_key,
     )
     try:
         tally, elapsed = drive(cfg, args.processes, show_progress=not args.quiet)
     finally:
         if created and not args.keep_world:
-            with Client(args.url, timeout=args.timeout) as client:
+            with Client(args.url, api_key=args.api_key, timeout=args.timeout) as client:
                 try:
                     client.delete_world(info.id)
                 except SdfClientError as exc:

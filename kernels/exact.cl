@@ -189,7 +189,9 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
         const int wx = w_lo.x + lx, wy = w_lo.y + ly, wz = w_lo.z + t;
         if (in_box(wx, wy, wz, r_lo, r_hi)) {
             const size_t i = world_index(wx, wy, wz, dims);
-            const ushortV colour = convert_ushortV(*(__global const ucharV *)(voxels + i));
+            /* Only solids (distance 0) carry a colour: air-only lanes skip the voxel read. */
+            const ushortV colour = any(out == (intV)(0))
+                ? convert_ushortV(*(__global const ucharV *)(voxels + i)) : (ushortV)(0);
             *(__global ushortV *)(field + i) = (convert_ushortV(out) << (ushort)8) | colour;
         }
 #else

@@ -7,6 +7,7 @@ Sections, each on any OpenCL device:
   update    a radius-8 brush edit in the largest world: incremental device time per cap
   accuracy  each algorithm against `exact`: share of exact voxels, max/mean error, underestimates
   anchors   scipy's distance_transform_cdt (CPU) and cupyx's distance_transform_edt (GPU), if installed
+`sdfserver bench render ...` runs the rendering scenario instead (Tables 4.1 and 4.3; see --help there).
 Device times come from OpenCL profiling events (sum of kernel durations). A
 progress line runs on stderr; the tables go to stdout, everything to --json.
 """
@@ -289,7 +290,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parse_args(sys.argv[1:] if argv is None else argv)
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["render"]:  # the dissertation's benchmark mode (§3.5): edits while rendering
+        from sdfserver.render.bench import main as render_main
+
+        return render_main(argv[1:])
+    args = parse_args(argv)
     gpu = GpuContext.create(args.device)
     rng = np.random.default_rng(args.seed)
     results = {"device": gpu.device_name, "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),

@@ -19,7 +19,7 @@ if has bench; then
   python3 tools/tune_exact.py --device nvidia --size 512 --reps 20 > "$OUT/tune-512.txt" 2>&1
 fi
 if has render; then
-  timeout 120 python3 -m sdfserver.render.bench --device nvidia --sizes 256,512 --algorithms exact \
+  timeout 120 python3 -m sdfserver bench render --device nvidia --sizes 256,512 --algorithms exact \
     --duration 4 --width 1280 --height 720 --json "$OUT/render.json" > "$OUT/render.txt" 2>&1
 fi
 if has service; then
@@ -32,7 +32,9 @@ if has service; then
     --duration 15 --size 256 256 256 --read-every 0 --quiet --json "$OUT/load-64.json" > "$OUT/load-64.txt" 2>&1
   timeout 40 python3 clients/loadtest.py --url http://127.0.0.1:$port --clients 1 --duration 10 \
     --size 256 256 256 --read-every 1 --read-size 16 --quiet --json "$OUT/load-rtt.json" > "$OUT/load-rtt.txt" 2>&1
+  timeout 40 python3 tools/ws_frames.py --url http://127.0.0.1:$port --size 512 --duration 10 \
+    --json "$OUT/ws-frames.json" > "$OUT/ws-frames.txt" 2>&1
   curl -s http://127.0.0.1:$port/metrics > "$OUT/metrics.txt"
   kill $server; wait $server 2>/dev/null
 fi
-for f in bench.txt render.txt load-64.txt load-rtt.txt; do [ -f "$OUT/$f" ] && { echo "== $f"; cat "$OUT/$f"; }; done
+for f in bench.txt render.txt load-64.txt load-rtt.txt ws-frames.txt; do [ -f "$OUT/$f" ] && { echo "== $f"; cat "$OUT/$f"; }; done

@@ -27,7 +27,7 @@ def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--segs", default="0", help="SEG of every pass, or XSEG:YZSEG[:VEC], comma list (0: tuned)")
-    p.add_argument("--x-threads", type=int, default=256, help="work-items per x-pass work-group")
+    p.add_argument("--x-threads", type=int, default=64, help="work-items per x-pass work-group")
     p.add_argument("--lanes", default="0", help="x-lanes of the y/z passes, comma list (0: tuned)")
     p.add_argument("--reps", type=int, default=20)
     p.add_argument("--device", default=None)

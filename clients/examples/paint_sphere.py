@@ -3,6 +3,7 @@
     python clients/examples/paint_sphere.py http://127.0.0.1:8000
 """
 
+import os
 import sys
 
 import _path  # noqa: F401 - run from a checkout without installing
@@ -10,7 +11,7 @@ import _path  # noqa: F401 - run from a checkout without installing
 from sdfclient import Client, edits
 
 url = sys.argv[1] if len(sys.argv) > 1 else "http://127.0.0.1:8000"
-with Client(url) as client:
+with Client(url, api_key=os.environ.get("SDFSERVER_API_KEY")) as client:
     world = client.create_world((32, 32, 32), chunk_size=16, max_distance=32)
     try:
         version = client.edit(world.id, [edits.sphere((16, 16, 16), 5, colour=0xE0)])

@@ -3,6 +3,7 @@
     python clients/examples/query_points.py http://127.0.0.1:8000
 """
 
+import os
 import sys
 
 import numpy as np
@@ -12,7 +13,7 @@ import _path  # noqa: F401 - run from a checkout without installing
 from sdfclient import Client, edits
 
 url = sys.argv[1] if len(sys.argv) > 1 else "http://127.0.0.1:8000"
-with Client(url) as client:
+with Client(url, api_key=os.environ.get("SDFSERVER_API_KEY")) as client:
     world = client.create_world((32, 32, 32), chunk_size=16, max_distance=16)
     try:
         # A floor: the layer y = 0 (boxes are half-open).

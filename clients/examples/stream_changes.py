@@ -4,6 +4,7 @@
 """
 
 import asyncio
+import os
 import sys
 
 import _path  # noqa: F401 - run from a checkout without installing
@@ -12,7 +13,7 @@ from sdfclient import AsyncClient, edits
 
 
 async def main(url: str) -> None:
-    async with AsyncClient(url) as client:
+    async with AsyncClient(url, api_key=os.environ.get("SDFSERVER_API_KEY")) as client:
         world = await client.create_world((64, 32, 32), chunk_size=16, max_distance=8)
         try:
             async with client.stream(world.id) as stream:

@@ -6,7 +6,10 @@ request shape, every parse and the error mapping live here, once.
 
 from __future__ import annotations
 
+import io
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import httpx
@@ -14,10 +17,15 @@ import numpy as np
 
 from sdfclient import _wire
 from sdfclient.edits import normalize
-from sdfclient.errors import ProtocolError, server_error
-from sdfclient.models import Block, Focus, QueryResult, WorldInfo
+from sdfclient.errors import ProtocolError, retry_after, server_error
+from sdfclient.models import Block, Camera, Exported, Focus, Frame, Pick, QueryResult, WorldInfo
 
 BoxArg = tuple[Sequence[int], Sequence[int]] | None
+OCTET = "application/octet-stream"
+EXPORT_FORMATS = ("snapshot", "npy", "vox")
+SUFFIX_FORMATS = {".sdfsnap": "snapshot", ".npy": "npy", ".vox": "vox"}
+FRAME_TYPES = {"png": "image/png", "jpeg": "image/jpeg", "rgba": OCTET}
+RENDER_OPTIONS = ("ambient_occlusion", "shadows", "sky_rgb", "light", "highlight", "highlight_radius", "cursor")
 _KEEP = object()  # update_world: leave this setting as it is
 
 
@@ -29,13 +37,18 @@ class Call:
     params: dict[str, str] = field(default_factory=dict)
     body: Any = None  # encoded with sdfserver.wire when not None
     timeout: float | None = None  # overrides the client's when the server may wait
+    content: bytes | None = None  # a raw body (an uploaded file), sent as application/octet-stream
+    accept: str = _wire.CONTENT_TYPE
 
     def request_kwargs(self) -> dict:
-        headers = {"accept": _wire.CONTENT_TYPE}
+        headers = {"accept": self.accept}
         kwargs: dict[str, Any] = {"params": self.params or None, "headers": headers}
         if self.body is not None:
             headers["content-type"] = _wire.CONTENT_TYPE
             kwargs["content"] = _wire.encode(self.body)
+        elif self.content is not None:
+            headers["content-type"] = OCTET
+            kwargs["content"] = self.content
         if self.timeout is not None:
             kwargs["timeout"] = self.timeout
         return kwargs
@@ -67,7 +80,7 @@ def checked(response: httpx.Response) -> Any:
             body = decode(response)
         except ProtocolError:
             body = response.text
-        raise server_error(response.status_code, body)
+        raise server_error(response.status_code, body, retry_after(response.headers.get("retry-after")))
     return decode(response)
 
 
@@ -131,6 +144,51 @@ def _query(response: httpx.Response) -> QueryResult:
     colours = _array(body.get("colours", np.zeros(len(distances), np.uint8)), np.uint8)
     return QueryResult(distances=distances, gradients=gradients.reshape(-1, 3), colours=colours,
                        version=int(body.get("version", 0)))
+
+
+def _int_header(response: httpx.Response, name: str) -> int:
+    try:
+        return int(response.headers[name])
+    except (KeyError, ValueError):
+        raise ProtocolError(f"{response.request.url.path}: missing or bad {name} header") from None
+
+
+def _raw(response: httpx.Response, expected: str) -> bytes:
+    """A binary answer's body, or the ServerError of an error answer."""
+    if response.status_code >= 400 or response.status_code == 204:
+        checked(response)
+        raise ProtocolError(f"{response.request.url.path}: no body (status {response.status_code})")
+    ctype = response.headers.get("content-type", "").split(";")[0].strip().lower()
+    if ctype != expected:
+        raise ProtocolError(f"{response.request.url.path}: expected {expected}, got {ctype!r}")
+    return response.content
+
+
+def _export(fmt: str) -> Callable[[httpx.Response], Exported]:
+    def parse(response: httpx.Response) -> Exported:
+        data = _raw(response, OCTET)
+        disposition = response.headers.get("content-disposition", "")
+        filename = disposition.partition('filename="')[2].rstrip('"') if 'filename="' in disposition else ""
+        return Exported(format=fmt, version=_int_header(response, "x-sdf-version"), data=data, filename=filename)
+    return parse
+
+
+def _frame(fmt: str) -> Callable[[httpx.Response], Frame]:
+    def parse(response: httpx.Response) -> Frame:
+        data = _raw(response, FRAME_TYPES[fmt])
+        render_ms = response.headers.get("x-render-ms")
+        return Frame(format=fmt, data=data, field_version=_int_header(response, "x-field-version"),
+                     width=_int_header(response, "x-frame-width"), height=_int_header(response, "x-frame-height"),
+                     render_ms=None if render_ms is None else float(render_ms))
+    return parse
+
+
+def _pick(response: httpx.Response) -> Pick | None:
+    body = _expect_dict(checked(response), "pick")
+    if not body.get("hit"):
+        return None
+    return Pick(voxel=tuple(int(v) for v in body["voxel"]), normal=tuple(int(v) for v in body["normal"]),
+                place=tuple(int(v) for v in body["place"]), field_version=int(body.get("field_version", 0)))
 
 
 # -- building requests ------------------------------------------------------------------------------
@@ -230,6 +288,89 @@ def query(world_id: str, points: Any, min_version: int | None) -> Call:
     params = {} if min_version is None else {"min_version": str(int(min_version))}
     return Call("POST", _world_path(world_id) + "/query", _query, params=params,
                 body={"points": array.astype(np.float32)})
+
+
+def export_world(world_id: str, format: str) -> Call:  # noqa: A002
+    if format not in EXPORT_FORMATS:
+        raise ValueError(f"format is one of {', '.join(EXPORT_FORMATS)}, got {format!r}")
+    return Call("GET", _world_path(world_id) + "/export", _export(format), params={"format": format},
+                accept=OCTET)
+
+
+Source = bytes | bytearray | memoryview | str | os.PathLike | np.ndarray
+
+
+def import_source(source: Source, format: str | None) -> tuple[bytes, str]:  # noqa: A002
+    """The file's bytes and its format: from bytes (``format`` needed), a path (format from the
+    suffix unless given: .sdfsnap, .npy, .vox) or a NumPy (z, y, x) array (sent as .npy). Reads
+    the file: call it off an event loop."""
+    if isinstance(source, np.ndarray):
+        if format not in (None, "npy"):
+            raise ValueError(f"an array is uploaded as npy, not {format!r}")
+        if source.ndim != 3:
+            raise ValueError(f"a voxel array is 3-D (z, y, x), got shape {source.shape}")
+        stream = io.BytesIO()
+        np.save(stream, np.ascontiguousarray(source), allow_pickle=False)
+        return stream.getvalue(), "npy"
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        if format is None:
+            raise ValueError("uploading bytes needs format= ('snapshot', 'npy' or 'vox')")
+        data = bytes(source)
+    elif isinstance(source, (str, os.PathLike)):
+        path = Path(source)
+        format = format or SUFFIX_FORMATS.get(path.suffix.lower())  # noqa: A001
+        if format is None:
+            raise ValueError(f"cannot tell the format of {path.name}; pass format= "
+                             f"(suffixes: {', '.join(SUFFIX_FORMATS)})")
+        data = path.read_bytes()
+    else:
+        raise TypeError(f"import from bytes, a path or a NumPy array, got {type(source).__name__}")
+    if format not in EXPORT_FORMATS:
+        raise ValueError(f"format is one of {', '.join(EXPORT_FORMATS)}, got {format!r}")
+    return data, format
+
+
+def import_world(data: bytes, format: str, chunk_size: int | None, max_distance: int | None,  # noqa: A002
+                 algorithm: str | None, model: int | None) -> Call:
+    params = {"format": format}
+    given = {"chunk_size": chunk_size, "max_distance": max_distance, "algorithm": algorithm, "model": model}
+    given = {k: v for k, v in given.items() if v is not None}
+    if format == "snapshot" and given:
+        raise ValueError(f"a snapshot brings its own configuration; drop {', '.join(sorted(given))}")
+    if "model" in given and format != "vox":
+        raise ValueError("model= picks a model of a .vox file")
+    params.update({k: str(v) for k, v in given.items()})
+    return Call("POST", "/v1/worlds/import", _world, params=params, content=data)
+
+
+def _view(camera: Camera | dict, options: dict[str, Any]) -> dict:
+    if isinstance(camera, Camera):
+        view = camera.to_wire()
+    elif isinstance(camera, dict):
+        view = dict(camera)
+    else:
+        raise TypeError(f"camera must be a Camera or a dict, got {type(camera).__name__}")
+    view.update({k: (list(v) if isinstance(v, tuple) else v) for k, v in options.items() if v is not None})
+    return view
+
+
+def render(world_id: str, camera: Camera | dict, format: str, quality: int | None,  # noqa: A002
+           options: dict[str, Any]) -> Call:
+    if format not in FRAME_TYPES:
+        raise ValueError(f"format is one of {', '.join(FRAME_TYPES)}, got {format!r}")
+    unknown = sorted(set(options) - set(RENDER_OPTIONS))
+    if unknown:
+        raise TypeError(f"unknown render options {unknown}; known: {', '.join(RENDER_OPTIONS)}")
+    view = _view(camera, options)
+    if quality is not None:
+        view["quality"] = int(quality)
+    return Call("POST", _world_path(world_id) + "/render", _frame(format), params={"format": format},
+                body=view, accept=FRAME_TYPES[format])
+
+
+def pick(world_id: str, camera: Camera | dict, x: float, y: float) -> Call:
+    view = _view(camera, {"x": float(x), "y": float(y)})
+    return Call("POST", _world_path(world_id) + "/pick", _pick, body=view)
 
 
 KEEP = _KEEP

@@ -1,9 +1,14 @@
 """``Client`` and ``AsyncClient``: the HTTP API of sdfserver, in the httpx shape.
 
-    with Client("http://127.0.0.1:8000") as client:
+    with Client("http://127.0.0.1:8000", api_key=token) as client:
         world = client.create_world(size=(64, 64, 64))
         version = client.edit(world.id, [sphere((32, 32, 32), 6)])
         field = client.read_field(world.id, min_version=version)   # reads its own write
+        png = client.render(world.id, Camera.look_at((90, 70, 90), (32, 16, 32)), format="png")
+        client.export_world(world.id, "npy").array                   # the voxels, (z, y, x)
+
+``api_key`` is sent as ``Authorization: Bearer <key>`` on every request (and on
+the stream); without it the server must be an open one.
 
 Both take an injectable ``transport`` (``httpx.MockTransport``,
 ``httpx.ASGITransport``, ...) for tests; both are context managers. The two
@@ -13,13 +18,15 @@ is read live in ``_protocol``.
 
 from __future__ import annotations
 
+import asyncio
+from pathlib import Path
 from typing import Any, Sequence
 
 import httpx
 
 from sdfclient import _protocol as p
 from sdfclient.errors import Timeout, TransportError
-from sdfclient.models import Block, QueryResult, WorldInfo
+from sdfclient.models import Block, Camera, Exported, Frame, Pick, QueryResult, WorldInfo
 
 DEFAULT_TIMEOUT_S = 30.0
 
@@ -29,19 +36,27 @@ def _transport_error(exc: httpx.TransportError, call: p.Call) -> TransportError:
     return cls(f"{call.method} {call.path}: {type(exc).__name__}: {exc}")
 
 
-def _options(base_url: str, timeout: float, headers: dict | None) -> dict:
+def _options(base_url: str, timeout: float, headers: dict | None, api_key: str | None) -> dict:
+    auth = {} if api_key is None else {"authorization": f"Bearer {_checked_key(api_key)}"}
     return {"base_url": base_url.rstrip("/"), "timeout": timeout,
-            "headers": {"user-agent": "sdfclient", **(headers or {})}}
+            "headers": {"user-agent": "sdfclient", **auth, **(headers or {})}}
+
+
+def _checked_key(api_key: str) -> str:
+    if not isinstance(api_key, str) or not api_key.strip() or any(c.isspace() for c in api_key):
+        raise ValueError("api_key must be a non-empty token without spaces")
+    return api_key
 
 
 class Client:
     """A blocking client. Thread-safe as httpx.Client is; one per thread is simplest."""
 
-    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, timeout: float = DEFAULT_TIMEOUT_S,
-                 transport: httpx.BaseTransport | None = None, headers: dict | None = None):
+    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, api_key: str | None = None,
+                 timeout: float = DEFAULT_TIMEOUT_S, transport: httpx.BaseTransport | None = None,
+                 headers: dict | None = None):
         self.base_url = base_url.rstrip("/")
         self.timeout = timeout
-        self._http = httpx.Client(transport=transport, **_options(base_url, timeout, headers))
+        self._http = httpx.Client(transport=transport, **_options(base_url, timeout, headers, api_key))
 
     def __enter__(self) -> "Client":
         return self
@@ -100,6 +115,38 @@ class Client:
         """Distances and gradient directions at ``points`` (N x 3, x y z)."""
         return self._send(p.query(world_id, points, min_version))
 
+    # -- files ----------------------------------------------------------------------------------
+
+    def export_world(self, world_id: str, format: str = "snapshot", *,  # noqa: A002
+                     path: str | Path | None = None) -> Exported:
+        """The world as a file: ``snapshot`` (re-imports as the same world), ``npy`` (``.array``:
+        uint8 (z, y, x)) or MagicaVoxel ``vox``; written to ``path`` too when given."""
+        exported = self._send(p.export_world(world_id, format))
+        if path is not None:
+            exported.save(path)
+        return exported
+
+    def import_world(self, source: p.Source, format: str | None = None, *,  # noqa: A002
+                     chunk_size: int | None = None, max_distance: int | None = None,
+                     algorithm: str | None = None, model: int | None = None) -> WorldInfo:
+        """A new world (at version 1) from a file: bytes, a path (format from its suffix) or a
+        (z, y, x) uint8 array. ``npy``/``vox`` take the world's settings (server defaults
+        otherwise; the size is the file's, grown to whole chunks); a snapshot brings its own."""
+        data, fmt = p.import_source(source, format)
+        return self._send(p.import_world(data, fmt, chunk_size, max_distance, algorithm, model))
+
+    # -- frames ---------------------------------------------------------------------------------
+
+    def render(self, world_id: str, camera: Camera | dict, *, format: str = "png",  # noqa: A002
+               quality: int | None = None, **options: Any) -> Frame:
+        """One frame: ``png``, ``jpeg`` (``quality`` 1..100) or raw ``rgba``. ``options``:
+        ambient_occlusion, shadows, sky_rgb, light, highlight, highlight_radius, cursor."""
+        return self._send(p.render(world_id, camera, format, quality, options))
+
+    def pick(self, world_id: str, camera: Camera | dict, x: float, y: float) -> Pick | None:
+        """The voxel under pixel ``(x, y)`` (a pixel's centre is +0.5), or None for sky."""
+        return self._send(p.pick(world_id, camera, x, y))
+
     # -- service ----------------------------------------------------------------------------------
 
     def ready(self) -> bool:
@@ -113,13 +160,15 @@ class Client:
 class AsyncClient:
     """The same API as ``Client``, awaitable."""
 
-    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, timeout: float = DEFAULT_TIMEOUT_S,
-                 transport: httpx.AsyncBaseTransport | None = None, headers: dict | None = None,
-                 limits: httpx.Limits | None = None):
+    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, api_key: str | None = None,
+                 timeout: float = DEFAULT_TIMEOUT_S, transport: httpx.AsyncBaseTransport | None = None,
+                 headers: dict | None = None, limits: httpx.Limits | None = None):
         self.base_url = base_url.rstrip("/")
         self.timeout = timeout
+        self._api_key = api_key
         extra = {} if limits is None else {"limits": limits}
-        self._http = httpx.AsyncClient(transport=transport, **_options(base_url, timeout, headers), **extra)
+        self._http = httpx.AsyncClient(transport=transport, **_options(base_url, timeout, headers, api_key),
+                                       **extra)
 
     async def __aenter__(self) -> "AsyncClient":
         return self
@@ -168,6 +217,26 @@ class AsyncClient:
     async def query(self, world_id: str, points: Any, *, min_version: int | None = None) -> QueryResult:
         return await self._send(p.query(world_id, points, min_version))
 
+    async def export_world(self, world_id: str, format: str = "snapshot", *,  # noqa: A002
+                           path: str | Path | None = None) -> Exported:
+        exported = await self._send(p.export_world(world_id, format))
+        if path is not None:
+            await asyncio.to_thread(exported.save, path)
+        return exported
+
+    async def import_world(self, source: p.Source, format: str | None = None, *,  # noqa: A002
+                           chunk_size: int | None = None, max_distance: int | None = None,
+                           algorithm: str | None = None, model: int | None = None) -> WorldInfo:
+        data, fmt = await asyncio.to_thread(p.import_source, source, format)
+        return await self._send(p.import_world(data, fmt, chunk_size, max_distance, algorithm, model))
+
+    async def render(self, world_id: str, camera: Camera | dict, *, format: str = "png",  # noqa: A002
+                     quality: int | None = None, **options: Any) -> Frame:
+        return await self._send(p.render(world_id, camera, format, quality, options))
+
+    async def pick(self, world_id: str, camera: Camera | dict, x: float, y: float) -> Pick | None:
+        return await self._send(p.pick(world_id, camera, x, y))
+
     async def ready(self) -> bool:
         try:
             return (await self._http.get("/readyz")).status_code == 200
@@ -175,7 +244,8 @@ class AsyncClient:
             return False
 
     def stream(self, world_id: str, **kwargs: Any):
-        """A WebSocket stream of the world (``async with client.stream(id) as s``)."""
+        """A WebSocket stream of the world (``async with client.stream(id) as s``), with this client's key."""
         from sdfclient.stream import Stream
 
+        kwargs.setdefault("api_key", self._api_key)
         return Stream.connect(self.base_url, world_id, **kwargs)

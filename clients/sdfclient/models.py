@@ -6,8 +6,10 @@ sizes are ``(x, y, z)``.
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -125,4 +127,91 @@ class StreamMessage:
     raw: dict = field(default_factory=dict, repr=False)
 
 
-__all__ = ["Block", "ChunkUpdate", "Focus", "QueryResult", "StreamMessage", "Vec3", "WorldInfo"]
+@dataclass(frozen=True)
+class Exported:
+    """A world exported as a file (``GET .../export``)."""
+
+    format: str  # snapshot | npy | vox
+    version: int  # the edit version the file holds (X-Sdf-Version)
+    data: bytes
+    filename: str = ""  # the server's suggestion, e.g. "<id>.npy"
+
+    @property
+    def array(self) -> np.ndarray:
+        """The voxels of an ``npy`` export: uint8 RGB332, shape (z, y, x); loaded without pickle."""
+        if self.format != "npy":
+            raise ValueError(f"a {self.format} export is not an array; export with format='npy'")
+        return np.load(io.BytesIO(self.data), allow_pickle=False)
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.write_bytes(self.data)
+        return path
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A view for ``render``/``pick``, in voxel units, y up.
+
+    Either ``target`` (look at that point) or ``yaw_deg``/``pitch_deg`` (yaw 0, pitch 0 looks
+    along -z; yaw turns toward +x; pitch -90 looks straight down).
+    """
+
+    position: tuple[float, float, float]
+    target: tuple[float, float, float] | None = None
+    yaw_deg: float = 0.0
+    pitch_deg: float = 0.0
+    fov_y_deg: float = 60.0
+    width: int = 640
+    height: int = 480
+
+    @classmethod
+    def look_at(cls, position: Sequence[float], target: Sequence[float], **kwargs: Any) -> "Camera":
+        return cls(tuple(float(v) for v in position), target=tuple(float(v) for v in target), **kwargs)
+
+    def to_wire(self) -> dict:
+        wire: dict[str, Any] = {"position": [float(v) for v in self.position], "fov_y_deg": float(self.fov_y_deg),
+                                "width": int(self.width), "height": int(self.height)}
+        if self.target is not None:
+            wire["target"] = [float(v) for v in self.target]
+        else:
+            wire["yaw_deg"], wire["pitch_deg"] = float(self.yaw_deg), float(self.pitch_deg)
+        return wire
+
+
+@dataclass(frozen=True)
+class Frame:
+    """A rendered image (``POST .../render``)."""
+
+    format: str  # png | jpeg | rgba
+    data: bytes  # the encoded image; for rgba, height * width * 4 bytes, rows top first
+    field_version: int  # the field version drawn (X-Field-Version)
+    width: int
+    height: int
+    render_ms: float | None = None  # the kernel's device time
+
+    @property
+    def pixels(self) -> np.ndarray:
+        """(height, width, 4) uint8 RGBA; PNG and JPEG are decoded with Pillow."""
+        if self.format == "rgba":
+            return np.frombuffer(self.data, dtype=np.uint8).reshape(self.height, self.width, 4)
+        try:
+            from PIL import Image
+        except ImportError as exc:  # Pillow is optional for the client
+            raise RuntimeError("decoding png/jpeg frames needs Pillow (pip install pillow)") from exc
+        with Image.open(io.BytesIO(self.data)) as image:
+            return np.asarray(image.convert("RGBA"))
+
+
+@dataclass(frozen=True)
+class Pick:
+    """The voxel under a pixel, its face normal, and where a placed voxel would go."""
+
+    voxel: Vec3
+    normal: Vec3
+    place: Vec3
+    field_version: int
+
+
+__all__ = ["Block", "Camera", "ChunkUpdate", "Exported", "Focus", "Frame", "Pick", "QueryResult",
+           "StreamMessage", "Vec3", "WorldInfo"]

@@ -6,6 +6,12 @@
         async for message in stream:                               # changed chunks, acks, ...
             if message.type == "chunks" and message.version >= version: ...
 
+With ``api_key`` the handshake carries ``Authorization: Bearer <key>`` (the
+server also takes ``?access_token=`` for browsers, which cannot set headers;
+a header keeps the token out of URLs and access logs). A refused key or
+another tenant's world closes the stream (4401, 4404): the first ``recv``,
+``edit`` or ``subscribe`` raises ``Unauthorized`` or ``NotFound``.
+
 Frames are binary msgpack (``sdfserver.wire``) both ways. The stream is meant
 for one consumer task: ``edit`` and ``subscribe`` read until their answer and
 keep the messages they pass for the iterator, in order. A frame the server
@@ -74,9 +80,10 @@ class Stream:
         self._ids = itertools.count(1)
 
     @classmethod
-    def connect(cls, base_url: str, world_id: str, *, open_timeout: float = 10.0,
+    def connect(cls, base_url: str, world_id: str, *, api_key: str | None = None, open_timeout: float = 10.0,
                 max_frame_bytes: int = DEFAULT_MAX_FRAME_BYTES) -> "_Connecting":
-        return _Connecting(cls, stream_url(base_url, world_id), open_timeout, max_frame_bytes)
+        headers = {} if api_key is None else {"Authorization": f"Bearer {api_key}"}
+        return _Connecting(cls, stream_url(base_url, world_id), open_timeout, max_frame_bytes, headers)
 
     async def close(self) -> None:
         await self._ws.close()
@@ -109,6 +116,19 @@ class Stream:
 
     async def ping(self) -> None:
         await self._request({"type": "ping"}, "pong")
+
+    async def set_camera(self, camera: Any, *, max_fps: float | None = None, format: str | None = None,  # noqa: A002
+                         quality: int | None = None, **options: Any) -> None:
+        """Ask for rendered frames of this view: ``frame`` messages (``raw``: data, format, width,
+        height, version, render_ms, seq) follow whenever the view or the field changes, at most
+        ``max_fps`` a second. ``camera`` is a ``sdfclient.Camera`` or its wire dict."""
+        from sdfclient._protocol import RENDER_OPTIONS, _view
+
+        unknown = sorted(set(options) - set(RENDER_OPTIONS))
+        if unknown:
+            raise TypeError(f"unknown render options {unknown}; known: {', '.join(RENDER_OPTIONS)}")
+        extra = {"max_fps": max_fps, "format": format, "quality": quality}
+        await self._send({**_view(camera, {**options, **extra}), "type": "camera", "id": next(self._ids)})
 
     async def send_edits(self, edits: Any) -> int:
         """Send a batch without waiting; its ``ack`` message carries the returned ``id``."""
@@ -175,15 +195,17 @@ class Stream:
 class _Connecting:
     """``await Stream.connect(...)`` or ``async with Stream.connect(...) as stream``."""
 
-    def __init__(self, cls: type[Stream], url: str, open_timeout: float, max_frame_bytes: int):
+    def __init__(self, cls: type[Stream], url: str, open_timeout: float, max_frame_bytes: int,
+                 headers: dict[str, str]):
         self._cls, self._url = cls, url
         self._open_timeout, self._max = open_timeout, max_frame_bytes
+        self._headers = headers
         self._stream: Stream | None = None
 
     async def _open(self) -> Stream:
         try:
             ws = await connect(self._url, open_timeout=self._open_timeout, max_size=self._max,
-                               compression=None)
+                               compression=None, additional_headers=self._headers or None)
         except websockets.InvalidStatus as exc:
             status = exc.response.status_code
             body = exc.response.body or b""

@@ -42,7 +42,7 @@ PASS_SHAPES = {
     1: PassShape(segments=16, min_seg=4, max_seg=32, vec=2, lanes=8),
     2: PassShape(segments=32, min_seg=4, max_seg=16, vec=4, lanes=4),
 }
-X_PASS_THREADS = 256  # work-items per work-group for the x pass
+X_PASS_THREADS = 64  # work-items per work-group for the x pass (tuned: 64 < 128 < 256 < 512 in time)
 
 
 def segment_length(line_len: int, shape: PassShape) -> int:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 import sys
 import time
 import typing
@@ -60,9 +61,24 @@ class JsonFormatter(logging.Formatter):
         return json.dumps(line)
 
 
+class RedactTokens(logging.Filter):
+    """Keys in a query string (``?access_token=`` on a WebSocket, ``?key=`` on the demo page) must
+    not reach the log: uvicorn logs a WebSocket's path with its query."""
+
+    PATTERN = re.compile(r"([?&](?:access_token|key)=)[^&\s\"']*")
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        redacted = self.PATTERN.sub(r"\1[redacted]", message)
+        if redacted != message:
+            record.msg, record.args = redacted, None
+        return True
+
+
 def configure_logging(settings: Settings) -> dict[str, Any]:
     """Our handler on the root logger; uvicorn's loggers propagate to it."""
     handler = logging.StreamHandler(sys.stderr)
+    handler.addFilter(RedactTokens())
     handler.setFormatter(JsonFormatter() if settings.log_format == "json"
                          else logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root = logging.getLogger()
@@ -80,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     from sdfserver.api.auth import is_loopback, parse_keys
     from sdfserver.api.durability import open_journal, restore
     from sdfserver.engine import EngineMetrics
+    from sdfserver.storage.lock import lock_data_dir
 
     try:
         settings = settings_from(list(sys.argv[1:] if argv is None else argv))
@@ -102,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     journal = None
     try:
         journal = open_journal(settings)
+        data_dir_lock = lock_data_dir(journal.storage.data_dir) if journal is not None else None
         engine = build_engine(settings, journal=journal, metrics=EngineMetrics())
     except SdfServerError as exc:  # no OpenCL device, unusable data directory: say so and stop
         print(f"sdfserver serve: {exc}", file=sys.stderr)
@@ -122,6 +140,8 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if journal is not None:
             journal.close()
+        if data_dir_lock is not None:
+            data_dir_lock.close()
     return 0
 
 

@@ -15,7 +15,7 @@ from sdfserver.errors import NoOpenCLDevice
 _HOW_TO_FIX = (
     "Install PoCL's CPU device with `pip install 'pyopencl[pocl]'`, or register the "
     "NVIDIA OpenCL driver: `mkdir -p /etc/OpenCL/vendors && echo libnvidia-opencl.so.1 "
-    "> /etc/OpenCL/vendors/nvidia.icd` (see deploy/README.md)."
+    "> /etc/OpenCL/vendors/nvidia.icd` (deploy/README.md shows how)."
 )
 
 

@@ -97,12 +97,16 @@ class Server:
 
 
 @pytest.fixture(scope="session")
-def server() -> Server:
+def server(tmp_path_factory) -> Server:
     port = free_port()
+    # A data directory of its own: worlds are durable, and servers sharing one would see each
+    # other's leftovers.
+    data_dir = tmp_path_factory.mktemp("api-server") / "data"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     env.pop("SDFSERVER_PORT", None)
     process = subprocess.Popen(
-        [sys.executable, "-m", "sdfserver", "serve", "--host", "127.0.0.1", "--port", str(port), *SERVER_FLAGS],
+        [sys.executable, "-m", "sdfserver", "serve", "--host", "127.0.0.1", "--port", str(port),
+         "--data-dir", str(data_dir), *SERVER_FLAGS],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 120

@@ -36,7 +36,8 @@ def world(server):
     rows = np.column_stack([rng.integers(0, 32, (50, 3)), rng.integers(1, 256, 50)]).astype(np.uint16)
     server.edit(wid, [{"op": "voxels", "voxels": rows}, {"op": "sphere", "center": [16, 16, 16],
                                                           "radius": 5.5, "colour": 3}])
-    return wid
+    yield wid
+    server.http.delete(f"/v1/worlds/{wid}")
 
 
 def nan_sphere():

@@ -1,48 +1,15 @@
-"""A real ``sdfserver serve`` process on loopback, one per test module."""
+"""A real ``sdfserver serve`` process on loopback, its data in a tmp dir: one open server shared by
+the client tests (each makes and deletes its own worlds); test_client_auth.py starts a keyed one."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-import time
-
-import httpx
 import pytest
 
-from clients_support import CLIENTS, ROOT, env_with_paths, free_port  # noqa: F401
-
-READY_TIMEOUT_S = 120.0  # PoCL builds the kernels while the server warms up
+from clients_support import serve
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def server_url(tmp_path_factory):
-    port = free_port()
-    log_path = tmp_path_factory.mktemp("server") / "server.log"
-    log = open(log_path, "wb")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sdfserver", "serve", "--host", "127.0.0.1", "--port", str(port)],
-        cwd=ROOT, env=env_with_paths(), stdout=log, stderr=subprocess.STDOUT,
-    )
-    url = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        while True:
-            if proc.poll() is not None:
-                raise RuntimeError(f"sdfserver serve exited with {proc.returncode}:\n{log_path.read_text()}")
-            try:
-                if httpx.get(url + "/readyz", timeout=1.0).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"sdfserver serve not ready in {READY_TIMEOUT_S:g} s:\n{log_path.read_text()}")
-            time.sleep(0.2)
+    """An open server (no API keys)."""
+    with serve(tmp_path_factory.mktemp("server")) as url:
         yield url
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-        log.close()

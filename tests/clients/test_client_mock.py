@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import io
 
 import httpx
 import numpy as np
@@ -171,3 +172,89 @@ def test_async_client_over_mock_transport():
     assert patched == {"focus": None, "algorithm": "jfa"}
     np.testing.assert_array_equal(result.distances, [1.0, 2.0])
     assert result.gradients.shape == (2, 3) and result.version == 4
+
+
+def test_api_key_goes_as_a_bearer_token_and_errors_map_by_code():
+    import email.utils
+    import time
+
+    from sdfclient.errors import RateLimited, Unauthorized, WritesDisabled
+
+    soon = email.utils.formatdate(time.time() + 30, usegmt=True)
+    answers = {
+        ("GET", "/v1/worlds"): httpx.Response(401, json={"error": {"code": "unauthorized", "message": "no"}},
+                                              headers={"www-authenticate": "Bearer"}),
+        ("GET", "/v1/worlds/a"): httpx.Response(429, json={"error": {"code": "rate_limited", "message": "slow"}},
+                                                headers={"retry-after": "3"}),
+        ("GET", "/v1/worlds/b"): httpx.Response(429, text="busy", headers={"retry-after": soon}),
+        ("POST", "/v1/worlds/c/edits"): httpx.Response(
+            503, json={"error": {"code": "writes_disabled", "message": "log failed"}}, headers={"retry-after": "1"}),
+    }
+    handler = Recorder(answers)
+    with sdfclient.Client("http://sdf.test", api_key="tok-0123456789abcdef",
+                          transport=httpx.MockTransport(handler)) as client:
+        with pytest.raises(Unauthorized) as unauthorized:
+            client.list_worlds()
+        with pytest.raises(RateLimited) as by_code:
+            client.get_world("a")
+        with pytest.raises(RateLimited) as by_status:
+            client.get_world("b")
+        with pytest.raises(WritesDisabled) as writes:
+            client.edit("c", [edits.box((0, 0, 0), (1, 1, 1))])
+    assert all(r.headers["authorization"] == "Bearer tok-0123456789abcdef" for r in handler.requests)
+    assert unauthorized.value.status == 401 and unauthorized.value.retry_after_s is None
+    assert by_code.value.retry_after_s == 3.0 and by_code.value.code == "rate_limited"
+    assert 25 < by_status.value.retry_after_s <= 30 and by_status.value.code == "http_429"
+    assert isinstance(writes.value, NotReady) and writes.value.retry_after_s == 1.0
+
+    handler = Recorder({("GET", "/v1/worlds"): msgpack_response(200, {"worlds": []})})
+    with sdfclient.Client("http://sdf.test", transport=httpx.MockTransport(handler)) as client:
+        assert client.list_worlds() == []
+    assert "authorization" not in handler.requests[0].headers
+
+
+def test_export_import_and_render_requests(tmp_path):
+    voxels = np.random.default_rng().integers(0, 256, (4, 5, 6), dtype=np.uint8)
+    npy = io.BytesIO()
+    np.save(npy, voxels)
+    world = {"id": "n", "size": [6, 5, 4], "chunk_size": 8, "max_distance": 9, "algorithm": "exact", "version": 1}
+    pixels = np.random.default_rng().integers(0, 256, (2, 3, 4), dtype=np.uint8)
+    handler = Recorder({
+        ("GET", "/v1/worlds/w/export"): httpx.Response(200, content=npy.getvalue(), headers={
+            "content-type": "application/octet-stream", "x-sdf-version": "7",
+            "content-disposition": 'attachment; filename="w.npy"'}),
+        ("POST", "/v1/worlds/import"): lambda request: msgpack_response(201, world),
+        ("POST", "/v1/worlds/w/render"): httpx.Response(200, content=pixels.tobytes(), headers={
+            "content-type": "application/octet-stream", "x-field-version": "5", "x-frame-width": "3",
+            "x-frame-height": "2", "x-render-ms": "0.250"}),
+    })
+    with sdfclient.Client("http://sdf.test", transport=httpx.MockTransport(handler)) as client:
+        exported = client.export_world("w", "npy", path=tmp_path / "w.npy")
+        (tmp_path / "w.vox").write_bytes(b"VOX fake")
+        info = client.import_world(tmp_path / "w.vox", chunk_size=8, model=2)
+        client.import_world(voxels, max_distance=9)
+        frame = client.render("w", sdfclient.Camera.look_at((1, 2, 3), (0, 0, 0), width=3, height=2),
+                              format="rgba", shadows=True, quality=70)
+        with pytest.raises(ValueError):
+            client.export_world("w", "obj")
+        with pytest.raises(ValueError):
+            client.import_world(voxels, "vox")
+        with pytest.raises(ValueError):
+            client.import_world(tmp_path / "w.npy", model=1)  # model is for .vox
+    assert exported.version == 7 and exported.filename == "w.npy"
+    np.testing.assert_array_equal(exported.array, voxels)
+    np.testing.assert_array_equal(np.load(tmp_path / "w.npy"), voxels)
+    with pytest.raises(ValueError):
+        sdfclient.Exported("vox", 1, b"").array
+    assert info.id == "n" and info.size == (6, 5, 4)
+    vox_request, npy_request, render_request = handler.requests[1:4]
+    assert dict(vox_request.url.params) == {"format": "vox", "chunk_size": "8", "model": "2"}
+    assert vox_request.content == b"VOX fake" and vox_request.headers["content-type"] == "application/octet-stream"
+    assert dict(npy_request.url.params) == {"format": "npy", "max_distance": "9"}
+    np.testing.assert_array_equal(np.load(io.BytesIO(npy_request.content), allow_pickle=False), voxels)
+    body = _wire.decode(render_request.content)
+    assert render_request.url.params["format"] == "rgba"
+    assert body["position"] == [1.0, 2.0, 3.0] and body["target"] == [0.0, 0.0, 0.0] and "yaw_deg" not in body
+    assert body["shadows"] is True and body["quality"] == 70 and body["width"] == 3
+    assert (frame.field_version, frame.width, frame.height, frame.render_ms) == (5, 3, 2, 0.25)
+    np.testing.assert_array_equal(frame.pixels, pixels)

@@ -12,8 +12,8 @@ from clients_support import CLIENTS, ROOT, env_with_paths
 from sdfclient import Client
 
 
-def _run(name: str, server_url: str) -> str:
-    proc = subprocess.run([sys.executable, str(CLIENTS / "examples" / name), server_url],
+def _run(name: str, server_url: str, *args: str) -> str:
+    proc = subprocess.run([sys.executable, str(CLIENTS / "examples" / name), server_url, *args],
                           cwd=ROOT, env=env_with_paths(), capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     return proc.stdout
@@ -56,3 +56,18 @@ def test_stream_changes(server_url):
     match = re.search(r"version (\d+): (\d+) changed chunks at (.*)", out)
     assert match and int(match.group(1)) >= 1 and int(match.group(2)) >= 1
     assert "(0, 0, 0)" in match.group(3) and "(32," not in match.group(3) and "(48," not in match.group(3)
+
+
+def test_render_and_save(server_url, tmp_path):
+    from PIL import Image
+
+    before = _worlds(server_url)
+    out = _run("render_and_save.py", server_url, str(tmp_path))
+    assert re.search(r"scene.png: 320x200, field version 1, \d+ bytes", out)
+    assert re.search(r"scene.vox: version 1, \d+ bytes", out)
+    assert re.search(r"imported as world \S+: size \(64, 32, 64\), voxels equal: True", out)
+    with Image.open(tmp_path / "scene.png") as image:
+        pixels = np.asarray(image.convert("RGB"))
+    assert pixels.shape == (200, 320, 3) and len(np.unique(pixels.reshape(-1, 3), axis=0)) > 8
+    assert (tmp_path / "scene.vox").read_bytes()[:4] == b"VOX "
+    assert _worlds(server_url) == before

@@ -4,7 +4,9 @@ The page opens with no world on the server, so it creates its default world
 (floor and shapes); the test waits for streamed frames, clicks the canvas to
 place voxels, and checks that the world's version rises and the picture
 changes. Screenshots are saved under a tmp dir and their paths printed.
-Chromium is driven over the DevTools protocol (its WebSocket).
+On a server with API keys the page asks for a key, takes one from its form or
+the address, and streams with it. Chromium is driven over the DevTools
+protocol (its WebSocket).
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ import numpy as np
 import pytest
 import websockets
 from PIL import Image
+
+from .conftest import KEYS
 
 ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -115,8 +119,10 @@ async def _drive(base: str, tmp: Path) -> None:
     try:
         await browser.open_page()
         await browser.call("Page.enable")
+        # A newcomer: no world exists (the server's data directory is its own, so no other test's
+        # world can be there), the page makes its demo scene and frames start to arrive.
+        assert httpx.get(base + "/v1/worlds").json()["worlds"] == []
         await browser.call("Page.navigate", url=base + "/")
-        # A newcomer: no world exists, so the page makes one and frames start to arrive.
         await browser.wait_for("window.sdfDemo && window.sdfDemo.framesReceived > 0 "
                                "&& window.sdfDemo.lastVersion >= 1")
         worlds = httpx.get(base + "/v1/worlds").json()["worlds"]
@@ -130,7 +136,8 @@ async def _drive(base: str, tmp: Path) -> None:
         await browser.evaluate("document.querySelectorAll('#palette button')[5].click()")
         version = worlds[0]["version"]
         await browser.click(left + width / 2, top + height / 2)
-        await browser.wait_for("window.sdfDemo.edits >= 1", 30)
+        await browser.wait_for("window.sdfDemo.edits >= 1 || window.sdfDemo.misses >= 1", 30)
+        assert await browser.evaluate("window.sdfDemo.edits") == 1, "the click at the middle hit nothing"
         await browser.wait_for(f"window.sdfDemo.lastVersion > {version}", 30)
         await asyncio.sleep(1.0)
         after = await browser.screenshot(tmp / "after.png")
@@ -142,3 +149,62 @@ async def _drive(base: str, tmp: Path) -> None:
             await browser.evaluate("window.sdfDemo.errors")
     finally:
         await browser.close()
+
+
+def test_demo_with_api_keys(keyed_server):
+    tmp = Path(tempfile.mkdtemp(prefix="sdfserver-demo-keyed-"))
+    asyncio.run(asyncio.wait_for(_drive_keyed(keyed_server, tmp), timeout=120))
+
+
+def _worlds_of(base: str, token: str) -> list[dict]:
+    r = httpx.get(base + "/v1/worlds", headers={"authorization": f"Bearer {token}"})
+    assert r.status_code == 200, r.text
+    return r.json()["worlds"]
+
+
+async def _drive_keyed(server, tmp: Path) -> None:
+    base = server.url
+    painter, other = KEYS["painter"], KEYS["other"]
+    streaming = "window.sdfDemo && window.sdfDemo.framesReceived > 0 && window.sdfDemo.lastVersion >= 1"
+    browser = Chromium(tmp)
+    try:
+        await browser.open_page()
+        await browser.call("Page.enable")
+        # No key: a clear request for one, nothing created.
+        assert httpx.get(base + "/v1/worlds").status_code == 401
+        await browser.call("Page.navigate", url=base + "/")
+        await browser.wait_for("window.sdfDemo && window.sdfDemo.needsKey")
+        assert not await browser.evaluate("document.getElementById('key-dialog').hidden")
+        said = await browser.evaluate("document.getElementById('key-message').textContent")
+        assert "requires an API key" in said, said
+        await browser.screenshot(tmp / "asks-for-key.png")
+        assert _worlds_of(base, painter) == [] and _worlds_of(base, other) == []
+
+        # The key form: the page makes painter's world and streams it over ?access_token=.
+        await browser.evaluate(f"document.getElementById('api-key').value = {json.dumps(painter)}; "
+                               "document.getElementById('key-dialog').requestSubmit()")
+        await browser.wait_for(streaming)
+        assert await browser.evaluate("sessionStorage.getItem('sdfserver.apiKey')") == painter
+        assert await browser.evaluate("document.getElementById('key-dialog').hidden")
+        mine = _worlds_of(base, painter)
+        assert len(mine) == 1 and mine[0]["id"] == await browser.evaluate("window.sdfDemo.world")
+        assert _worlds_of(base, other) == []  # tenants stay apart
+        await browser.screenshot(tmp / "keyed.png")
+
+        # A wrong key in the address is refused, plainly.
+        await browser.call("Page.navigate", url=base + "/?again=1#key=wrong-token-0123456789")
+        await browser.wait_for("window.sdfDemo && window.sdfDemo.needsKey")
+        said = await browser.evaluate("document.getElementById('key-message').textContent")
+        assert "refused" in said and "unknown API key" in said, said
+
+        # ?key= in the address: kept for the tab and taken out of the address bar.
+        await browser.call("Page.navigate", url=base + f"/?key={other}")
+        await browser.wait_for(streaming)
+        assert other not in await browser.evaluate("location.href")
+        theirs = _worlds_of(base, other)
+        assert len(theirs) == 1 and theirs[0]["id"] != mine[0]["id"]
+        assert not await browser.evaluate("window.sdfDemo.needsKey")
+    finally:
+        await browser.close()
+    log = server.log.read_text()
+    assert "[redacted]" in log and painter not in log and other not in log  # no token in the log

@@ -1,5 +1,10 @@
 // The voxel painter: frames streamed from the server over the world's WebSocket, a fly camera,
 // brush edits over HTTP. No build step; ES modules only.
+//
+// On a server with API keys the page needs one: `#key=<token>` or `?key=<token>` in the address,
+// or the key form.
+// It is kept in sessionStorage (this tab only), sent as `Authorization: Bearer` on fetches and as
+// `?access_token=` on the WebSocket (browsers cannot set its headers).
 import { encode, decode } from "./msgpack.js";
 import { demoScene } from "./scene.js";
 
@@ -9,7 +14,8 @@ const $ = (id) => document.getElementById(id);
 const canvas = $("frame");
 const ctx = canvas.getContext("2d");
 
-const demo = { framesReceived: 0, lastVersion: -1, world: null, ready: false, edits: 0, errors: [] };
+const demo = { framesReceived: 0, lastVersion: -1, world: null, ready: false, edits: 0, errors: [],
+  needsKey: false, misses: 0 };
 window.sdfDemo = demo;  // read by the browser test
 
 const cam = { position: [0, 0, 0], yaw: 0, pitch: 0, fov: 60 };
@@ -17,20 +23,79 @@ const brush = { mode: "place", colour: PALETTE[0], size: 2 };
 let socket = null, cursor = null, viewDirty = true, lastSent = 0, worldSize = [64, 64, 64];
 const keys = new Set();
 
+// ---------------------------------------------------------------------------------------------- API key
+
+const KEY_ITEM = "sdfserver.apiKey";
+let memoryKey = "";  // where sessionStorage is unavailable (some privacy settings)
+
+function apiKey() {
+  try { return sessionStorage.getItem(KEY_ITEM) ?? ""; } catch { return memoryKey; }
+}
+
+function setApiKey(key) {
+  memoryKey = key;
+  try {
+    if (key) sessionStorage.setItem(KEY_ITEM, key); else sessionStorage.removeItem(KEY_ITEM);
+  } catch { /* memoryKey holds it */ }
+  $("key-state").textContent = key ? "Using an API key (this tab only)." : "No API key.";
+  $("forget-key").hidden = !key;
+}
+
+// `?key=` or `#key=` in the address (the fragment never reaches the server): keep it for this tab
+// and take it out of the address bar and history.
+function takeKeyFromAddress() {
+  const url = new URL(location.href);
+  const hash = new URLSearchParams(url.hash.slice(1));
+  const key = hash.get("key") ?? url.searchParams.get("key");
+  if (key === null) return;
+  setApiKey(key.trim());
+  url.searchParams.delete("key");
+  hash.delete("key");
+  const rest = hash.toString();
+  history.replaceState(null, "", url.pathname + url.search + (rest ? `#${rest}` : ""));
+}
+
+class Unauthorized extends Error {}
+
+// A missing or refused key: say so plainly, stop reconnecting, and ask for one.
+function needKey(reason) {
+  demo.needsKey = true;
+  demo.ready = false;
+  if (socket) { const old = socket; socket = null; old.close(); }
+  const text = apiKey()
+    ? `The API key was refused (${reason}). Enter a valid key to continue.`
+    : "This server requires an API key. Enter yours, or open the page as /#key=<your key>.";
+  showStatus("");
+  demo.errors.push(text);
+  $("world-line").textContent = "API key needed";
+  $("key-message").textContent = text;
+  $("key-dialog").classList.add("error");
+  $("key-dialog").hidden = false;
+  $("api-key").focus();
+}
+
 // ---------------------------------------------------------------------------------------------- HTTP
 
 async function api(method, path, body) {
   const init = { method, headers: { Accept: "application/json" } };
+  const key = apiKey();
+  if (key) init.headers.Authorization = `Bearer ${key}`;
   if (body !== undefined) {
     init.headers["Content-Type"] = "application/json";
     init.body = JSON.stringify(body);
   }
   const response = await fetch(path, init);
   const text = await response.text();
-  const data = text ? JSON.parse(text) : null;
+  let data = null;
+  try { data = text ? JSON.parse(text) : null; } catch { data = { message: text.slice(0, 200) }; }
   if (!response.ok) {
     const message = data?.error?.message ?? data?.message ?? data?.detail ?? `${response.status}`;
-    throw new Error(typeof message === "string" ? message : JSON.stringify(message));
+    const said = typeof message === "string" ? message : JSON.stringify(message);
+    if (response.status === 401) {
+      needKey(said);
+      throw new Unauthorized(said);
+    }
+    throw new Error(said);
   }
   return data;
 }
@@ -43,12 +108,17 @@ function showStatus(text, isError = false) {
   if (isError) demo.errors.push(text);
 }
 
+// Show a line for a while; a later message is left alone.
+function flash(text, ms, isError = false) {
+  showStatus(text, isError);
+  setTimeout(() => { if ($("status").textContent === text) showStatus(""); }, ms);
+}
+
 async function guarded(what, fn) {
   try {
     return await fn();
   } catch (err) {
-    showStatus(`${what}: ${err.message}`, true);
-    setTimeout(() => showStatus(""), 4000);
+    if (!(err instanceof Unauthorized)) flash(`${what}: ${err.message}`, 4000, true);  // needKey spoke
     return undefined;
   }
 }
@@ -104,9 +174,11 @@ async function openWorld(world) {
 // ---------------------------------------------------------------------------------------------- stream
 
 function connect(worldId) {
-  if (socket) socket.close();
+  if (socket) { const old = socket; socket = null; old.close(); }
   const scheme = location.protocol === "https:" ? "wss" : "ws";
-  const ws = new WebSocket(`${scheme}://${location.host}/v1/worlds/${encodeURIComponent(worldId)}/stream`);
+  const key = apiKey();
+  const query = key ? `?access_token=${encodeURIComponent(key)}` : "";
+  const ws = new WebSocket(`${scheme}://${location.host}/v1/worlds/${encodeURIComponent(worldId)}/stream${query}`);
   ws.binaryType = "arraybuffer";
   socket = ws;
   ws.onopen = () => { viewDirty = true; demo.ready = true; showStatus(""); };
@@ -115,9 +187,15 @@ function connect(worldId) {
     if (msg.type === "frame") onFrame(msg);
     else if (msg.type === "error") showStatus(`Server: ${msg.message ?? msg.error?.message ?? "error"}`, true);
   };
-  ws.onclose = () => {
+  ws.onclose = (event) => {
     if (socket !== ws) return;
     demo.ready = false;
+    if (event.code === 4401) { needKey(event.reason || "unauthorized"); return; }
+    if (event.code === 4404) {
+      socket = null;
+      showStatus(`World ${worldId} is gone (or not yours): pick or create another.`, true);
+      return;
+    }
     showStatus("Disconnected — reconnecting…", true);
     setTimeout(() => { if (socket === ws) connect(worldId); }, 1000);
   };
@@ -196,7 +274,12 @@ async function paint(px, py, erase) {
     position: view.position, yaw_deg: view.yaw_deg, pitch_deg: view.pitch_deg, fov_y_deg: view.fov_y_deg,
     width: view.width, height: view.height, x: px * scale, y: py * scale,
   }));
-  if (!hit || !hit.hit) return;
+  if (!hit) return;
+  if (!hit.hit) {  // the ray met no voxel: nothing to place against
+    demo.misses++;
+    flash("Nothing under the cursor to paint on: aim at a surface.", 1800);
+    return;
+  }
   const edit = erase
     ? { op: "sphere", center: hit.voxel, radius: brush.size, colour: 0 }
     : { op: "sphere", center: hit.place, radius: brush.size, colour: brush.colour };
@@ -362,9 +445,37 @@ function setupPanel() {
   });
 }
 
+function setupKeyForm() {
+  $("key-dialog").onsubmit = (e) => {
+    e.preventDefault();
+    setApiKey($("api-key").value.trim());
+    $("api-key").value = "";
+    $("key-dialog").hidden = true;
+    demo.needsKey = false;
+    showStatus("");
+    openStartWorld();
+  };
+  $("key-cancel").onclick = () => { $("key-dialog").hidden = true; };
+  $("change-key").onclick = () => {
+    $("key-message").textContent = "API key for this server (kept in this tab only):";
+    $("key-dialog").classList.remove("error");
+    $("key-dialog").hidden = false;
+    $("api-key").focus();
+  };
+  $("forget-key").onclick = () => { setApiKey(""); openStartWorld(); };
+  setApiKey(apiKey());
+}
+
 async function start() {
+  takeKeyFromAddress();
   setupPanel();
+  setupKeyForm();
   requestAnimationFrame(tick);
+  await openStartWorld();
+}
+
+// The world named in the address, else the first one this key sees, else a new demo world.
+async function openStartWorld() {
   await guarded("Start", async () => {
     const wanted = decodeURIComponent((location.hash.match(/world=([^&]+)/) || [])[1] || "");
     let worlds = await refreshWorlds();

@@ -1,0 +1,77 @@
+"""The load test's reporting: the progress line, latency percentiles, the result document."""
+
+from __future__ import annotations
+
+import array
+import sys
+import time
+from dataclasses import asdict
+from typing import Any
+
+import numpy as np
+
+PERCENTILES = (50, 95, 99)
+
+
+class ProgressLine:
+    """One line on stderr, rewritten with \\r at most once a second."""
+
+    def __init__(self, enabled: bool, requests: int, duration_s: float):
+        self.enabled, self.requests, self.duration_s = enabled, requests, duration_s
+        self.start = self.last = time.perf_counter()
+        self.last_count = 0
+
+    def update(self, count: int, errors: int, force: bool = False) -> None:
+        now = time.perf_counter()
+        if not self.enabled or (now - self.last < 1.0 and not force):
+            return
+        rate = (count - self.last_count) / max(now - self.last, 1e-9)
+        self.last, self.last_count = now, count
+        goal = f"/{self.requests}" if self.requests else ""
+        sys.stderr.write(f"\r{now - self.start:6.1f}s/{self.duration_s:g}s  requests {count}{goal}  "
+                         f"{rate:9.1f}/s  errors {errors}   ")
+        sys.stderr.flush()
+
+    def finish(self) -> None:
+        if self.enabled:
+            sys.stderr.write("\n")
+
+
+def latency_summary(samples: array.array, elapsed_s: float) -> dict:
+    ms = np.frombuffer(samples, dtype=np.float64) if len(samples) else np.zeros(0)
+    summary = {"count": int(ms.size), "throughput_per_s": ms.size / elapsed_s if elapsed_s > 0 else 0.0}
+    if ms.size:
+        pct = np.percentile(ms, PERCENTILES)
+        summary["latency_ms"] = {**{f"p{p}": float(v) for p, v in zip(PERCENTILES, pct)},
+                                 "mean": float(ms.mean()), "min": float(ms.min()), "max": float(ms.max())}
+    return summary
+
+
+def report(cfg: Any, tally: Any, elapsed_s: float, world: dict) -> dict:
+    error_count = sum(tally.errors.values())
+    return {
+        "url": cfg.url,
+        "world": world,
+        "config": {**asdict(cfg), "api_key": "(set)" if cfg.api_key else None},  # never the key itself
+        "elapsed_s": elapsed_s,
+        "requests": tally.count,
+        "throughput_rps": tally.count / elapsed_s if elapsed_s > 0 else 0.0,
+        "edits": latency_summary(tally.edit_ms, elapsed_s),
+        "reads": latency_summary(tally.read_ms, elapsed_s),
+        "errors": {"count": error_count, "by_code": dict(sorted(tally.errors.items()))},
+    }
+
+
+def format_report(result: dict) -> str:
+    lines = [f"{result['requests']} requests in {result['elapsed_s']:.2f} s: "
+             f"{result['throughput_rps']:.1f} requests/s, {result['errors']['count']} errors"]
+    for kind in ("edits", "reads"):
+        s = result[kind]
+        if s["count"]:
+            lat = s["latency_ms"]
+            lines.append(f"  {kind:5s} {s['count']:8d}  {s['throughput_per_s']:9.1f}/s  "
+                         f"p50 {lat['p50']:.2f} ms  p95 {lat['p95']:.2f} ms  p99 {lat['p99']:.2f} ms  "
+                         f"max {lat['max']:.2f} ms")
+    for code, n in result["errors"]["by_code"].items():
+        lines.append(f"  error {code}: {n}")
+    return "\n".join(lines)

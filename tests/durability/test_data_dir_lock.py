@@ -1,0 +1,34 @@
+"""A second server on the same data directory refuses to start, saying which process holds it."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from sdfserver.errors import StorageError
+from sdfserver.storage.lock import lock_data_dir
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_lock_is_exclusive_and_released(tmp_path):
+    held = lock_data_dir(tmp_path)
+    with pytest.raises(StorageError, match=f"pid {os.getpid()}"):
+        lock_data_dir(tmp_path)
+    held.close()
+    lock_data_dir(tmp_path).close()
+
+
+def test_second_serve_on_a_held_directory_exits(tmp_path):
+    held = lock_data_dir(tmp_path)
+    try:
+        env = {k: v for k, v in os.environ.items() if not k.startswith("SDFSERVER_")}
+        env["PYTHONPATH"] = str(ROOT)
+        proc = subprocess.run([sys.executable, "-m", "sdfserver", "serve", "--port", "0", "--data-dir", str(tmp_path)],
+                              env=env, capture_output=True, text=True, timeout=120)
+    finally:
+        held.close()
+    assert proc.returncode == 1
+    assert "is in use by" in proc.stderr and "--data-dir" in proc.stderr

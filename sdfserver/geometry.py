@@ -12,8 +12,10 @@ from typing import Iterable
 Vec3 = tuple[int, int, int]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Box:
+    """Hot on the engine thread (several per edit): methods spell out the three axes."""
+
     lo: Vec3
     hi: Vec3
 
@@ -23,7 +25,8 @@ class Box:
 
     @property
     def shape_xyz(self) -> Vec3:
-        return tuple(max(0, h - l) for l, h in zip(self.lo, self.hi))
+        (x0, y0, z0), (x1, y1, z1) = self.lo, self.hi
+        return (max(0, x1 - x0), max(0, y1 - y0), max(0, z1 - z0))
 
     @property
     def shape_zyx(self) -> Vec3:
@@ -37,14 +40,18 @@ class Box:
 
     @property
     def empty(self) -> bool:
-        return self.volume == 0
+        (x0, y0, z0), (x1, y1, z1) = self.lo, self.hi
+        return x1 <= x0 or y1 <= y0 or z1 <= z0
 
     def grow(self, by: int) -> "Box":
-        return Box(tuple(v - by for v in self.lo), tuple(v + by for v in self.hi))
+        (x0, y0, z0), (x1, y1, z1) = self.lo, self.hi
+        return Box((x0 - by, y0 - by, z0 - by), (x1 + by, y1 + by, z1 + by))
 
     def intersect(self, other: "Box") -> "Box":
-        lo = tuple(max(a, b) for a, b in zip(self.lo, other.lo))
-        hi = tuple(max(l, min(a, b)) for l, a, b in zip(lo, self.hi, other.hi))
+        (ax0, ay0, az0), (ax1, ay1, az1) = self.lo, self.hi
+        (bx0, by0, bz0), (bx1, by1, bz1) = other.lo, other.hi
+        lo = (max(ax0, bx0), max(ay0, by0), max(az0, bz0))
+        hi = (max(lo[0], min(ax1, bx1)), max(lo[1], min(ay1, by1)), max(lo[2], min(az1, bz1)))
         return Box(lo, hi)
 
     def union(self, other: "Box") -> "Box":
@@ -64,10 +71,8 @@ class Box:
     def snap(self, chunk_size_vox: int) -> "Box":
         """The smallest chunk-aligned box containing this one."""
         c = chunk_size_vox
-        return Box(
-            tuple((v // c) * c for v in self.lo),
-            tuple(-((-v) // c) * c for v in self.hi),
-        )
+        (x0, y0, z0), (x1, y1, z1) = self.lo, self.hi
+        return Box((x0 // c * c, y0 // c * c, z0 // c * c), (-(-x1 // c) * c, -(-y1 // c) * c, -(-z1 // c) * c))
 
     def slices_zyx(self, origin: Vec3 = (0, 0, 0)) -> tuple[slice, slice, slice]:
         """Index a ``(z, y, x)`` array whose element 0 sits at ``origin``."""

@@ -32,6 +32,11 @@ class Settings(BaseSettings):
                                                                     "(one JSON object per line).")
     log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Lowest level logged.")
     access_log: bool = Field(False, description="Log every HTTP request (costs throughput).")
+    switch_interval_ms: float = Field(
+        0.5, gt=0, le=100, description="Longest the event loop keeps Python's GIL while the engine thread waits "
+                                       "for it (sys.setswitchinterval), in milliseconds. Each time the engine "
+                                       "blocks on the device or the disk it waits up to this long to go on; "
+                                       "Python's default is 5.")
     max_request_bytes: int = Field(
         16 << 20, ge=1024, description="Largest request body or WebSocket frame, in bytes (413 above it).")
     max_ops_per_batch: int = Field(1024, ge=1, description="Most operations in one edit batch (413 above it).")

@@ -86,6 +86,18 @@ class WorldConfig:
         return tuple(v // self.chunk_size for v in self.size)
 
 
+@dataclass(frozen=True)
+class EditPlan:
+    """A validated batch and, per edit, the world-clipped boxes it may change (``World.plan_edits``).
+
+    The engine journals a batch between planning and applying it, so that only valid
+    batches are logged and each is validated once."""
+
+    world: "World"
+    edits: list[Edit]
+    boxes: list[list[Box]]
+
+
 @dataclass
 class RecomputeResult:
     changed_chunks: np.ndarray  # (N, 3) int32 chunk coordinates (x, y, z)
@@ -120,7 +132,8 @@ class World:
         cl.enqueue_fill_buffer(gpu.queue, self.buffers.field, np.uint16(config.max_distance << 8),
                                0, 2 * self.voxel_count)
         gpu.queue.finish()
-        self._dirty: list[Box] = []
+        self._dims_int4 = int4(config.size)
+        self._dirty: list[Box] = []  # what edits may have changed, world-clipped
         self._dirty_all = False
         self.version = 0  # edit batches applied
         self.field_version = 0  # the version the field reflects
@@ -141,21 +154,29 @@ class World:
 
     # -- edits ----------------------------------------------------------------------------------
 
-    def apply_edits(self, edits: list[Edit]) -> int:
-        """Validate and apply one batch atomically; returns the new version."""
+    def plan_edits(self, edits: list[Edit]) -> "EditPlan":
+        """Validate a batch and find the boxes it may change; changes nothing (raises on a bad batch)."""
         validate_batch(edits, self.config.size, self.limits)
-        dims = self.config.size
-        cs = self.config.chunk_size
-        dirty = [box for e in edits for box in edit_bounds(e, dims, cs)]
-        for e in edits:
-            self._enqueue_edit(e)
-        self._dirty.extend(dirty)
+        dims, cs = self.config.size, self.config.chunk_size
+        return EditPlan(self, edits, [edit_bounds(e, dims, cs) for e in edits])
+
+    def apply_plan(self, plan: "EditPlan") -> int:
+        """Write a planned batch on the device and mark its boxes dirty; returns the new version."""
+        if plan.world is not self:
+            raise ValueError("an edit plan applies only to the world that made it")
+        for edit, boxes in zip(plan.edits, plan.boxes):
+            self._enqueue_edit(edit, boxes)
+            self._dirty.extend(boxes)
         self.version += 1
         return self.version
 
-    def _enqueue_edit(self, e: Edit) -> None:
+    def apply_edits(self, edits: list[Edit]) -> int:
+        """Validate and apply one batch atomically; returns the new version."""
+        return self.apply_plan(self.plan_edits(edits))
+
+    def _enqueue_edit(self, e: Edit, boxes: list[Box]) -> None:
         q, kernels, b = self.gpu.queue, self.gpu.programs, self.buffers
-        dims = int4(self.config.size)
+        dims = self._dims_int4
         if isinstance(e, VoxelsEdit):
             # Later duplicates win: keep the last occurrence of each position.
             flat = np.ravel_multi_index(e.voxels[::-1, 2::-1].T, self.config.size[::-1])
@@ -166,7 +187,6 @@ class World:
             kernels.kernel("edits.cl", "set_voxels")(q, (-(-n // 64) * 64,), (64,), b.voxels, dims, list_buf, np.int32(n))
             list_buf.release()  # pyopencl keeps it alive until the kernel has run
             return
-        boxes = edit_bounds(e, self.config.size, self.config.chunk_size)
         if not boxes:
             return
         box = boxes[0]
@@ -219,15 +239,16 @@ class World:
         """The regions the next recompute will rewrite."""
         if self._dirty_all:
             return [self.world_box]
-        cap, cs = self.config.max_distance, self.config.chunk_size
-        grown = [b.grow(cap).snap(cs).intersect(self.world_box) for b in self._dirty]
+        cap, cs, world = self.config.max_distance, self.config.chunk_size, self.world_box
+        # Under a large cap many edits grow to the same region: merge each once.
+        grown = dict.fromkeys(b.grow(cap).snap(cs).intersect(world) for b in self._dirty)
         return merge_regions(grown)
 
     @property
     def dirty_chunk_count(self) -> int:
         if self._dirty_all:
             return int(np.prod(self.config.chunks))
-        return int(self._chunk_mask([b.snap(self.config.chunk_size) for b in self._dirty]).sum())
+        return int(self._chunk_mask(self._dirty).sum())
 
     def _chunk_mask(self, boxes: list[Box]) -> np.ndarray:
         mask = np.zeros(self.config.chunks[::-1], dtype=bool)
@@ -307,4 +328,4 @@ class World:
         return self._read(self.buffers.voxels, 1, np.uint8, box)
 
 
-__all__ = ["ALGORITHMS", "Focus", "RecomputeResult", "World", "WorldConfig"]
+__all__ = ["ALGORITHMS", "EditPlan", "Focus", "RecomputeResult", "World", "WorldConfig"]

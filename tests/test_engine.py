@@ -85,11 +85,12 @@ class RecordingJournal:
     def record_create(self, world_id, config, owner=None):
         self.calls.append(("create", world_id, config))
 
-    def record_batch(self, world_id, version, edits):
-        if version == self.fail_on_version:
+    def record_batches(self, world_id, first_version, batches):
+        versions = range(first_version, first_version + len(batches))
+        if self.fail_on_version in versions:
             self.fail_on_version = None  # fails once
             raise OSError("disk full")
-        self.calls.append(("batch", world_id, version, edits))
+        self.calls.extend(("batch", world_id, v, edits) for v, edits in zip(versions, batches))
 
     def record_delete(self, world_id):
         self.calls.append(("delete", world_id))
@@ -105,36 +106,38 @@ class RecordingJournal:
 
 
 def test_journal_records_before_acknowledging(gpu):
-    journal = RecordingJournal(fail_on_version=2)
+    journal = RecordingJournal(fail_on_version=3)
     engine = Engine(gpu, journal=journal)
     world_id = create(engine)
     assert journal.calls == [("create", world_id, {"size": [16, 16, 16], "chunk_size": 8, "max_distance": 5,
                                                    "algorithm": "exact", "focus": None, "lod_algorithm": "jfa"})]
     raw = [{"op": "box", "min": [0, 0, 0], "max": [2, 2, 2], "colour": 3}]
-    first = edits(engine, world_id, raw)
+    raw2 = [{"op": "sphere", "center": [8, 8, 8], "radius": 2, "colour": 4}]
+    first, bad, second = (edits(engine, world_id, raw), edits(engine, world_id, [
+        {"op": "voxels", "voxels": [[16, 0, 0, 1]]}]), edits(engine, world_id, raw2))
     seen_done = []
-    original = journal.record_batch
+    original = journal.record_batches
 
-    def record_and_look(world, version, batch):
-        seen_done.append(first.done())
-        original(world, version, batch)
+    def record_and_look(world, first_version, batches):
+        seen_done.append((first.done(), second.done()))
+        original(world, first_version, batches)
 
-    journal.record_batch = record_and_look
-    failing = edits(engine, world_id, raw)
-    bad = edits(engine, world_id, [{"op": "voxels", "voxels": [[16, 0, 0, 1]]}])
+    journal.record_batches = record_and_look
     engine.step()
-    assert first.result() == 1 and seen_done[0] is False
-    with pytest.raises(OSError):
-        failing.result()  # not journaled: not applied, not acknowledged
+    assert (first.result(), second.result()) == (1, 2) and seen_done == [(False, False)]
     with pytest.raises(InvalidEdit):
         bad.result()  # invalid batches never reach the journal
-    assert [c[:3] for c in journal.calls[1:]] == [("batch", world_id, 1)]
-    assert journal.calls[1][3] == raw
+    assert journal.calls[1:] == [("batch", world_id, 1, raw), ("batch", world_id, 2, raw2)]
+    failing = edits(engine, world_id, raw)
+    engine.step()
+    with pytest.raises(OSError):
+        failing.result()  # not journaled: not applied, not acknowledged
+    assert len(journal.calls) == 3
     third = edits(engine, world_id, raw)
     gone = engine.submit(DeleteWorld(world_id))
     engine.step()
-    assert third.result() == 2 and gone.result() is None
-    assert journal.calls[-2][:3] == ("batch", world_id, 2) and journal.calls[-1] == ("delete", world_id)
+    assert third.result() == 3 and gone.result() is None
+    assert journal.calls[-2][:3] == ("batch", world_id, 3) and journal.calls[-1] == ("delete", world_id)
     engine.stop()
 
 

@@ -122,7 +122,7 @@ def _vec3(text: str | None, name: str) -> tuple[int, int, int] | None:
         raise InvalidInput(f"{name} must be three integers 'x,y,z', got {text!r}") from None
 
 
-def _box(lo: str | None, hi: str | None) -> Box | None:
+def box_param(lo: str | None, hi: str | None) -> Box | None:
     lo3, hi3 = _vec3(lo, "min"), _vec3(hi, "max")
     if lo3 is None and hi3 is None:
         return None
@@ -161,7 +161,13 @@ async def read_field(request: Request, world_id: str,
                                          description="distance: uint8; packed: uint16 (distance << 8) | colour"),
                      min_version: int = Query(0, ge=0, description="wait until the field reflects this version")
                      ) -> Response:
-    result = await engine_of(request).read(world_id, format, _box(min, max), min_version)
+    return await field_response(request, world_id, box_param(min, max), format, min_version)
+
+
+async def field_response(request: Request, world_id: str, box: Box | None, format: str,
+                         min_version: int) -> Response:
+    """The field read once its parameters are checked (here and in fastlane.py)."""
+    result = await engine_of(request).read(world_id, format, box, min_version)
     return _array_response(request, result, "uint8" if format == "distance" else "uint16")
 
 
@@ -171,7 +177,7 @@ async def read_voxels(request: Request, world_id: str,
                       max: str | None = Query(None, description="x,y,z (exclusive)"),
                       min_version: int = Query(0, ge=0, description="wait until the voxels reflect this version")
                       ) -> Response:
-    result = await engine_of(request).read(world_id, "voxels", _box(min, max), min_version)
+    result = await engine_of(request).read(world_id, "voxels", box_param(min, max), min_version)
     return _array_response(request, result, "uint8")
 
 
@@ -180,6 +186,11 @@ async def read_voxels(request: Request, world_id: str,
 async def query(request: Request, world_id: str,
                 min_version: int = Query(0, ge=0, description="wait until the field reflects this version")
                 ) -> Response:
+    return await query_response(request, world_id, min_version)
+
+
+async def query_response(request: Request, world_id: str, min_version: int) -> Response:
+    """The point query once min_version is checked (here and in fastlane.py)."""
     settings = request.app.state.settings
     body = await decode_body(request)
     points_raw = body.get("points") if isinstance(body, dict) else None

@@ -104,6 +104,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sdfserver serve: invalid settings:\n{exc}", file=sys.stderr)
         return 2
     log_config = configure_logging(settings)
+    # The event loop and the engine thread share the GIL: under load, every time the engine
+    # blocks (queue.finish, a read, a log write) it waits up to this long to get it back.
+    sys.setswitchinterval(settings.switch_interval_ms / 1e3)
     try:
         keys = parse_keys(settings.api_keys, settings.api_key_file)
     except SdfServerError as exc:

@@ -6,8 +6,9 @@ whenever commands are queued:
 
 1. take every queued command;
 2. apply: create, delete and reconfigure worlds and apply edit batches, in
-   arrival order — each batch validated (and journaled) on its own, so a bad
-   batch fails alone and changes nothing, and acknowledged with its version;
+   arrival order — each batch validated on its own, so a bad batch fails alone
+   and changes nothing; a world's valid batches are journaled in one log write,
+   applied in order and acknowledged with their versions (after the log sync);
 3. recompute each touched world once, however many batches it took;
 4. publish the chunks each recompute rewrote to the subscribers of those chunks;
 5. serve reads, point queries, subscriptions and ``run_on_device`` calls, which
@@ -33,7 +34,7 @@ from typing import Any, Callable, TypeVar
 import numpy as np
 import pyopencl as cl
 
-from sdfserver.edits import Edit, parse_edits, validate_batch
+from sdfserver.edits import Edit, parse_edits
 from sdfserver.engine.commands import (
     APPLY, ApplyEdits, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Query, Read,
     ReadResult, Reconfigure, StepReport, Subscribe,
@@ -48,7 +49,7 @@ from sdfserver.errors import (
 )
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
-from sdfserver.world import RecomputeResult, World, WorldConfig
+from sdfserver.world import EditPlan, RecomputeResult, World, WorldConfig
 
 log = logging.getLogger("sdfserver.engine")
 T = TypeVar("T")
@@ -245,16 +246,24 @@ class Engine:
                 return out
 
     def _apply(self, commands: list[Pending], report: StepReport) -> set[str]:
+        """Run the changing commands in arrival order. Edit batches are validated one by one as
+        they come and journaled and applied together (one log write per world) before the next
+        command of another kind, so that command still sees them."""
         touched: set[str] = set()
+        batches: list[tuple[ApplyEdits, Future, EditPlan]] = []
         for command, future in commands:
             if not future.set_running_or_notify_cancel():
                 continue
+            if isinstance(command, ApplyEdits):
+                try:  # a bad batch fails alone: nothing logged or applied
+                    batches.append((command, future, self._world(command.world_id).plan_edits(command.edits)))
+                except Exception as exc:
+                    self._reject(future, exc, report)
+                continue
+            self._apply_batches(batches, touched, report)
+            batches = []
             try:
-                if isinstance(command, ApplyEdits):
-                    result = self._apply_edits(command)
-                    touched.add(command.world_id)
-                    report.applied_batches += 1
-                elif isinstance(command, CreateWorld):
+                if isinstance(command, CreateWorld):
                     result = self._create_world(command)
                     if command.voxels is not None:
                         touched.add(result["id"])  # an import: compute its field this step
@@ -270,27 +279,43 @@ class Engine:
             except cl.Error:
                 raise
             except Exception as exc:  # the command fails alone; the engine carries on
-                if isinstance(command, ApplyEdits):
-                    report.rejected_batches += 1
-                    self.metrics.rejected_batches.inc()
                 self._fail(future, exc)
             else:
-                if isinstance(result, _Durable):  # acknowledged once the journal has it on disk
-                    result.acknowledge(future)
-                else:
-                    future.set_result(result)
+                future.set_result(result)
+        self._apply_batches(batches, touched, report)
         return touched
 
-    def _apply_edits(self, command: ApplyEdits) -> int:
-        world = self._world(command.world_id)
-        validate_batch(command.edits, world.config.size, world.limits)
-        durable = None
-        if self.journal is not None:
-            durable = self.journal.record_batch(command.world_id, world.version + 1, command.wire)
-        version = world.apply_edits(command.edits)
-        self.metrics.edit_batches.inc()
-        self.metrics.edit_ops.inc(len(command.edits))
-        return version if durable is None else _Durable(version, durable)
+    def _apply_batches(self, batches: list[tuple[ApplyEdits, Future, EditPlan]], touched: set[str],
+                       report: StepReport) -> None:
+        """Journal each world's validated batches in one record, apply them in order, acknowledge."""
+        by_world: dict[str, list[tuple[ApplyEdits, Future, EditPlan]]] = {}
+        for item in batches:
+            by_world.setdefault(item[0].world_id, []).append(item)
+        for world_id, items in by_world.items():
+            world = items[0][2].world
+            durable = None
+            if self.journal is not None:
+                try:  # acknowledged once the journal has them on disk
+                    durable = self.journal.record_batches(world_id, world.version + 1, [c.wire for c, _, _ in items])
+                except Exception as exc:  # not journaled: not applied, not acknowledged
+                    for _, future, _ in items:
+                        self._reject(future, exc, report)
+                    continue
+            for command, future, plan in items:
+                version = world.apply_plan(plan)
+                self.metrics.edit_batches.inc()
+                self.metrics.edit_ops.inc(len(command.edits))
+                report.applied_batches += 1
+                if durable is None:
+                    future.set_result(version)
+                else:
+                    _acknowledge_when_durable(future, version, durable)
+            touched.add(world_id)
+
+    def _reject(self, future: Future, exc: BaseException, report: StepReport) -> None:
+        report.rejected_batches += 1
+        self.metrics.rejected_batches.inc()
+        self._fail(future, exc)
 
     def _create_world(self, command: CreateWorld) -> dict[str, Any]:
         config = command.config.validated()
@@ -507,20 +532,14 @@ class Engine:
         self.metrics.pending_bytes.set(sum(s.mailbox.pending_bytes for s in subs))
 
 
-class _Durable:
-    """An applied batch whose acknowledgement waits for the journal's durable future."""
+def _acknowledge_when_durable(future: Future, version: int, durable: Future) -> None:
+    """Complete ``future`` with ``version`` once ``durable`` completes (or fail it with its error)."""
 
-    def __init__(self, version: int, durable: Future):
-        self.version = version
-        self.durable = durable
+    def done(durable: Future) -> None:
+        exc = durable.exception()
+        if exc is not None:
+            future.set_exception(exc)
+        else:
+            future.set_result(version)
 
-    def acknowledge(self, future: Future) -> None:
-        def done(durable: Future) -> None:
-            exc = durable.exception()
-            if exc is not None:
-                future.set_exception(exc)
-            else:
-                future.set_result(self.version)
-
-        self.durable.add_done_callback(done)
-
+    durable.add_done_callback(done)

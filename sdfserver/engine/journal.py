@@ -6,14 +6,15 @@ The engine calls these on its own thread, in the order things happen:
   ``voxels=`` and ``version=``, the world's initial voxels and version); ``config`` is the
   world's description as ``world_config_dict`` returns it (the body of
   ``POST /v1/worlds``: size, chunk_size, max_distance, algorithm, lod_algorithm, focus).
-- ``record_batch(world_id, version, edits)`` after a batch passed validation and
-  BEFORE it is applied and acknowledged; ``version`` is the version the batch will
-  produce, ``edits`` the batch in wire form (a list of op maps as
-  ``sdfserver.edits.parse_edits`` accepts; ``voxels`` as an (N, 4) integer NumPy
-  array). If it raises, the batch is neither applied nor acknowledged.
-  It may return a ``concurrent.futures.Future`` that completes once the batch is durable;
-  the engine then acknowledges the batch only when that future completes (and fails it
-  if the future fails). Returning None acknowledges at once.
+- ``record_batches(world_id, first_version, batches)`` once a step, for each world, with
+  the batches that passed validation, BEFORE they are applied and acknowledged;
+  ``first_version`` is the version the first batch will produce (the others follow,
+  one each), each batch in wire form (a list of op maps as ``sdfserver.edits.parse_edits``
+  accepts; ``voxels`` as an (N, 4) integer NumPy array). If it raises, none of these
+  batches is applied or acknowledged.
+  It may return a ``concurrent.futures.Future`` that completes once the batches are
+  durable; the engine then acknowledges them only when that future completes (and fails
+  them if the future fails). Returning None acknowledges at once.
 - ``record_config(world_id, config)`` after a world was reconfigured.
 - ``record_delete(world_id)`` after a world was deleted.
 - ``wants_snapshot(world_id)`` after a world's recompute; when it answers True the
@@ -35,7 +36,8 @@ class Journal(Protocol):
     def record_create(self, world_id: str, config: dict[str, Any], owner: str | None = None, *,
                       voxels: np.ndarray | None = None, version: int = 0) -> None: ...
 
-    def record_batch(self, world_id: str, version: int, edits: list[dict[str, Any]]) -> Future | None: ...
+    def record_batches(self, world_id: str, first_version: int,
+                       batches: list[list[dict[str, Any]]]) -> Future | None: ...
 
     def record_config(self, world_id: str, config: dict[str, Any]) -> None: ...
 

@@ -3,8 +3,8 @@
 The engine calls it on its own thread:
 
 - ``record_create`` creates the world's directory (catalog entry and an empty log);
-- ``record_batch`` appends the batch to the world's log and returns the future that
-  completes once it is durable — the engine acknowledges the batch only then;
+- ``record_batches`` appends a step's batches for a world to its log in one write and returns
+  the future that completes once they are durable — the engine acknowledges them only then;
 - ``record_config`` rewrites the catalog entry after a reconfiguration;
 - ``record_delete`` removes the world's directory;
 - ``wants_snapshot`` / ``record_snapshot``: after a recompute, a world with
@@ -55,8 +55,8 @@ class StorageJournal:
                                                           voxels=voxels, version=version)
         self.owners[world_id] = owner
 
-    def record_batch(self, world_id: str, version: int, edits: list[dict[str, Any]]) -> Future:
-        return self._store(world_id).append(version, edits)
+    def record_batches(self, world_id: str, first_version: int, batches: list[list[dict[str, Any]]]) -> Future:
+        return self._store(world_id).append_many(first_version, batches)
 
     def record_config(self, world_id: str, config: dict[str, Any]) -> None:
         self._store(world_id).write_meta({"config": config, "owner": self.owners.get(world_id)})

@@ -64,8 +64,12 @@ class WorldStore:
 
     def append(self, version: int, edits_wire: Any) -> Future:
         """Log one batch; the future completes when it is durable (acknowledge after that)."""
-        future = self.log.append(version, encode_batch(edits_wire))
-        self.records_since_snapshot += 1
+        return self.append_many(version, [edits_wire])
+
+    def append_many(self, first_version: int, batches_wire: list[Any]) -> Future:
+        """Log consecutive batches with one write; one future for all of them."""
+        future = self.log.append_many(first_version, [encode_batch(b) for b in batches_wire])
+        self.records_since_snapshot += len(batches_wire)
         return future
 
     def snapshot(self, version: int, config: dict[str, Any], voxels: np.ndarray) -> None:

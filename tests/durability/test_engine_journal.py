@@ -180,3 +180,49 @@ def test_the_api_says_writes_are_disabled(gpu, journal, monkeypatch):
         asyncio.run(scenario())
     finally:
         engine.stop()
+
+
+def test_a_steps_batches_share_one_log_write_and_restore_in_order(gpu, tmp_path):
+    journal = StorageJournal(Storage(tmp_path / "data"), snapshot_every_batches=1000)
+    rng = np.random.default_rng()
+    engine = Engine(gpu, journal=journal)
+    sizes = [(16, 8, 8), (8, 8, 16)]
+    created = [engine.submit(CreateWorld(WorldConfig(size=s, chunk_size=8, max_distance=5))) for s in sizes]
+    engine.step()
+    ids = [c.result()["id"] for c in created]
+    expected = [np.zeros(s[::-1], np.uint8) for s in sizes]
+    writes = []
+    real_write = os.write
+    os.write = lambda fd, data: writes.append(fd) or real_write(fd, data)
+    try:
+        futures, batches = [], []
+        for i in range(12):  # interleaved over both worlds, one invalid batch in the middle
+            w = i % 2
+            batch = random_batch(rng, sizes[w]) if i != 5 else [{"op": "voxels", "voxels": [[99, 0, 0, 1]]}]
+            futures.append(edits(engine, ids[w], batch))
+            batches.append((w, batch))
+        engine.step()
+    finally:
+        os.write = real_write
+    assert len(writes) == 2  # one log write per world for the whole step
+    versions = [0, 0]
+    for (w, batch), future in zip(batches, futures):
+        if batch[0]["op"] == "voxels" and batch[0]["voxels"] == [[99, 0, 0, 1]]:
+            with pytest.raises(Exception):
+                future.result(timeout=10)
+            continue
+        versions[w] += 1
+        assert future.result(timeout=10) == versions[w]  # +1 per batch, in arrival order
+        apply_reference(expected[w], batch)
+    engine.stop()
+    journal.close()
+    fresh_journal = StorageJournal(Storage(tmp_path / "data"))
+    fresh = Engine(gpu, journal=fresh_journal)
+    restore_worlds(fresh, fresh_journal.storage, fresh_journal)
+    reads = [fresh.submit(Read(world_id, "voxels")) for world_id in ids]
+    fresh.step()
+    for w, read in enumerate(reads):
+        assert read.result().version == versions[w]
+        np.testing.assert_array_equal(read.result().array, expected[w])
+    fresh.stop()
+    fresh_journal.close()

@@ -1,0 +1,66 @@
+"""The server's host overhead per edit batch, next to the device time it bought.
+
+Runs a command (a load test) against a running ``sdfserver serve`` and reads, before and after,
+the server process's CPU time (``/proc/<pid>/stat``, all threads) and its ``/metrics``:
+
+    python tools/service_overhead.py --pid $SERVER_PID --url http://127.0.0.1:8765 -- \\
+        python clients/loadtest.py --url http://127.0.0.1:8765 --clients 64 --processes 8 \\
+        --duration 15 --size 256 256 256 --read-every 0
+
+prints batches, engine steps (batches merged per step), and per batch: server CPU, recompute
+wall time and recompute device time. Server CPU minus device time is what the host adds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import urllib.request
+
+COUNTERS = ("sdfserver_edit_batches_total", "sdfserver_engine_steps_total", "sdfserver_recompute_seconds_sum",
+            "sdfserver_recompute_device_seconds_total")
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime, all threads
+
+
+def metrics(url: str) -> dict[str, float]:
+    out = dict.fromkeys(COUNTERS, 0.0)
+    for line in urllib.request.urlopen(url + "/metrics", timeout=10).read().decode().splitlines():
+        name = re.sub(r"\{.*\}", "", line.split(" ", 1)[0])
+        if name in out:
+            out[name] += float(line.rsplit(" ", 1)[1])  # summed over algorithms
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--pid", type=int, required=True, help="the sdfserver serve process")
+    ap.add_argument("--url", default="http://127.0.0.1:8000")
+    ap.add_argument("command", nargs=argparse.REMAINDER, help="-- then the load-test command")
+    args = ap.parse_args(argv)
+    command = args.command[1:] if args.command[:1] == ["--"] else args.command
+    if not command:
+        ap.error("give the load-test command after --")
+    m0, c0 = metrics(args.url), cpu_seconds(args.pid)
+    code = subprocess.run(command).returncode
+    m1, c1 = metrics(args.url), cpu_seconds(args.pid)
+    d = {k: m1[k] - m0[k] for k in COUNTERS}
+    batches, steps = d["sdfserver_edit_batches_total"], d["sdfserver_engine_steps_total"]
+    if batches <= 0:
+        print("no edit batches were applied", file=sys.stderr)
+        return 1
+    per = lambda seconds: seconds / batches * 1e6  # noqa: E731
+    print(f"{batches:.0f} batches in {steps:.0f} engine steps ({batches / max(steps, 1):.1f} per step); per batch: "
+          f"server CPU {per(c1 - c0):.0f} us, recompute wall {per(d['sdfserver_recompute_seconds_sum']):.0f} us, "
+          f"recompute device {per(d['sdfserver_recompute_device_seconds_total']):.0f} us")
+    return code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -58,6 +58,19 @@ def segment_length(line_len: int, shape: PassShape) -> int:
     return seg
 
 
+def segment_count(line_len: int, seg: int, shape: PassShape) -> int:
+    """Work-items per line: the shape's count whenever it covers the line.
+
+    A fixed count (doubled only for lines longer than max_seg * segments) keeps the number of
+    compiled variants small, whatever region sizes incremental updates bring; unused tail
+    segments do nothing.
+    """
+    count = shape.segments
+    while seg * count < line_len:  # long lines at the longest segment: double the count
+        count *= 2
+    return count
+
+
 class Exact:
     name = "exact"
     exact = True
@@ -73,7 +86,7 @@ class Exact:
         """
         shape = PASS_SHAPES[axis]
         seg = seg or segment_length(line_len, shape)
-        nseg = -(-line_len // seg)
+        nseg = segment_count(line_len, seg, shape)
         if axis == 0:
             per_group = max(1, x_threads // nseg)
             local = (nseg, per_group)

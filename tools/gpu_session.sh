@@ -24,13 +24,16 @@ if has render; then
 fi
 if has service; then
   port=8765
-  python3 -m sdfserver serve --device nvidia --port $port --data-dir /tmp/sdfserver-data \
+  rm -rf /tmp/sdfserver-data
+  python3 -m sdfserver serve --device nvidia --port $port --data-dir /tmp/sdfserver-data ${SERVE_FLAGS:-} \
     > "$OUT/server.log" 2>&1 &
   server=$!
   for _ in $(seq 120); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.5; done
-  timeout 60 python3 clients/loadtest.py --url http://127.0.0.1:$port --clients 64 --processes 8 \
+  timeout 60 python3 tools/service_overhead.py --pid $server --url http://127.0.0.1:$port -- \
+    python3 clients/loadtest.py --url http://127.0.0.1:$port --clients 64 --processes 8 \
     --duration 15 --size 256 256 256 --read-every 0 --quiet --json "$OUT/load-64.json" > "$OUT/load-64.txt" 2>&1
-  timeout 40 python3 clients/loadtest.py --url http://127.0.0.1:$port --clients 1 --duration 10 \
+  timeout 40 python3 tools/service_overhead.py --pid $server --url http://127.0.0.1:$port -- \
+    python3 clients/loadtest.py --url http://127.0.0.1:$port --clients 1 --duration 10 \
     --size 256 256 256 --read-every 1 --read-size 16 --quiet --json "$OUT/load-rtt.json" > "$OUT/load-rtt.txt" 2>&1
   timeout 40 python3 tools/ws_frames.py --url http://127.0.0.1:$port --size 512 --duration 10 \
     --json "$OUT/ws-frames.json" > "$OUT/ws-frames.txt" 2>&1

@@ -56,8 +56,15 @@ async def run(args) -> dict:
 
         sender = asyncio.create_task(send_edits())
         while time.perf_counter() - start < args.duration:
-            # Generous: the first frame may wait for kernels to build.
-            message = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 60), raw=False)
+            # Generous for the first frame (kernels may be building); then only until the end.
+            left = args.duration - (time.perf_counter() - start)
+            try:
+                raw = await asyncio.wait_for(ws.recv(), 60 if not frame_times else max(0.05, left))
+            except asyncio.TimeoutError:
+                if frame_times:
+                    break
+                raise
+            message = msgpack.unpackb(raw, raw=False)
             kind = message.get("type")
             if kind == "ack":
                 acks += 1

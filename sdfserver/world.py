@@ -185,7 +185,7 @@ class World:
             list_buf = self.gpu.upload(rows)
             n = len(rows)
             kernels.kernel("edits.cl", "set_voxels")(q, (-(-n // 64) * 64,), (64,), b.voxels, dims, list_buf, np.int32(n))
-            list_buf.release()  # pyopencl keeps it alive until the kernel has run
+            list_buf.release()  # OpenCL frees it only once the queued kernel has finished
             return
         if not boxes:
             return

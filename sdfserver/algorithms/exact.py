@@ -8,8 +8,8 @@ in parallel. Not in the dissertation; it replaces its per-chunk algorithms.
 Kernel: kernels/exact.cl, three launches; the first derives initial distances
 from voxels and the seed shell, the last writes the packed field.
 Units: voxels. Halo: one-voxel seed shell (seeded) or ``cap`` voxels (halo).
-Exact: yes, across chunk borders. Failure modes: none known; lines longer
-than 32 * 64 voxels are refused by the world size limit.
+Exact: yes, across chunk borders. Failure modes: none known; lines are at
+most 2048 voxels (the world size limit), 128 segments of 16 at the longest.
 """
 
 from __future__ import annotations
@@ -103,17 +103,22 @@ class Exact:
                                          FIRST=int(first), LAST=int(last))
         return kernel, nseg, global_, local
 
-    def run(self, gpu: GpuContext, job: RegionJob, order: tuple[int, int, int] = PASS_ORDER) -> AlgorithmRun:
+    @staticmethod
+    def enqueue(gpu: GpuContext, job: RegionJob, kernel, nseg: int, global_, local):
+        """Launch one pass over the job's work box; returns its event."""
+        b = job.buffers
+        return kernel(
+            gpu.queue, global_, local, b.work, b.voxels, b.field,
+            int4(b.dims), int4(job.work_box.lo), int4(job.work_box.shape_xyz),
+            int4(job.region.lo), int4(job.region.hi),
+            np.int32(job.seeded), np.int32(job.cap), np.int32(nseg),
+        )
+
+    def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         n = job.work_box.shape_xyz
         run = AlgorithmRun()
-        for position, axis in enumerate(order):
+        for position, axis in enumerate(PASS_ORDER):
             kernel, nseg, global_, local = self.launch_shape(
                 gpu, axis, n[axis], *n, first=position == 0, last=position == 2)
-            run.events.append(kernel(
-                gpu.queue, global_, local,
-                job.buffers.work, job.buffers.voxels, job.buffers.field,
-                int4(job.buffers.dims), int4(job.work_box.lo), int4(job.work_box.shape_xyz),
-                int4(job.region.lo), int4(job.region.hi),
-                np.int32(job.seeded), np.int32(job.cap), np.int32(nseg),
-            ))
+            run.events.append(self.enqueue(gpu, job, kernel, nseg, global_, local))
         return run

@@ -34,8 +34,8 @@ from sdfserver.api.auth import OPEN, bearer_token, check_owner
 from sdfserver.api.errors import body_for, close_code_for
 from sdfserver.api.render_routes import FrameStream
 from sdfserver.api.routes import _edits_wire, parse_edits_off_loop
-from sdfserver.engine import Engine, Mailbox, Subscription
-from sdfserver.errors import InvalidInput, SdfServerError, TooLarge
+from sdfserver.engine import Engine, Mailbox, Subscription, check_subscription_region
+from sdfserver.errors import InvalidInput, SdfServerError
 from sdfserver.geometry import Box
 
 router = APIRouter(prefix="/v1")
@@ -152,12 +152,8 @@ class StreamSession:
             raise InvalidInput(f"format must be 'distance' or 'packed', got {fmt!r}")
         lo, hi = (_int3(frame.get(k), k) for k in ("min", "max"))
         region = Box(lo, hi).snap(self.chunk_size)
-        if region.empty or not self.world_box.contains(region):
-            raise InvalidInput(f"region {list(lo)}..{list(hi)} is empty or outside the world "
-                               f"{list(self.world_box.hi)}")
-        if region.volume > self.settings.max_subscription_voxels:
-            raise TooLarge(f"a subscription of {region.volume} voxels; the limit is "
-                           f"{self.settings.max_subscription_voxels}")
+        # Checked here too, so that a bad region is refused before "subscribed" goes out.
+        check_subscription_region(region, self.world_box, self.settings.max_subscription_voxels)
         self.close()
         subscription = Subscription(self.world_id, region, fmt, Mailbox(self._notify))
         # "subscribed" goes out before the engine can put the first chunks in the mailbox.

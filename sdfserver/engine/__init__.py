@@ -5,9 +5,11 @@ from sdfserver.engine.core import Engine, new_world_id, world_config_dict
 from sdfserver.engine.journal import Journal
 from sdfserver.engine.mailbox import Mailbox, Subscription, Update
 from sdfserver.engine.metrics import EngineMetrics
+from sdfserver.engine.publish import check_subscription_region
 from sdfserver.engine.query import QueryResult
 
 __all__ = [
     "Engine", "EngineLimits", "EngineMetrics", "Journal", "Mailbox", "QueryResult", "ReadResult",
-    "StepReport", "Subscription", "Update", "new_world_id", "world_config_dict",
+    "StepReport", "Subscription", "Update", "check_subscription_region", "new_world_id",
+    "world_config_dict",
 ]

@@ -42,7 +42,7 @@ from sdfserver.engine.commands import (
 from sdfserver.engine.journal import Journal
 from sdfserver.engine.mailbox import Subscription
 from sdfserver.engine.metrics import EngineMetrics
-from sdfserver.engine.publish import chunks_of, publish
+from sdfserver.engine.publish import check_subscription_region, chunks_of, publish
 from sdfserver.engine.query import QueryResult, query_points
 from sdfserver.errors import (
     InvalidInput, NotFound, NotReady, SdfServerError, StorageError, TooLarge, VersionNotReached,
@@ -389,12 +389,7 @@ class Engine:
     def _subscribe(self, sub: Subscription) -> None:
         world = self._world(sub.world_id)
         region = sub.region
-        if region.empty or not world.world_box.contains(region):
-            raise InvalidInput(f"region {list(region.lo)}..{list(region.hi)} is empty or outside the world "
-                               f"{list(world.config.size)}")
-        if region.volume > self.limits.max_subscription_voxels:
-            raise TooLarge(f"a subscription of {region.volume} voxels; the limit is "
-                           f"{self.limits.max_subscription_voxels}")
+        check_subscription_region(region, world.world_box, self.limits.max_subscription_voxels)
         # The current state first, then every change: the subscriber never misses one.
         field = world.read_field(region)
         sub.mailbox.put(world.field_version, chunks_of(field, region.lo, region, world.config.chunk_size,

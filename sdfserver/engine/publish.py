@@ -5,8 +5,18 @@ from __future__ import annotations
 import numpy as np
 
 from sdfserver.engine.mailbox import ChunkKey, Subscription
+from sdfserver.errors import InvalidInput, TooLarge
 from sdfserver.geometry import Box, Vec3
 from sdfserver.world import RecomputeResult, World
+
+
+def check_subscription_region(region: Box, world_box: Box, max_voxels: int) -> None:
+    """A subscription covers whole chunks inside the world, and not too many voxels."""
+    if region.empty or not world_box.contains(region):
+        raise InvalidInput(f"region {list(region.lo)}..{list(region.hi)} is empty or outside the world "
+                           f"{list(world_box.hi)}")
+    if region.volume > max_voxels:
+        raise TooLarge(f"a subscription of {region.volume} voxels; the limit is {max_voxels}")
 
 
 def publish(world: World, result: RecomputeResult, subs: list[Subscription]) -> int:

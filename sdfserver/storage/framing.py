@@ -85,10 +85,11 @@ def _valid_record_after(data: memoryview, start: int, min_version: int) -> int |
     last = n - RECORD_HEADER.size  # the last offset a header fits at
     for first in range(start + 1, last + 1, _SCAN_BLOCK):  # one loop over 1 MiB blocks
         count = min(_SCAN_BLOCK, last + 1 - first)
-        def field(at: int, width: int) -> np.ndarray:
+        def little_endian(at: int, width: int) -> np.ndarray:
+            """The unsigned integer at byte ``at`` of every candidate header in this block."""
             return sum(raw[first + at + k:first + at + k + count].astype(np.uint64) << np.uint64(8 * k)
                        for k in range(width))
-        length, version = field(0, 4), field(4, 8)
+        length, version = little_endian(0, 4), little_endian(4, 8)
         ends = np.arange(first + RECORD_HEADER.size, first + RECORD_HEADER.size + count,
                          dtype=np.uint64) + length
         plausible = ((ends <= np.uint64(n)) & (version >= np.uint64(min_version))

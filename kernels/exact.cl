@@ -17,7 +17,12 @@
  *   pass_yz  work -> work (AXIS 1), work + voxels -> packed field over R (AXIS 2)
  * Distances travel as uchar capped at the world's cap (a value of cap means
  * "at least cap", which keeps min-plus exact for the capped result) and are
- * swept as 32-bit ints.
+ * swept two at a time: two independent lines share a 32-bit word in 16-bit
+ * lanes (pass_x: two lines of x; pass_yz: two adjacent x-columns), so one
+ * 16x2 min and one 32-bit add advance both. Values stay below 0x8000 (BIG plus
+ * a line length), so the add never carries from one lane into the other.
+ * On NVIDIA sm_90 the min is one instruction (PTX min.u16x2, SDF_PTX_16X2=1);
+ * elsewhere it is OpenCL's ushort2 min.
  *
  * Layout: the work box's x-origin and x-extent are multiples of 8 (the host
  * aligns them), so uchar8 accesses along x and VEC-wide accesses across
@@ -26,13 +31,30 @@
  * alignment and compiles to byte loads.
  * One program holds one pass: pass_yz when VEC is defined, else pass_x.
  * Build options: SEG (elements per work-item), AXIS (pass_yz: 1 = y, 2 = z),
- * VEC (pass_yz: x-columns per work-item, 2 or 4), LOCAL_X, LOCAL_Y (the
- * work-group: pass_x (segments, lines); pass_yz (x-lanes, segments)).
+ * VEC (pass_yz: x-columns per work-item, 2, 4 or 8), LOCAL_X, LOCAL_Y (the
+ * work-group: pass_x (segments, line pairs); pass_yz (x-lanes, segments)),
+ * FIRST, LAST, SDF_PTX_16X2.
  */
 #include "sdf_common.h"
 
 /* Larger than any distance plus any line length. */
 #define BIG 0x3fff
+/* One in each 16-bit lane of a word. */
+#define ONES 0x00010001u
+#define BIG2 (BIG * ONES)
+
+#if SDF_PTX_16X2
+inline uint min_u16x2(uint a, uint b)
+{
+    uint r;
+    asm("min.u16x2 %0, %1, %2;" : "=r"(r) : "r"(a), "r"(b));
+    return r;
+}
+#else
+inline uint min_u16x2(uint a, uint b) { return as_uint(min(as_ushort2(a), as_ushort2(b))); }
+#endif
+inline uint2 min_u16x2_v2(uint2 a, uint2 b) { return (uint2)(min_u16x2(a.x, b.x), min_u16x2(a.y, b.y)); }
+inline uint4 min_u16x2_v4(uint4 a, uint4 b) { return (uint4)(min_u16x2_v2(a.lo, b.lo), min_u16x2_v2(a.hi, b.hi)); }
 
 /* The host compiles each pass for its exact work-group shape, which lets the
  * compiler budget registers for full work-groups instead of guessing. */
@@ -41,139 +63,194 @@
 /* Forward and backward sweeps of one segment, with the carries between the
  * segments of a line passed through local memory; NSEG (segments per line) is
  * a compile-time constant so the carry loops unroll and their local reads
- * overlap. T is int or an int vector: native
- * 32-bit min and add (saturating byte arithmetic costs several instructions a
- * step on NVIDIA, and this kernel is bound by instruction issue, not bytes). */
-#define SWEEP_SEGMENT(T, d, seg_end, seg, nseg)                                        \
+ * overlap. T is a word type of 16-bit lane pairs, MIN its lane-wise min. */
+#define SWEEP_SEGMENT(T, MIN, d, seg_end, seg)                                         \
     do {                                                                               \
-        T run_ = (T)(BIG);                                                             \
+        T run_ = (T)(BIG2);                                                            \
         _Pragma("unroll") for (int k = 0; k < SEG; ++k) {                              \
-            run_ = min(d[k], run_ + 1);                                                \
+            run_ = MIN(d[k], run_ + ONES);                                             \
             d[k] = run_;                                                               \
         }                                                                              \
         seg_end[seg] = run_;                                                           \
         barrier(CLK_LOCAL_MEM_FENCE);                                                  \
-        T carry_ = (T)(BIG);                                                           \
+        T carry_ = (T)(BIG2);                                                          \
         _Pragma("unroll") for (int j = 0; j < NSEG - 1; ++j)                           \
             if (j < seg)                                                               \
-                carry_ = min(carry_, seg_end[j] + (seg - 1 - j) * SEG);                \
+                carry_ = MIN(carry_, seg_end[j] + (uint)((seg - 1 - j) * SEG) * ONES); \
         barrier(CLK_LOCAL_MEM_FENCE);                                                  \
-        run_ = (T)(BIG);                                                               \
-        carry_ += 1;                                                                   \
+        run_ = (T)(BIG2);                                                              \
+        carry_ += ONES;                                                                \
         _Pragma("unroll") for (int k = SEG - 1; k >= 0; --k) {                         \
-            run_ = min(min(d[k], carry_ + k), run_ + 1);                               \
+            run_ = MIN(MIN(d[k], carry_ + (uint)k * ONES), run_ + ONES);              \
             d[k] = run_;                                                               \
         }                                                                              \
         seg_end[seg] = run_;                                                           \
         barrier(CLK_LOCAL_MEM_FENCE);                                                  \
-        carry_ = (T)(BIG);                                                             \
+        carry_ = (T)(BIG2);                                                            \
         _Pragma("unroll") for (int j = 1; j < NSEG; ++j)                               \
             if (j > seg)                                                               \
-                carry_ = min(carry_, seg_end[j] + (j - seg - 1) * SEG);                \
-        carry_ += SEG;                                                                 \
+                carry_ = MIN(carry_, seg_end[j] + (uint)((j - seg - 1) * SEG) * ONES); \
+        carry_ += (uint)SEG * ONES;                                                    \
         _Pragma("unroll") for (int k = 0; k < SEG; ++k)                                \
-            d[k] = min(d[k], carry_ - k);                                              \
+            d[k] = MIN(d[k], carry_ - (uint)k * ONES);                                 \
     } while (0)
-
-#define INIT_OF(v) ((v) ? 0 : cap)
-#define UNPACK8(d, c, v)                                                               \
-    do {                                                                               \
-        d[c] = INIT_OF(v.s0); d[c + 1] = INIT_OF(v.s1); d[c + 2] = INIT_OF(v.s2);      \
-        d[c + 3] = INIT_OF(v.s3); d[c + 4] = INIT_OF(v.s4); d[c + 5] = INIT_OF(v.s5);  \
-        d[c + 6] = INIT_OF(v.s6); d[c + 7] = INIT_OF(v.s7);                            \
-    } while (0)
-#define PACK8(d, c) convert_uchar8(min((int8)(d[c], d[c + 1], d[c + 2], d[c + 3],           \
-                                              d[c + 4], d[c + 5], d[c + 6], d[c + 7]), (int8)(cap)))
 
 #ifndef VEC
 #define NSEG LOCAL_X
-/* x: lines are contiguous; each work-item loads SEG bytes as uchar8 vectors. */
+/* One x-line of the pair: where it lies and whether it is a seed-shell line. */
+typedef struct {
+    int valid;
+    size_t world_row, work_row;
+    int in_r;  /* inside R in y and z */
+} XLine;
+
+inline XLine x_line(int line, int4 w_lo, int4 w_n, int4 r_lo, int4 r_hi, int4 dims)
+{
+    XLine l;
+    l.valid = line < w_n.y * w_n.z;
+    const int ly = l.valid ? line % w_n.y : 0, lz = l.valid ? line / w_n.y : 0;
+    const int wy = w_lo.y + ly, wz = w_lo.z + lz;
+    l.world_row = world_index(w_lo.x, wy, wz, dims);
+    l.work_row = box_index(0, ly, lz, w_n);
+    l.in_r = wy >= r_lo.y && wy < r_hi.y && wz >= r_lo.z && wz < r_hi.z;
+    return l;
+}
+
+#if FIRST
+/* Initial distances of 8 voxels of one line: 0 on solids, cap on air, the
+ * field's distance on the seed shell (rare, so plain scalar reads). */
+inline void init8(uint *out, XLine l, int t, int wx, __global const uchar *voxels,
+                  __global const ushort *field, int4 r_lo, int4 r_hi, int seeded, int cap)
+{
+    const uchar8 v = *(__global const uchar8 *)(voxels + l.world_row + t);
+    const uint8 init = select((uint8)(cap), (uint8)(0), convert_uint8(v) != (uint8)(0));
+    out[0] = init.s0; out[1] = init.s1; out[2] = init.s2; out[3] = init.s3;
+    out[4] = init.s4; out[5] = init.s5; out[6] = init.s6; out[7] = init.s7;
+    if (seeded && (!l.in_r || wx < r_lo.x || wx + 8 > r_hi.x)) {
+        _Pragma("unroll") for (int k = 0; k < 8; ++k) {
+            const int x = wx + k;
+            if (!l.in_r || x < r_lo.x || x >= r_hi.x)
+                out[k] = min((uint)(field[l.world_row + t + k] >> 8), (uint)cap);
+        }
+    }
+}
+#endif
+
+/* x: lines are contiguous; each work-item holds SEG elements of two lines (one
+ * per 16-bit lane) and loads them as uchar8 vectors. */
 __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *voxels,
                      __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
                      int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
 {
-    __local int ends[LOCAL_X * LOCAL_Y];
+    __local uint ends[LOCAL_X * LOCAL_Y];
     const int seg = get_local_id(0);
-    __local int *seg_end = ends + get_local_id(1) * nseg;
-    const int line = get_global_id(1);
-    const int valid = line < w_n.y * w_n.z;
-    const int ly = valid ? line % w_n.y : 0, lz = valid ? line / w_n.y : 0;
-    const int wy = w_lo.y + ly, wz = w_lo.z + lz;
-    const size_t world_row = world_index(w_lo.x, wy, wz, dims);
-    const size_t work_row = box_index(0, ly, lz, w_n);
-    /* A seed-shell line (outside R in y or z) takes every distance from the field. */
-    const int line_in_r = wy >= r_lo.y && wy < r_hi.y && wz >= r_lo.z && wz < r_hi.z;
+    __local uint *seg_end = ends + get_local_id(1) * NSEG;
+    const XLine a = x_line(2 * (int)get_global_id(1), w_lo, w_n, r_lo, r_hi, dims);
+    const XLine b = x_line(2 * (int)get_global_id(1) + 1, w_lo, w_n, r_lo, r_hi, dims);
     const int t0 = seg * SEG;
 
-    int d[SEG];
+    uint d[SEG];
     _Pragma("unroll") for (int c = 0; c < SEG; c += 8) {
         const int t = t0 + c;
-        if (valid && t < w_n.x) {
+        uint da[8], db[8];
+        _Pragma("unroll") for (int k = 0; k < 8; ++k)
+            da[k] = db[k] = BIG;
+        if (t < w_n.x) {
 #if FIRST
-            const uchar8 v = *(__global const uchar8 *)(voxels + world_row + t);
-            UNPACK8(d, c, v);
             const int wx = w_lo.x + t;
-            if (seeded && (!line_in_r || wx < r_lo.x || wx + 8 > r_hi.x)) {
-                /* The seed shell: rare, so plain scalar reads. */
-                _Pragma("unroll") for (int k = 0; k < 8; ++k) {
-                    const int x = wx + k;
-                    if (!line_in_r || x < r_lo.x || x >= r_hi.x)
-                        d[c + k] = min((int)(field[world_row + t + k] >> 8), cap);
-                }
-            }
+            if (a.valid)
+                init8(da, a, t, wx, voxels, field, r_lo, r_hi, seeded, cap);
+            if (b.valid)
+                init8(db, b, t, wx, voxels, field, r_lo, r_hi, seeded, cap);
 #else
-            const int8 v = convert_int8(*(__global const uchar8 *)(work + work_row + t));
-            d[c] = v.s0; d[c + 1] = v.s1; d[c + 2] = v.s2; d[c + 3] = v.s3;
-            d[c + 4] = v.s4; d[c + 5] = v.s5; d[c + 6] = v.s6; d[c + 7] = v.s7;
+            if (a.valid) {
+                const uint8 v = convert_uint8(*(__global const uchar8 *)(work + a.work_row + t));
+                da[0] = v.s0; da[1] = v.s1; da[2] = v.s2; da[3] = v.s3;
+                da[4] = v.s4; da[5] = v.s5; da[6] = v.s6; da[7] = v.s7;
+            }
+            if (b.valid) {
+                const uint8 v = convert_uint8(*(__global const uchar8 *)(work + b.work_row + t));
+                db[0] = v.s0; db[1] = v.s1; db[2] = v.s2; db[3] = v.s3;
+                db[4] = v.s4; db[5] = v.s5; db[6] = v.s6; db[7] = v.s7;
+            }
 #endif
-        } else {
-            _Pragma("unroll") for (int k = 0; k < 8; ++k)
-                d[c + k] = BIG;
         }
+        _Pragma("unroll") for (int k = 0; k < 8; ++k)
+            d[c + k] = da[k] | (db[k] << 16);
     }
 
-    SWEEP_SEGMENT(int, d, seg_end, seg, nseg);
+    SWEEP_SEGMENT(uint, min_u16x2, d, seg_end, seg);
 
+    const uint cap2 = (uint)cap * ONES;
     _Pragma("unroll") for (int c = 0; c < SEG; c += 8) {
         const int t = t0 + c;
-        if (!valid || t >= w_n.x)
+        if (t >= w_n.x)
             continue;
+        uint8 out;
+        out.s0 = min_u16x2(d[c], cap2); out.s1 = min_u16x2(d[c + 1], cap2);
+        out.s2 = min_u16x2(d[c + 2], cap2); out.s3 = min_u16x2(d[c + 3], cap2);
+        out.s4 = min_u16x2(d[c + 4], cap2); out.s5 = min_u16x2(d[c + 5], cap2);
+        out.s6 = min_u16x2(d[c + 6], cap2); out.s7 = min_u16x2(d[c + 7], cap2);
+        const ushort8 out_a = convert_ushort8(out & 0xffffu), out_b = convert_ushort8(out >> 16);
 #if LAST
         /* R's x-bounds are multiples of 8, like t: a group of 8 is all in R or all out. */
         const int wx = w_lo.x + t;
-        if (line_in_r && wx >= r_lo.x && wx < r_hi.x) {
-            const uchar8 out = PACK8(d, c);
-            /* Only solids (distance 0) carry a colour: air-only groups skip the voxel read. */
-            const ushort8 colour = any(out == (uchar8)(0))
-                ? convert_ushort8(*(__global const uchar8 *)(voxels + world_row + t)) : (ushort8)(0);
-            *(__global ushort8 *)(field + world_row + t) = (convert_ushort8(out) << (ushort)8) | colour;
+        const int x_in_r = wx >= r_lo.x && wx < r_hi.x;
+        /* Only solids (distance 0) carry a colour: air-only groups skip the voxel read. */
+        if (a.valid && a.in_r && x_in_r) {
+            const ushort8 colour = any(out_a == (ushort8)(0))
+                ? convert_ushort8(*(__global const uchar8 *)(voxels + a.world_row + t)) : (ushort8)(0);
+            *(__global ushort8 *)(field + a.world_row + t) = (out_a << (ushort)8) | colour;
+        }
+        if (b.valid && b.in_r && x_in_r) {
+            const ushort8 colour = any(out_b == (ushort8)(0))
+                ? convert_ushort8(*(__global const uchar8 *)(voxels + b.world_row + t)) : (ushort8)(0);
+            *(__global ushort8 *)(field + b.world_row + t) = (out_b << (ushort)8) | colour;
         }
 #else
-        *(__global uchar8 *)(work + work_row + t) = PACK8(d, c);
+        if (a.valid)
+            *(__global uchar8 *)(work + a.work_row + t) = convert_uchar8(out_a);
+        if (b.valid)
+            *(__global uchar8 *)(work + b.work_row + t) = convert_uchar8(out_b);
 #endif
     }
 }
 
 #else
 #define NSEG LOCAL_Y
-/* y or z: each work-item sweeps VEC adjacent x-columns (VEC = 2 or 4), so a
- * warp touches 32 * VEC contiguous bytes of a row. */
+/* y or z: each work-item sweeps VEC adjacent x-columns, two per 32-bit word,
+ * so a warp touches 32 * VEC contiguous bytes of a row. */
 #define CAT_(a, b) a##b
 #define CAT(a, b) CAT_(a, b)
-#define intV CAT(int, VEC)
 #define ucharV CAT(uchar, VEC)
 #define ushortV CAT(ushort, VEC)
-#define convert_intV CAT(convert_int, VEC)
+#define shortV CAT(short, VEC)
 #define convert_ucharV CAT(convert_uchar, VEC)
 #define convert_ushortV CAT(convert_ushort, VEC)
+#define as_ushortV CAT(as_ushort, VEC)
+#if VEC == 2
+#define wordV uint
+#define as_wordV as_uint
+#define MINV min_u16x2
+#elif VEC == 4
+#define wordV uint2
+#define as_wordV as_uint2
+#define MINV min_u16x2_v2
+#elif VEC == 8
+#define wordV uint4
+#define as_wordV as_uint4
+#define MINV min_u16x2_v4
+#else
+#error VEC must be 2, 4 or 8
+#endif
 
 __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *voxels,
                       __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
                       int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
 {
-    __local intV ends[LOCAL_X * LOCAL_Y];
+    __local wordV ends[LOCAL_X * LOCAL_Y];
     const int seg = get_local_id(1);
-    __local intV *seg_end = ends + get_local_id(0) * nseg;
+    __local wordV *seg_end = ends + get_local_id(0) * NSEG;
     const int lx = get_global_id(0) * VEC;
     const int valid = lx < w_n.x;
 #if AXIS == 1
@@ -200,41 +277,43 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
     /* x-lanes are VEC-aligned and R's x-bounds are multiples of 8: a lane is all in or all out. */
     const int lane_x_in_r = w_lo.x + lx >= r_lo.x && w_lo.x + lx < r_hi.x;
 
-    intV d[SEG];
+    wordV d[SEG];
     _Pragma("unroll") for (int k = 0; k < SEG; ++k) {
         const int t = t0 + k;
         if (valid && t < len) {
 #if FIRST
             const size_t i = WORLD_AT(t);
-            d[k] = select((intV)(cap), (intV)(0), convert_intV(*(__global const ucharV *)(voxels + i)) != (intV)(0));
+            const ushortV v = convert_ushortV(*(__global const ucharV *)(voxels + i));
+            ushortV init = select((ushortV)(cap), (ushortV)(0), v != (ushortV)(0));
             if (seeded && !(lane_x_in_r && IN_R(t)))  /* the seed shell */
-                d[k] = min(convert_intV(*(__global const ushortV *)(field + i) >> (ushort)8), (intV)(cap));
+                init = min(*(__global const ushortV *)(field + i) >> (ushort)8, (ushortV)(cap));
+            d[k] = as_wordV(init);
 #else
-            d[k] = convert_intV(*(__global const ucharV *)(work + base + (size_t)t * stride));
+            d[k] = as_wordV(convert_ushortV(*(__global const ucharV *)(work + base + (size_t)t * stride)));
 #endif
         } else {
-            d[k] = (intV)(BIG);
+            d[k] = (wordV)(BIG2);
         }
     }
 
-    SWEEP_SEGMENT(intV, d, seg_end, seg, nseg);
+    SWEEP_SEGMENT(wordV, MINV, d, seg_end, seg);
 
-    const intV capv = (intV)(cap);
+    const wordV capv = (wordV)((uint)cap * ONES);
     _Pragma("unroll") for (int k = 0; k < SEG; ++k) {
         const int t = t0 + k;
         if (!valid || t >= len)
             continue;
-        const intV out = min(d[k], capv);
+        const wordV out = MINV(d[k], capv);
 #if LAST
         if (lane_x_in_r && IN_R(t)) {
             const size_t i = WORLD_AT(t);
             /* Only solids (distance 0) carry a colour: air-only lanes skip the voxel read. */
-            const ushortV colour = any(out == (intV)(0))
-                ? convert_ushortV(*(__global const ucharV *)(voxels + i)) : (ushortV)(0);
-            *(__global ushortV *)(field + i) = (convert_ushortV(out) << (ushort)8) | colour;
+            const wordV colour = any(as_ushortV(out) == (ushortV)(0))
+                ? as_wordV(convert_ushortV(*(__global const ucharV *)(voxels + i))) : (wordV)(0);
+            *(__global wordV *)(field + i) = (out << 8) | colour;
         }
 #else
-        *(__global ucharV *)(work + base + (size_t)t * stride) = convert_ucharV(out);
+        *(__global ucharV *)(work + base + (size_t)t * stride) = convert_ucharV(as_ushortV(out));
 #endif
     }
 }

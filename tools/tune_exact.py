@@ -28,13 +28,17 @@ def main() -> None:
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--segs", default="0", help="SEG of every pass, or XSEG:YZSEG[:VEC], comma list (0: tuned)")
     p.add_argument("--order", default="012", help="pass order, axes as digits (x=0): e.g. 012 or 120")
-    p.add_argument("--x-threads", type=int, default=64, help="work-items per x-pass work-group")
+    p.add_argument("--x-threads", default="64", help="work-items per x-pass work-group, comma list")
+    p.add_argument("--ptx16", type=int, choices=(0, 1), default=None,
+                   help="force SDF_PTX_16X2 off (0) or on (1); default: what the device supports")
     p.add_argument("--lanes", default="0", help="x-lanes of the y/z passes, comma list (0: tuned)")
     p.add_argument("--reps", type=int, default=20)
     p.add_argument("--device", default=None)
     p.add_argument("--ptx", default=None, help="write each program's binary (PTX on NVIDIA) under this prefix")
     args = p.parse_args()
     gpu = GpuContext.create(args.device)
+    if args.ptx16 is not None:
+        gpu.programs.device_defines["SDF_PTX_16X2"] = args.ptx16
     n = args.size
     world = World(gpu, WorldConfig((n, n, n), 32, 255), EditLimits(max_ops_per_batch=4096))
     populate(world, np.random.default_rng(1))
@@ -42,8 +46,10 @@ def main() -> None:
     reference = world.read_field()
     job = RegionJob.seeded_region(world.buffers, world.world_box, 255)
     exact = Exact()
-    print(f"{gpu.device_name}, {n}^3")
-    for spec, lanes in [(s, int(l)) for s in args.segs.split(",") for l in args.lanes.split(",")]:
+    print(f"{gpu.device_name}, {n}^3, defines {gpu.programs.device_defines}")
+    combos = [(s, int(l), int(t)) for s in args.segs.split(",") for l in args.lanes.split(",")
+              for t in args.x_threads.split(",")]
+    for spec, lanes, x_threads in combos:
         parts = [int(v) for v in spec.split(":")]
         xseg, yzseg, vec = (parts + [parts[-1], 0][len(parts) - 1:])[:3]
         seg = xseg
@@ -58,7 +64,7 @@ def main() -> None:
         for position, axis in enumerate(order):
             kernel, nseg, global_, local = exact.launch_shape(gpu, axis, n, n, n, n, seg=(yzseg if axis else xseg) or None,
                                                                 lanes=lanes or None, vec=vec or None,
-                                                                x_threads=args.x_threads,
+                                                                x_threads=x_threads,
                                                                 first=position == 0, last=position == 2)
             info = {k: kernel.get_work_group_info(getattr(cl.kernel_work_group_info, k), gpu.device)
                     for k in ("WORK_GROUP_SIZE", "PRIVATE_MEM_SIZE", "LOCAL_MEM_SIZE")}
@@ -85,7 +91,7 @@ def main() -> None:
             times[axis].append((e.profile.end - e.profile.start) * 1e-6)
         ok = np.array_equal(world.read_field(), reference)
         total = sum(np.median(times[a]) for a in range(3))
-        print(f"SEG={xseg}:{yzseg} vec={vec} lanes={lanes} total {total:.4f} ms  correct={ok}")
+        print(f"SEG={xseg}:{yzseg} vec={vec} lanes={lanes} x_threads={x_threads} total {total:.4f} ms  correct={ok}")
         for axis, kernel, nseg, g, l, info in launches:
             t = np.median(times[axis])
             print(f"   pass {'xyz'[axis]}: {t:.4f} ms {bytes_moved[axis] / t / 1e9:.2f} TB/s  "

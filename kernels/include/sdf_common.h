@@ -11,6 +11,10 @@
  * written back to the field; W \ R is either a one-voxel seed shell whose
  * distances come from the current field (seeded = 1) or a halo of voxels
  * (seeded = 0).
+ *
+ * Device defines, set by the loader for every build (sdfserver/gpu/programs.py):
+ *   SDF_PTX_16X2  1 on NVIDIA sm_90 and later, where inline PTX min.u16x2 is one
+ *                 instruction; 0 elsewhere.
  */
 #ifndef SDF_COMMON_H
 #define SDF_COMMON_H

@@ -88,9 +88,10 @@ class Exact:
         seg = seg or segment_length(line_len, shape)
         nseg = segment_count(line_len, seg, shape)
         if axis == 0:
-            per_group = max(1, x_threads // nseg)
+            per_group = max(1, x_threads // nseg)  # line pairs: two lines share each word
             local = (nseg, per_group)
-            global_ = (nseg, -(-(ny * nz) // per_group) * per_group)
+            pairs = -(-(ny * nz) // 2)
+            global_ = (nseg, -(-pairs // per_group) * per_group)
             kernel = gpu.programs.kernel("exact.cl", "pass_x", SEG=seg, LOCAL_X=local[0], LOCAL_Y=local[1],
                                          FIRST=int(first), LAST=int(last))
         else:

@@ -15,7 +15,7 @@ import pyopencl as cl
 
 from sdfserver.errors import DeviceMemoryExceeded
 from sdfserver.gpu.device import choose_device
-from sdfserver.gpu.programs import ProgramCache
+from sdfserver.gpu.programs import ProgramCache, device_defines
 
 # Leave room for the driver, programs and transient transfers.
 DEFAULT_BUDGET_FRACTION = 0.85
@@ -28,7 +28,7 @@ class GpuContext:
         self.queue = cl.CommandQueue(
             self.context, properties=cl.command_queue_properties.PROFILING_ENABLE
         )
-        self.programs = ProgramCache(self.context)
+        self.programs = ProgramCache(self.context, device_defines(device))
         device_bytes = int(device.global_mem_size)
         if memory_budget_bytes is None:
             memory_budget_bytes = int(device_bytes * DEFAULT_BUDGET_FRACTION)

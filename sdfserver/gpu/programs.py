@@ -5,6 +5,9 @@ Every kernel lives in ``kernels/*.cl`` with shared definitions in
 ``-D NAME=value`` options, memoized per (context, file, options), and left to
 pyopencl's disk cache, which follows ``#include``. A failed build raises
 KernelBuildError with the file, the options and the build log.
+
+Every build also gets the device's own defines (``device_defines``): what the
+device can do beyond OpenCL C, e.g. NVIDIA sm_90's packed 16-bit min.
 """
 
 from __future__ import annotations
@@ -32,17 +35,35 @@ def _define(name: str, value: int | str) -> str:
     return f"-D{name}={value}"
 
 
+def device_defines(device: cl.Device) -> dict[str, int]:
+    """Defines that describe the device to kernels (kernels/include/sdf_common.h lists them)."""
+    defines = {"SDF_PTX_16X2": 0}
+    if "NVIDIA" in device.platform.name.upper():
+        try:
+            major = int(device.compute_capability_major_nv)
+        except (cl.Error, AttributeError):  # no cl_nv_device_attribute_query
+            major = 0
+        # PTX min.u16x2 is one instruction from sm_90 on.
+        defines["SDF_PTX_16X2"] = int(major >= 9)
+    return defines
+
+
 class ProgramCache:
     """Builds and memoizes programs for one OpenCL context."""
 
-    def __init__(self, context: cl.Context):
+    def __init__(self, context: cl.Context, defines: dict[str, int] | None = None):
         self._context = context
+        self.device_defines = dict(defines or {})
         self._programs: dict[tuple[str, tuple[str, ...]], cl.Program] = {}
         self._kernels: dict[tuple[str, tuple[str, ...], str], cl.Kernel] = {}
         self._lock = threading.Lock()
 
+    def _options(self, defines: dict[str, int | str]) -> tuple[str, ...]:
+        merged = {**self.device_defines, **defines}
+        return tuple(sorted(_define(k, v) for k, v in merged.items()))
+
     def get(self, filename: str, **defines: int | str) -> cl.Program:
-        options = tuple(sorted(_define(k, v) for k, v in defines.items()))
+        options = self._options(defines)
         key = (filename, options)
         with self._lock:
             program = self._programs.get(key)
@@ -53,7 +74,7 @@ class ProgramCache:
 
     def kernel(self, filename: str, name: str, **defines: int | str) -> cl.Kernel:
         """A memoized kernel object; only the thread that owns the device may call it."""
-        options = tuple(sorted(_define(k, v) for k, v in defines.items()))
+        options = self._options(defines)
         key = (filename, options, name)
         kernel = self._kernels.get(key)
         if kernel is None:

@@ -9,9 +9,8 @@
  *
  * One work-item holds SEG consecutive elements of a line in registers. The
  * sweeps run locally, then carries between the segments of a line are combined
- * through local memory: a segment's incoming forward value is
- *   min_j<s (end_j + (s-1-j) * SEG)
- * and likewise from the right. Each pass reads its input once and writes its
+ * through local memory (prefix and suffix minimums, SWEEP_SEGMENT below).
+ * Each pass reads its input once and writes its
  * output once:
  *   pass_x   voxels (+ the seed shell from the field) -> work
  *   pass_yz  work -> work (AXIS 1), work + voxels -> packed field over R (AXIS 2)
@@ -60,39 +59,55 @@ inline uint4 min_u16x2_v4(uint4 a, uint4 b) { return (uint4)(min_u16x2_v2(a.lo, 
  * compiler budget registers for full work-groups instead of guessing. */
 #define GROUP_SHAPE __attribute__((reqd_work_group_size(LOCAL_X, LOCAL_Y, 1)))
 
-/* Forward and backward sweeps of one segment, with the carries between the
- * segments of a line passed through local memory; NSEG (segments per line) is
- * a compile-time constant so the carry loops unroll and their local reads
- * overlap. T is a word type of 16-bit lane pairs, MIN its lane-wise min. */
-#define SWEEP_SEGMENT(T, MIN, d, seg_end, seg)                                         \
+/* The 1-D transform of one line cut into NSEG segments of SEG elements, one
+ * segment per work-item. Each segment first sweeps forward and backward on its
+ * own; then its last element holds its best offer to the segments on its right
+ * (min over its elements of value + distance to its end) and its first element
+ * its offer to the left. A segment's carry from the left is the minimum over the
+ * segments before it of their offer plus the distance between them; shifting
+ * each offer by its distance to the line's end turns that into a plain prefix
+ * minimum, scanned in log2(NSEG) steps through local memory (ping-pong buffers,
+ * one barrier a step), and likewise a suffix minimum from the right. NSEG is a
+ * compile-time constant so the steps unroll. T is a word type of 16-bit lane
+ * pairs, MIN its lane-wise min; scan points at 4 * NSEG words of this line's
+ * local memory (two buffers per direction). */
+#define SWEEP_SEGMENT(T, MIN, d, scan, seg)                                            \
     do {                                                                               \
         T run_ = (T)(BIG2);                                                            \
         _Pragma("unroll") for (int k = 0; k < SEG; ++k) {                              \
             run_ = MIN(d[k], run_ + ONES);                                             \
             d[k] = run_;                                                               \
         }                                                                              \
-        seg_end[seg] = run_;                                                           \
-        barrier(CLK_LOCAL_MEM_FENCE);                                                  \
-        T carry_ = (T)(BIG2);                                                          \
-        _Pragma("unroll") for (int j = 0; j < NSEG - 1; ++j)                           \
-            if (j < seg)                                                               \
-                carry_ = MIN(carry_, seg_end[j] + (uint)((seg - 1 - j) * SEG) * ONES); \
-        barrier(CLK_LOCAL_MEM_FENCE);                                                  \
         run_ = (T)(BIG2);                                                              \
-        carry_ += ONES;                                                                \
         _Pragma("unroll") for (int k = SEG - 1; k >= 0; --k) {                         \
-            run_ = MIN(MIN(d[k], carry_ + (uint)k * ONES), run_ + ONES);              \
+            run_ = MIN(d[k], run_ + ONES);                                             \
             d[k] = run_;                                                               \
         }                                                                              \
-        seg_end[seg] = run_;                                                           \
+        T right_offer_ = d[SEG - 1] + (uint)((NSEG - 1 - (seg)) * SEG) * ONES;         \
+        T left_offer_ = d[0] + (uint)((seg) * SEG) * ONES;                             \
+        __local T *fr_ = (scan), *fw_ = (scan) + NSEG;                                 \
+        __local T *br_ = (scan) + 2 * NSEG, *bw_ = (scan) + 3 * NSEG;                  \
+        fr_[seg] = right_offer_;                                                       \
+        br_[seg] = left_offer_;                                                        \
         barrier(CLK_LOCAL_MEM_FENCE);                                                  \
-        carry_ = (T)(BIG2);                                                            \
-        _Pragma("unroll") for (int j = 1; j < NSEG; ++j)                               \
-            if (j > seg)                                                               \
-                carry_ = MIN(carry_, seg_end[j] + (uint)((j - seg - 1) * SEG) * ONES); \
-        carry_ += (uint)SEG * ONES;                                                    \
+        _Pragma("unroll") for (int step = 1; step < NSEG; step <<= 1) {                \
+            if ((seg) >= step)                                                         \
+                right_offer_ = MIN(right_offer_, fr_[(seg) - step]);                   \
+            if ((seg) + step < NSEG)                                                   \
+                left_offer_ = MIN(left_offer_, br_[(seg) + step]);                     \
+            fw_[seg] = right_offer_;                                                   \
+            bw_[seg] = left_offer_;                                                    \
+            barrier(CLK_LOCAL_MEM_FENCE);                                              \
+            __local T *t_ = fr_; fr_ = fw_; fw_ = t_;                                  \
+            t_ = br_; br_ = bw_; bw_ = t_;                                             \
+        }                                                                              \
+        /* element k gets from_left + k and from_right - k (never below 1) */          \
+        const T from_left_ = (seg) > 0                                                 \
+            ? fr_[(seg) - 1] - (uint)((NSEG - (seg)) * SEG - 1) * ONES : (T)(BIG2);    \
+        const T from_right_ = (seg) < NSEG - 1                                         \
+            ? br_[(seg) + 1] - (uint)((seg) * SEG) * ONES : (T)(BIG2 + SEG * ONES);    \
         _Pragma("unroll") for (int k = 0; k < SEG; ++k)                                \
-            d[k] = MIN(d[k], carry_ - (uint)k * ONES);                                 \
+            d[k] = MIN(d[k], MIN(from_left_ + (uint)k * ONES, from_right_ - (uint)k * ONES)); \
     } while (0)
 
 #ifndef VEC
@@ -142,9 +157,9 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
                      __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
                      int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
 {
-    __local uint ends[LOCAL_X * LOCAL_Y];
+    __local uint scan[4 * LOCAL_X * LOCAL_Y];
     const int seg = get_local_id(0);
-    __local uint *seg_end = ends + get_local_id(1) * NSEG;
+    __local uint *line_scan = scan + 4 * NSEG * get_local_id(1);
     const XLine a = x_line(2 * (int)get_global_id(1), w_lo, w_n, r_lo, r_hi, dims);
     const XLine b = x_line(2 * (int)get_global_id(1) + 1, w_lo, w_n, r_lo, r_hi, dims);
     const int t0 = seg * SEG;
@@ -179,7 +194,7 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
             d[c + k] = da[k] | (db[k] << 16);
     }
 
-    SWEEP_SEGMENT(uint, min_u16x2, d, seg_end, seg);
+    SWEEP_SEGMENT(uint, min_u16x2, d, line_scan, seg);
 
     const uint cap2 = (uint)cap * ONES;
     _Pragma("unroll") for (int c = 0; c < SEG; c += 8) {
@@ -248,9 +263,9 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
                       __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
                       int4 r_lo, int4 r_hi, int seeded, int cap, int nseg)
 {
-    __local wordV ends[LOCAL_X * LOCAL_Y];
+    __local wordV scan[4 * LOCAL_X * LOCAL_Y];
     const int seg = get_local_id(1);
-    __local wordV *seg_end = ends + get_local_id(0) * NSEG;
+    __local wordV *line_scan = scan + 4 * NSEG * get_local_id(0);
     const int lx = get_global_id(0) * VEC;
     const int valid = lx < w_n.x;
 #if AXIS == 1
@@ -296,7 +311,7 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
         }
     }
 
-    SWEEP_SEGMENT(wordV, MINV, d, seg_end, seg);
+    SWEEP_SEGMENT(wordV, MINV, d, line_scan, seg);
 
     const wordV capv = (wordV)((uint)cap * ONES);
     _Pragma("unroll") for (int k = 0; k < SEG; ++k) {

@@ -29,7 +29,7 @@ from sdfserver.geometry import Box, Vec3, merge_regions
 from sdfserver.gpu import GpuContext
 
 CHUNK_SIZES = (8, 16, 32, 64, 128)
-MAX_SIDE_VOX = 2048  # exact.cl: 32 work-items x 64 elements per line
+MAX_SIDE_VOX = 2048  # exact.cl: at most 128 segments of 16 elements per line
 BYTES_PER_VOXEL = 1 + 2 + 1 + 1  # voxels, field, work, work2
 
 

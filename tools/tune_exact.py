@@ -16,7 +16,7 @@ import numpy as np
 import pyopencl as cl
 
 from sdfserver.algorithms import RegionJob
-from sdfserver.algorithms.exact import Exact
+from sdfserver.algorithms.exact import X_PASS_THREADS, Exact
 from sdfserver.bench import populate
 from sdfserver.edits import EditLimits
 from sdfserver.gpu import GpuContext
@@ -28,17 +28,22 @@ def main() -> None:
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--segs", default="0", help="SEG of every pass, or XSEG:YZSEG[:VEC], comma list (0: tuned)")
     p.add_argument("--order", default="012", help="pass order, axes as digits (x=0): e.g. 012 or 120")
-    p.add_argument("--x-threads", default="64", help="work-items per x-pass work-group, comma list")
+    p.add_argument("--x-threads", default=str(X_PASS_THREADS), help="work-items per x-pass work-group, comma list")
     p.add_argument("--ptx16", type=int, choices=(0, 1), default=None,
                    help="force SDF_PTX_16X2 off (0) or on (1); default: what the device supports")
     p.add_argument("--lanes", default="0", help="x-lanes of the y/z passes, comma list (0: tuned)")
     p.add_argument("--reps", type=int, default=20)
     p.add_argument("--device", default=None)
+    p.add_argument("--define", action="append", default=[], metavar="NAME=VALUE",
+                   help="extra -D for every build (experiments), repeatable")
     p.add_argument("--ptx", default=None, help="write each program's binary (PTX on NVIDIA) under this prefix")
     args = p.parse_args()
     gpu = GpuContext.create(args.device)
     if args.ptx16 is not None:
         gpu.programs.device_defines["SDF_PTX_16X2"] = args.ptx16
+    for define in args.define:
+        name, value = define.split("=", 1)
+        gpu.programs.device_defines[name] = int(value)
     n = args.size
     world = World(gpu, WorldConfig((n, n, n), 32, 255), EditLimits(max_ops_per_batch=4096))
     populate(world, np.random.default_rng(1))

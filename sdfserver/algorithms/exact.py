@@ -27,8 +27,9 @@ MAX_GROUP = 1024  # work-items per work-group
 @dataclass(frozen=True)
 class PassShape:
     """How one pass cuts its lines: measured on an H200 at 512^3 with tools/tune_exact.py
-    (docs/benchmarks.md). Fewer, longer segments and small work-groups won; wider x-vectors
-    help the z pass, whose rows are a whole slice apart."""
+    (docs/benchmarks.md). With the carries scanned in log2(segments) steps, 32 segments of
+    16 won in every pass; the y pass sweeps 8 x-columns per work-item, the z pass (rows a
+    whole slice apart) 4."""
 
     segments: int  # target work-items per line
     min_seg: int
@@ -38,14 +39,14 @@ class PassShape:
 
 
 PASS_SHAPES = {
-    0: PassShape(segments=16, min_seg=8, max_seg=32),
-    1: PassShape(segments=16, min_seg=4, max_seg=32, vec=2, lanes=8),
+    0: PassShape(segments=32, min_seg=8, max_seg=16),
+    1: PassShape(segments=32, min_seg=4, max_seg=16, vec=8, lanes=4),
     2: PassShape(segments=32, min_seg=4, max_seg=16, vec=4, lanes=4),
 }
 # The first pass derives initial distances from voxels and the seed shell, the last packs the
 # field; the order is free (the transform is separable). Measured on the H200 at 512^3.
 PASS_ORDER = (0, 1, 2)
-X_PASS_THREADS = 64  # work-items per work-group for the x pass (tuned: 64 < 128 < 256 < 512 in time)
+X_PASS_THREADS = 128  # work-items per work-group for the x pass (tuned on the H200)
 
 
 def segment_length(line_len: int, shape: PassShape) -> int:

@@ -116,6 +116,22 @@ class Exact:
             np.int32(job.seeded), np.int32(job.cap), np.int32(nseg),
         )
 
+    def prebuild(self, gpu: GpuContext, max_line: int = 2048) -> int:
+        """Build every pass variant a line of up to max_line voxels can need; returns how many.
+
+        Segment length and count change only at powers of two, so lines of 8, 16, ...
+        max_line cover every region shape an incremental update can bring.
+        """
+        programs = set()
+        line = 8
+        while line <= max_line:
+            for position, axis in enumerate(PASS_ORDER):
+                kernel, *_ = self.launch_shape(gpu, axis, line, line, line, line,
+                                               first=position == 0, last=position == 2)
+                programs.add(kernel.program.int_ptr)
+            line *= 2
+        return len(programs)
+
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         n = job.work_box.shape_xyz
         run = AlgorithmRun()

@@ -34,6 +34,7 @@ from typing import Any, Callable, TypeVar
 import numpy as np
 import pyopencl as cl
 
+from sdfserver.algorithms.exact import Exact
 from sdfserver.edits import Edit, parse_edits
 from sdfserver.engine.commands import (
     APPLY, ApplyEdits, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Query, Read,
@@ -49,7 +50,7 @@ from sdfserver.errors import (
 )
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
-from sdfserver.world import EditPlan, RecomputeResult, World, WorldConfig
+from sdfserver.world import MAX_SIDE_VOX, EditPlan, RecomputeResult, World, WorldConfig
 
 log = logging.getLogger("sdfserver.engine")
 T = TypeVar("T")
@@ -144,7 +145,12 @@ class Engine:
         return max(0.0, min(c.deadline for c, _ in self._waiting) - time.monotonic()) + 1e-3
 
     def _warm_up(self) -> None:
-        """Build the common kernels on a tiny world so the first request does not pay for it."""
+        """Build the common kernels on a tiny world so the first request does not pay for it,
+        and every variant of the exact transform's passes (the default algorithm), whatever
+        region shapes edits bring."""
+        started = time.perf_counter()
+        variants = Exact().prebuild(self.gpu, MAX_SIDE_VOX)
+        log.info("built %d exact kernel variants in %.1f s", variants, time.perf_counter() - started)
         world = World(self.gpu, WorldConfig(size=(16, 16, 16), chunk_size=8, max_distance=8))
         try:
             world.apply_edits(parse_edits([

@@ -58,6 +58,10 @@ class ProgramCache:
         self._kernels: dict[tuple[str, tuple[str, ...], str], cl.Kernel] = {}
         self._lock = threading.Lock()
 
+    def __len__(self) -> int:
+        """Programs built so far."""
+        return len(self._programs)
+
     def _options(self, defines: dict[str, int | str]) -> tuple[str, ...]:
         merged = {**self.device_defines, **defines}
         return tuple(sorted(_define(k, v) for k, v in merged.items()))

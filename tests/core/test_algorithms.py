@@ -194,3 +194,17 @@ def test_focus_is_exact_inside_and_upper_bound_outside(gpu, rng):
         assert (got >= truth).all()
     finally:
         world.release()
+
+
+def test_exact_prebuild_covers_every_region_shape(gpu):
+    """After prebuild, recomputing regions of any line length builds no new program."""
+    from sdfserver.algorithms.exact import Exact
+
+    exact = Exact()
+    built = exact.prebuild(gpu, max_line=256)
+    assert built >= 3
+    before = len(gpu.programs)
+    for n in (8, 24, 40, 72, 136, 200, 256):
+        for position, axis in enumerate((0, 1, 2)):
+            exact.launch_shape(gpu, axis, n, n, n, n, first=position == 0, last=position == 2)
+    assert len(gpu.programs) == before

@@ -22,7 +22,7 @@ import numpy as np
 import pyopencl as cl
 
 from sdfserver.algorithms import ALGORITHMS, RegionJob, WorldBuffers, get_algorithm
-from sdfserver.algorithms.base import grid, int4
+from sdfserver.algorithms.base import WORK_PLANE_PAD, grid, int4
 from sdfserver.edits import BoxEdit, Edit, EditLimits, SphereEdit, VoxelsEdit, edit_bounds, validate_batch
 from sdfserver.errors import InvalidInput
 from sdfserver.geometry import Box, Vec3, merge_regions
@@ -30,7 +30,7 @@ from sdfserver.gpu import GpuContext
 
 CHUNK_SIZES = (8, 16, 32, 64, 128)
 MAX_SIDE_VOX = 2048  # exact.cl: at most 128 segments of 16 elements per line
-BYTES_PER_VOXEL = 1 + 2 + 1 + 1  # voxels, field, work, work2
+BYTES_PER_VOXEL = 1 + 2 + 1 + 1  # voxels, field, work, work2 (work also has WORK_PLANE_PAD per z-plane)
 
 
 @dataclass(frozen=True)
@@ -115,7 +115,7 @@ class World:
         self.limits = limits
         sx, sy, sz = config.size
         self.voxel_count = sx * sy * sz
-        sizes = [self.voxel_count, 2 * self.voxel_count, self.voxel_count, self.voxel_count]
+        sizes = [self.voxel_count, 2 * self.voxel_count, self.voxel_count + sz * WORK_PLANE_PAD, self.voxel_count]
         gpu.check_fits(sizes, f"a {sx}x{sy}x{sz} world")
         self._sizes = sizes
         allocated = []

@@ -81,7 +81,7 @@ def main() -> None:
                 text = binary.decode(errors="replace")
                 info["ptx_local_decls"] = len(re.findall(r"\.local\s", text))
         def enqueue(axis, kernel, nseg, global_, local):
-            return exact.enqueue(gpu, job, kernel, nseg, global_, local)
+            return exact.enqueue(gpu, job, kernel, global_, local)
         times = {0: [], 1: [], 2: []}
         for _ in range(2):  # warm-up
             for axis, kernel, nseg, g, l, _info in launches:

@@ -39,11 +39,14 @@ class WorldBuffers:
     dims: tuple[int, int, int]  # (sx, sy, sz)
     voxels: cl.Buffer  # uchar, world-sized
     field: cl.Buffer  # ushort, world-sized
-    work: cl.Buffer  # uchar, world-sized scratch
+    work: cl.Buffer  # uchar, world-sized scratch plus WORK_PLANE_PAD bytes per z-plane
     work2: cl.Buffer  # uchar, world-sized scratch (ping-pong, brute output)
 
 
 X_ALIGN_VOX = 8
+# exact lays its work box out with z-planes this many bytes further apart than a plane, so
+# z rows are not a power of two apart (kernels/exact.cl); World allocates `work` with room.
+WORK_PLANE_PAD = 32
 
 
 def _work_box(buffers: WorldBuffers, wanted: Box) -> Box:

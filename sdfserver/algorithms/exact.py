@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sdfserver.algorithms.base import AlgorithmRun, RegionJob, int4
+from sdfserver.algorithms.base import WORK_PLANE_PAD, AlgorithmRun, RegionJob, int4
 from sdfserver.gpu import GpuContext
 
 MAX_GROUP = 1024  # work-items per work-group
@@ -72,6 +72,12 @@ def segment_count(line_len: int, seg: int, shape: PassShape) -> int:
     return count
 
 
+def work_plane(job: RegionJob) -> int:
+    """Bytes between z-planes of the work box: a plane and WORK_PLANE_PAD (World allocates it)."""
+    nx, ny, _ = job.work_box.shape_xyz
+    return nx * ny + WORK_PLANE_PAD
+
+
 class Exact:
     name = "exact"
     exact = True
@@ -106,14 +112,14 @@ class Exact:
         return kernel, nseg, global_, local
 
     @staticmethod
-    def enqueue(gpu: GpuContext, job: RegionJob, kernel, nseg: int, global_, local):
+    def enqueue(gpu: GpuContext, job: RegionJob, kernel, global_, local):
         """Launch one pass over the job's work box; returns its event."""
         b = job.buffers
         return kernel(
             gpu.queue, global_, local, b.work, b.voxels, b.field,
             int4(b.dims), int4(job.work_box.lo), int4(job.work_box.shape_xyz),
             int4(job.region.lo), int4(job.region.hi),
-            np.int32(job.seeded), np.int32(job.cap), np.int32(nseg),
+            np.int32(job.seeded), np.int32(job.cap), np.int32(work_plane(job)),
         )
 
     def prebuild(self, gpu: GpuContext, max_line: int = 2048) -> int:
@@ -136,7 +142,7 @@ class Exact:
         n = job.work_box.shape_xyz
         run = AlgorithmRun()
         for position, axis in enumerate(PASS_ORDER):
-            kernel, nseg, global_, local = self.launch_shape(
+            kernel, _, global_, local = self.launch_shape(
                 gpu, axis, n[axis], *n, first=position == 0, last=position == 2)
-            run.events.append(self.enqueue(gpu, job, kernel, nseg, global_, local))
+            run.events.append(self.enqueue(gpu, job, kernel, global_, local))
         return run

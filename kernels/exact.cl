@@ -10,8 +10,7 @@
  * One work-item holds SEG consecutive elements of a line in registers. The
  * sweeps run locally, then carries between the segments of a line are combined
  * through local memory (prefix and suffix minimums, SWEEP_SEGMENT below).
- * Each pass reads its input once and writes its
- * output once:
+ * Each pass reads its input once and writes its output once:
  *   pass_x   voxels (+ the seed shell from the field) -> work
  *   pass_yz  work -> work (AXIS 1), work + voxels -> packed field over R (AXIS 2)
  * Distances travel as uchar capped at the world's cap (a value of cap means
@@ -24,12 +23,13 @@
  * elsewhere it is OpenCL's ushort2 min.
  *
  * Layout: the work box's x-origin and x-extent are multiples of 8 (the host
- * aligns them); its z-planes lie `plane` bytes apart, a little more than a
- * plane, because z rows exactly a power of two apart (a 512^2 plane is 2^18
- * bytes) read about 10% slower in the z pass; so uchar8 accesses along x and VEC-wide accesses across
+ * aligns them), so uchar8 accesses along x and VEC-wide accesses across
  * x-lanes are aligned in both the work box and the world arrays; they are
  * written as vector pointer accesses because vloadn promises only byte
- * alignment and compiles to byte loads.
+ * alignment and compiles to byte loads. The work box's z-planes lie `plane`
+ * bytes apart, 32 more than a plane (a multiple of 8, so alignment holds):
+ * z rows exactly a power of two apart (a 512^2 plane is 2^18 bytes) read
+ * about 10% slower in the z pass.
  * One program holds one pass: pass_yz when VEC is defined, else pass_x.
  * Build options: SEG (elements per work-item), AXIS (pass_yz: 1 = y, 2 = z),
  * VEC (pass_yz: x-columns per work-item, 2, 4 or 8), LOCAL_X, LOCAL_Y (the

@@ -71,7 +71,7 @@ def format_report(result: dict) -> str:
         if s and s["count"]:
             lat = s["latency_ms"]
             name = "edit+read" if kind == "round_trips" else kind
-            lines.append(f"  {name:5s} {s['count']:8d}  {s['throughput_per_s']:9.1f}/s  "
+            lines.append(f"  {name:9s} {s['count']:8d}  {s['throughput_per_s']:9.1f}/s  "
                          f"p50 {lat['p50']:.2f} ms  p95 {lat['p95']:.2f} ms  p99 {lat['p99']:.2f} ms  "
                          f"max {lat['max']:.2f} ms")
     for code, n in result["errors"]["by_code"].items():

@@ -13,7 +13,9 @@ total ``--rate``; the run stops at ``--duration`` seconds or after
 Against a server with API keys, set ``SDFSERVER_API_KEY`` (or ``--api-key``); a
 ``429`` counts as a ``rate_limited`` error and the client waits its Retry-After.
 
-Reports throughput, p50/p95/p99 latency and errors per request kind; prints a
+Reports throughput, p50/p95/p99 latency and errors per request kind, and for
+``--read-every`` runs the round trip (an edit's latency plus its read's: brush
+edit to field ready, read-your-writes); prints a
 progress line once a second (to stderr); ``--json`` writes everything. Exits 1
 when any request failed. Latency is measured from the moment a request is
 sent to its answer; with ``--rate`` a client that falls behind sends at once.
@@ -114,6 +116,7 @@ class Brushes:
 class Tally:
     edit_ms: array.array = field(default_factory=lambda: array.array("d"))
     read_ms: array.array = field(default_factory=lambda: array.array("d"))
+    round_trip_ms: array.array = field(default_factory=lambda: array.array("d"))  # edit + its read
     errors: dict[str, int] = field(default_factory=dict)
 
     @property
@@ -169,21 +172,24 @@ async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget,
             t0 = time.perf_counter()
             try:
                 if pending_read is not None:
-                    box, version = pending_read
+                    box, version, edit_ms = pending_read
                     pending_read = None
                     block = await client.read_field(cfg.world_id, box, format=cfg.read_format,
                                                     min_version=version)
                     if block.version < version:
                         tally.errors["stale_read"] = tally.errors.get("stale_read", 0) + 1
                         continue
-                    tally.read_ms.append((time.perf_counter() - t0) * 1e3)
+                    read_ms = (time.perf_counter() - t0) * 1e3
+                    tally.read_ms.append(read_ms)
+                    tally.round_trip_ms.append(edit_ms + read_ms)
                     continue
                 batch, center = brushes.batch()
                 version = await asyncio.wait_for(send_edit(batch), cfg.timeout_s)
-                tally.edit_ms.append((time.perf_counter() - t0) * 1e3)
+                edit_ms = (time.perf_counter() - t0) * 1e3
+                tally.edit_ms.append(edit_ms)
                 edits_sent += 1
                 if cfg.read_every and edits_sent % cfg.read_every == 0:
-                    pending_read = (brushes.read_box(center), version)
+                    pending_read = (brushes.read_box(center), version, edit_ms)
             except (SdfClientError, TimeoutError) as exc:
                 tally.error(exc)
                 if isinstance(exc, RateLimited):  # a well-behaved game client waits as told
@@ -219,7 +225,8 @@ def _worker(cfg: LoadConfig, indices: list[int], requests: int, out: "multiproce
     out.put(("ready", os.getpid()))
     go.wait()  # every worker has imported everything: start together
     elapsed = asyncio.run(run_clients(cfg, indices, requests, tally, progress))
-    out.put(("done", os.getpid(), tally.edit_ms.tobytes(), tally.read_ms.tobytes(), tally.errors, elapsed))
+    out.put(("done", os.getpid(), tally.edit_ms.tobytes(), tally.read_ms.tobytes(), tally.errors, elapsed,
+             tally.round_trip_ms.tobytes()))
 
 
 # -- driving and reporting --------------------------------------------------------------------------
@@ -275,6 +282,7 @@ def drive(cfg: LoadConfig, processes: int = 1, show_progress: bool = True) -> tu
             done += 1
             tally.edit_ms.frombytes(message[2])
             tally.read_ms.frombytes(message[3])
+            tally.round_trip_ms.frombytes(message[6])
             for k, v in message[4].items():
                 tally.errors[k] = tally.errors.get(k, 0) + v
             counts[message[1]] = (0, 0)

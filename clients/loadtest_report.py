@@ -58,6 +58,7 @@ def report(cfg: Any, tally: Any, elapsed_s: float, world: dict) -> dict:
         "throughput_rps": tally.count / elapsed_s if elapsed_s > 0 else 0.0,
         "edits": latency_summary(tally.edit_ms, elapsed_s),
         "reads": latency_summary(tally.read_ms, elapsed_s),
+        "round_trips": latency_summary(tally.round_trip_ms, elapsed_s),  # an edit and its min_version read
         "errors": {"count": error_count, "by_code": dict(sorted(tally.errors.items()))},
     }
 
@@ -65,11 +66,12 @@ def report(cfg: Any, tally: Any, elapsed_s: float, world: dict) -> dict:
 def format_report(result: dict) -> str:
     lines = [f"{result['requests']} requests in {result['elapsed_s']:.2f} s: "
              f"{result['throughput_rps']:.1f} requests/s, {result['errors']['count']} errors"]
-    for kind in ("edits", "reads"):
-        s = result[kind]
-        if s["count"]:
+    for kind in ("edits", "reads", "round_trips"):
+        s = result.get(kind)
+        if s and s["count"]:
             lat = s["latency_ms"]
-            lines.append(f"  {kind:5s} {s['count']:8d}  {s['throughput_per_s']:9.1f}/s  "
+            name = "edit+read" if kind == "round_trips" else kind
+            lines.append(f"  {name:9s} {s['count']:8d}  {s['throughput_per_s']:9.1f}/s  "
                          f"p50 {lat['p50']:.2f} ms  p95 {lat['p95']:.2f} ms  p99 {lat['p99']:.2f} ms  "
                          f"max {lat['max']:.2f} ms")
     for code, n in result["errors"]["by_code"].items():

@@ -79,7 +79,11 @@ def test_short_run_reports_sane_numbers(server_url, tmp_path):
     for kind in (edits, reads):
         lat = kind["latency_ms"]
         assert 0 < lat["min"] <= lat["p50"] <= lat["p95"] <= lat["p99"] <= lat["max"] < 10_000
-    assert "requests/s" in proc.stdout and "p99" in proc.stdout
+    trips = result["round_trips"]  # each read with the latency of the edit before it
+    assert trips["count"] == reads["count"]
+    assert trips["latency_ms"]["min"] >= reads["latency_ms"]["min"] + edits["latency_ms"]["min"] - 1e-9
+    assert trips["latency_ms"]["max"] <= reads["latency_ms"]["max"] + edits["latency_ms"]["max"] + 1e-9
+    assert "requests/s" in proc.stdout and "p99" in proc.stdout and "edit+read" in proc.stdout
     assert proc.stderr.startswith("\r") and "requests" in proc.stderr  # the progress line
     with Client(server_url) as client:  # the world made for the run is gone
         assert result["world"]["id"] not in [w.id for w in client.list_worlds()]

@@ -7,21 +7,13 @@ whenever commands are queued:
 1. take every queued command;
 2. apply: create, delete and reconfigure worlds and apply edit batches, in
    arrival order — each batch validated on its own, so a bad batch fails alone
-   and changes nothing; a world's valid batches are handed to the journal in one
-   record, applied in order, and acknowledged with their versions once the
-   journal's writer thread has them on disk (so the engine recomputes batch N
-   while batch N's record is written and synced; an acknowledgement needs both);
-3. recompute each touched world once, however many batches it took (a step
-   with nothing to apply skips this and step 4);
+   and changes nothing; a world's valid batches are journaled in one log write,
+   applied in order and acknowledged with their versions (after the log sync);
+3. recompute each touched world once, however many batches it took;
 4. publish the chunks each recompute rewrote to the subscribers of those chunks;
 5. serve reads, point queries, subscriptions and ``run_on_device`` calls, which
-   therefore see every edit applied before them — including batches whose log
-   record is still being synced, which a crash before the sync may lose (their
-   writers were never acknowledged). A read whose ``min_version`` the field has
-   not reached waits for later steps until its deadline.
-
-The thread sleeps in the command queue's ``get`` and wakes as soon as a
-command is submitted (or a waiting read's deadline passes).
+   therefore see every edit applied before them. A read whose ``min_version``
+   the field has not reached waits for later steps until its deadline.
 
 An OpenCL error from the device fails the step's commands with NotReady and
 marks the engine not ready for good (``/readyz`` answers 503).
@@ -94,7 +86,7 @@ class Engine:
         self._waiting: list[Pending] = []
         self._subscribers: dict[str, set[Subscription]] = {}
         self._subscribers_lock = threading.Lock()
-        self._first: Pending | None = None  # the command that woke the engine thread
+        self._wake = threading.Event()
         self._stopping = False
         self._thread: threading.Thread | None = None
         self._warm = threading.Event()
@@ -109,7 +101,7 @@ class Engine:
 
     def stop(self, timeout_s: float = 30.0) -> None:
         self._stopping = True
-        self._commands.put((OnDevice(lambda: None), Future()))  # wakes the engine thread
+        self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout_s)
         else:
@@ -139,10 +131,8 @@ class Engine:
             self._lose_device(exc, [])
         self._warm.set()
         while not self._stopping:
-            try:
-                self._first = self._commands.get(timeout=self._wait_timeout())
-            except queue.Empty:
-                pass  # a waiting read's deadline
+            self._wake.wait(self._wait_timeout())
+            self._wake.clear()
             if self._stopping:
                 break
             self.step()
@@ -186,6 +176,7 @@ class Engine:
             future.set_exception(NotReady(self.not_ready_reason()))
             return future
         self._commands.put((command, future))
+        self._wake.set()
         return future
 
     async def call(self, command: Any) -> Any:
@@ -242,11 +233,9 @@ class Engine:
         self._waiting = []
         report = StepReport()
         try:
-            changes = [c for c in commands if isinstance(c[0], APPLY)]
-            if changes:
-                touched = self._apply(changes, report)
-                report.recomputed = self._recompute(touched)
-                self._publish(report.recomputed)
+            touched = self._apply([c for c in commands if isinstance(c[0], APPLY)], report)
+            report.recomputed = self._recompute(touched)
+            self._publish(report.recomputed)
             self._serve(serve, report)
         except cl.Error as exc:
             self._lose_device(exc, commands + serve + self._waiting)
@@ -255,8 +244,7 @@ class Engine:
         return report
 
     def _drain(self) -> list[Pending]:
-        out = [] if self._first is None else [self._first]
-        self._first = None
+        out = []
         while True:
             try:
                 out.append(self._commands.get_nowait())
@@ -313,9 +301,9 @@ class Engine:
             world = items[0][2].world
             durable = None
             if self.journal is not None:
-                try:  # handed to the journal's writer; acknowledged once on disk AND applied
+                try:  # acknowledged once the journal has them on disk
                     durable = self.journal.record_batches(world_id, world.version + 1, [c.wire for c, _, _ in items])
-                except Exception as exc:  # refused (writes disabled): not applied, not acknowledged
+                except Exception as exc:  # not journaled: not applied, not acknowledged
                     for _, future, _ in items:
                         self._reject(future, exc, report)
                     continue
@@ -402,6 +390,7 @@ class Engine:
                 subs = list(self._subscribers.get(world_id, ()))
             if subs:
                 self.metrics.merged_chunks.inc(publish(self.worlds[world_id], result, subs))
+        self._count_pending()
 
     def _subscribe(self, sub: Subscription) -> None:
         world = self._world(sub.world_id)

@@ -14,9 +14,7 @@ The engine calls these on its own thread, in the order things happen:
   batches is applied or acknowledged.
   It may return a ``concurrent.futures.Future`` that completes once the batches are
   durable; the engine then acknowledges them only when that future completes (and fails
-  them if the future fails). Returning None acknowledges at once. It should not wait for
-  the disk itself: the engine applies and recomputes the batches meanwhile, and reads
-  see them before they are durable (see ``docs/architecture.md``, "Durability and reads").
+  them if the future fails). Returning None acknowledges at once.
 - ``record_config(world_id, config)`` after a world was reconfigured.
 - ``record_delete(world_id)`` after a world was deleted.
 - ``wants_snapshot(world_id)`` after a world's recompute; when it answers True the

@@ -3,9 +3,8 @@
 The engine calls it on its own thread:
 
 - ``record_create`` creates the world's directory (catalog entry and an empty log);
-- ``record_batches`` hands a step's batches for a world to its log's writer thread (one write)
-  and returns the future that completes once they are written and durable — the engine
-  acknowledges them only then, and meanwhile applies and recomputes them;
+- ``record_batches`` appends a step's batches for a world to its log in one write and returns
+  the future that completes once they are durable — the engine acknowledges them only then;
 - ``record_config`` rewrites the catalog entry after a reconfiguration;
 - ``record_delete`` removes the world's directory;
 - ``wants_snapshot`` / ``record_snapshot``: after a recompute, a world with

@@ -1,21 +1,19 @@
-"""The write-ahead log of one world, and the writer thread shared by every log.
+"""The write-ahead log of one world, and the group-commit thread shared by every log.
 
-``WorldLog.append(version, payload)`` frames one record and hands it to the ``Committer``
-(under the log's lock, so the records of one world reach the file in version order;
-``append_many`` hands over several consecutive records as one write); it returns a
-``concurrent.futures.Future`` that completes once the record is written and durable. Block on
-it with ``.result()`` or await it with ``asyncio.wrap_future``; acknowledge the batch only after
-that. The caller never touches the disk: the engine thread goes on applying and recomputing
-while its records are written and synced.
+``WorldLog.append(version, payload)`` writes one framed record with ``os.write`` (under the
+log's lock, so records of one world are in version order; ``append_many`` writes several
+consecutive records with one ``os.write``) and hands the file to the
+``Committer``; it returns a ``concurrent.futures.Future`` that completes once the record is
+durable. Block on it with ``.result()`` or await it with ``asyncio.wrap_future``; acknowledge
+the batch only after that.
 
 Group commit: the committer thread takes every record waiting (optionally after a short
-window), writes each with ``os.write`` (one call per hand-over), calls ``fdatasync`` once per
-file, and completes all their futures together. While one sync runs, the records that arrive
-queue up for the next, so under load many batches share one write and one sync.
+window), calls ``fdatasync`` once per file, and completes all their futures together. While
+one sync runs, the appends that arrive queue up for the next, so under load many batches
+share one sync.
 
 A failed write or sync is never retried: the committer enters a failed state, every waiting
-future and every later append raises ``WritesDisabled`` naming the file and the OS error. A
-failed write leaves no partial record behind (the file is cut back to its last whole record).
+future and every later append raises ``WritesDisabled`` naming the file and the OS error.
 What reached the disk before the failure is recovered at the next start as usual.
 """
 
@@ -26,7 +24,6 @@ import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import NamedTuple
 
 from sdfserver.errors import WritesDisabled
 from sdfserver.storage.framing import encode_record, encode_segment_header
@@ -34,15 +31,6 @@ from sdfserver.storage.fsutil import fsync_dir, write_atomic
 
 SEGMENT_PATTERN = "wal-*.log"
 SYNC_THREADS = 8
-HANDOVER_WAIT_S = 0.002  # longest a caller waits for an idle committer to take its records
-
-
-class Pending(NamedTuple):
-    log: "WorldLog"
-    fd: int
-    path: str
-    frame: bytes  # b"": nothing to write, only sync what was written
-    future: Future
 
 
 def segment_name(base_version: int) -> str:
@@ -54,21 +42,17 @@ def segment_base(path: Path) -> int:
 
 
 class Committer:
-    """One thread that writes handed-over records and makes them durable, many at a time."""
+    """One thread that makes appended records durable, many at a time."""
 
     def __init__(self, *, sync: bool = True, window_ms: float = 0.0):
         self.sync = sync
         self.window_s = max(0.0, window_ms) / 1e3
-        lock = threading.Lock()
-        self._cond = threading.Condition(lock)  # the committer waits here for work
-        self._taken = threading.Condition(lock)  # a caller waits here for the committer to take it
-        self._idle = False
-        self._takes = 0  # batches taken so far
-        self._pending: list[Pending] = []
+        self._cond = threading.Condition()
+        self._pending: list[tuple[int, str, Future]] = []
         self._failure: WritesDisabled | None = None
         self._closed = False
         self.syncs = 0  # fdatasync calls made
-        self.records = 0  # hand-overs written and made durable
+        self.records = 0  # records made durable
         self._pool = ThreadPoolExecutor(max_workers=SYNC_THREADS, thread_name_prefix="sdfserver-fdatasync")
         self._thread = threading.Thread(target=self._run, name="sdfserver-wal-sync", daemon=True)
         self._thread.start()
@@ -76,10 +60,6 @@ class Committer:
     @property
     def failure(self) -> WritesDisabled | None:
         return self._failure
-
-    @property
-    def closed(self) -> bool:
-        return self._closed
 
     def check(self) -> None:
         if self._failure is not None:
@@ -94,76 +74,50 @@ class Committer:
                     f"writes are disabled: {what} of {path} failed ({exc}); nothing after the last "
                     "acknowledged edit is kept, and no edit is accepted until the server is restarted")
                 pending, self._pending = self._pending, []
-                for item in pending:
-                    item.future.set_exception(self._failure)
+                for _, _, future in pending:
+                    future.set_exception(self._failure)
             return self._failure
 
-    def submit(self, log: "WorldLog", fd: int, path: str, frame: bytes = b"") -> Future:
-        """A future completed once ``frame`` is written to ``fd`` and everything written to it so
-        far is durable (an empty frame: only the latter). The caller holds ``log``'s lock, so the
-        hand-overs of one log keep their order."""
+    def submit(self, fd: int, path: str) -> Future:
+        """A future completed once everything written to ``fd`` so far is durable."""
         future: Future = Future()
+        if not self.sync:
+            future.set_result(None)
+            return future
         with self._cond:
             self.check()
-            self._pending.append(Pending(log, fd, path, frame, future))
+            self._pending.append((fd, path, future))
             self._cond.notify()
-            if self._idle and not self.window_s:
-                # Hand over now: an idle committer must get the GIL to start the write, and the
-                # caller (the engine, about to enqueue a recompute) would keep it for up to the
-                # switch interval. Waiting here lets the sync start at once; it then runs without
-                # the GIL beside the caller's work.
-                target = self._takes + 1
-                self._taken.wait_for(lambda: self._takes >= target or self._failure is not None,
-                                     HANDOVER_WAIT_S)
         return future
 
     def _run(self) -> None:
         while True:
             with self._cond:
                 while not self._pending and not self._closed:
-                    self._idle = True
                     self._cond.wait()
-                self._idle = False
                 if not self._pending:
                     return
             if self.window_s:
                 time.sleep(self.window_s)
             with self._cond:
                 batch, self._pending = self._pending, []
-                self._takes += 1
-                self._taken.notify_all()
-            if not batch:  # a failure took them meanwhile
-                continue
-            error = self._write(batch)
-            if error is None and self.sync:
-                error = self._sync({item.fd: item.path for item in batch})
-            if error is not None:
-                failure = self.fail(*error)
-                for item in batch:
-                    item.future.set_exception(failure)
-                continue
-            self.records += sum(1 for item in batch if item.frame)
-            for item in batch:
-                item.future.set_result(None)
-
-    @staticmethod
-    def _write(batch: list[Pending]) -> tuple[str, str, OSError] | None:
-        for item in batch:
-            if item.frame:
-                exc = item.log.write_frame(item.fd, item.frame)
-                if exc is not None:
-                    return item.path, "write", exc
-        return None
-
-    def _sync(self, files: dict[int, str]) -> tuple[str, str, OSError] | None:
-        # Several files (worlds) sync side by side, so the file system can merge them; one file
-        # syncs right here (a pool round trip costs two more waits for the GIL under load).
-        if len(files) == 1:
-            results = [self._sync_one(next(iter(files.items())))]
-        else:
-            results = list(self._pool.map(self._sync_one, files.items()))
-        self.syncs += len(files)
-        return next((e for e in results if e is not None), None)
+            files = {fd: path for fd, path, _ in batch}
+            # Several files (worlds) sync side by side, so the file system can merge them; one file
+            # syncs right here (a pool round trip costs two more waits for the GIL under load).
+            if len(files) == 1:
+                results = [self._sync_one(next(iter(files.items())))]
+            else:
+                results = list(self._pool.map(self._sync_one, files.items()))
+            errors = [e for e in results if e is not None]
+            if errors:
+                failure = self.fail(*errors[0])
+                for _, _, future in batch:
+                    future.set_exception(failure)
+            else:
+                self.syncs += len(files)
+                self.records += len(batch)
+                for _, _, future in batch:
+                    future.set_result(None)
 
     @staticmethod
     def _sync_one(item: tuple[int, str]) -> tuple[str, str, OSError] | None:
@@ -214,8 +168,7 @@ class WorldLog:
         return self.append_many(version, [payload])
 
     def append_many(self, first_version: int, payloads: list[bytes]) -> Future:
-        """Records ``first_version``, ``first_version + 1``, ... in one write; one future for all.
-        Raises ``WritesDisabled`` at once in the failed state; a failed write fails the future."""
+        """Records ``first_version``, ``first_version + 1``, ... in one write; one future for all."""
         frame = b"".join(encode_record(first_version + i, p) for i, p in enumerate(payloads))
         with self._lock:
             self.committer.check()
@@ -224,28 +177,22 @@ class WorldLog:
             if first_version != self.last_version + 1:
                 raise ValueError(f"log of {self.directory.name}: version {first_version} follows "
                                  f"{self.last_version}; versions must be continuous")
-            future = self.committer.submit(self, self._fd, str(self._path), frame)
-            self.last_version = first_version + len(payloads) - 1  # handed over, not yet written
-            return future
-
-    def write_frame(self, fd: int, frame: bytes) -> OSError | None:
-        """The committer thread's write of one hand-over; on failure the file is cut back to its
-        last whole record and the error returned."""
-        view = memoryview(frame)
-        try:
-            while view:
-                view = view[os.write(fd, view):]
-        except OSError as exc:
-            try:  # leave no partial record behind
-                os.ftruncate(fd, self._end)
-            except OSError:
-                pass  # the failed state refuses every later append anyway
-            return exc
-        self._end += len(frame)
-        return None
+            view = memoryview(frame)
+            try:
+                while view:
+                    view = view[os.write(self._fd, view):]
+            except OSError as exc:
+                try:  # leave no partial record for a later append to follow
+                    os.ftruncate(self._fd, self._end)
+                except OSError:
+                    pass  # the failed state below refuses every later append anyway
+                raise self.committer.fail(str(self._path), "write", exc) from None
+            self._end += len(frame)
+            self.last_version = first_version + len(payloads) - 1
+            return self.committer.submit(self._fd, str(self._path))
 
     def _flush_locked(self) -> None:
-        self.committer.submit(self, self._fd, str(self._path)).result()
+        self.committer.submit(self._fd, str(self._path)).result()
 
     def flush(self) -> None:
         """Wait until everything appended so far is durable."""
@@ -284,7 +231,7 @@ class WorldLog:
     def close(self) -> None:
         with self._lock:
             if self._fd >= 0:
-                if self.committer.failure is None and not self.committer.closed:
+                if self.committer.failure is None and not self.committer._closed:
                     self._flush_locked()
                 os.close(self._fd)
                 self._fd = -1

@@ -2,7 +2,7 @@
 
 Runs the server in this process (same flags as ``sdfserver serve``) with timestamps taken at the
 hand-offs of the hot path — the fast lane's start and end (event loop), ``Engine.submit``, the
-engine step and its phases, the hand-over to the log's writer thread, its write and
+engine step and its phases, the log's hand-over (append_many), its write and
 ``fdatasync``, the future's completion and the event loop resuming — and, when it stops
 (Ctrl-C or SIGTERM), prints the median of each gap for edits and reads:
 
@@ -66,7 +66,7 @@ def install() -> None:
     hook(core.Engine, "step", "step")
     hook(core.Engine, "call", "call")
     hook(wal.WorldLog, "append_many", "hand-over")
-    hook(wal.WorldLog, "write_frame", "write")
+    hook(os, "write", "write")  # the log's record writes
     hook(os, "fdatasync", "fdatasync")
     submit = core.Engine.submit
 

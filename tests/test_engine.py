@@ -244,3 +244,11 @@ def test_engine_and_world_do_not_import_the_web_stack():
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
                           env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_new_world_ids_are_hex_and_never_look_like_options():
+    from sdfserver.engine.core import new_world_id
+
+    ids = {new_world_id() for _ in range(2000)}
+    assert len(ids) == 2000
+    assert all(len(i) == 12 and set(i) <= set("0123456789abcdef") for i in ids)

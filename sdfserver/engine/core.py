@@ -67,7 +67,8 @@ def world_config_dict(config: WorldConfig) -> dict[str, Any]:
 
 
 def new_world_id() -> str:
-    return secrets.token_urlsafe(6)
+    # Hex, not url-safe base64: an id that starts with '-' reads as an option on command lines.
+    return secrets.token_hex(6)
 
 
 class Engine:

@@ -151,6 +151,26 @@ inline void init8(uint *out, XLine l, int t, int wx, __global const uchar *voxel
         }
     }
 }
+
+#else
+/* 8 distances of one line from the work box. */
+inline void load8(uint *out, __global const uchar *row)
+{
+    const uint8 v = convert_uint8(*(__global const uchar8 *)row);
+    out[0] = v.s0; out[1] = v.s1; out[2] = v.s2; out[3] = v.s3;
+    out[4] = v.s4; out[5] = v.s5; out[6] = v.s6; out[7] = v.s7;
+}
+#endif
+
+#if LAST
+/* 8 packed field values of one line. Only solids (distance 0) carry a colour:
+ * air-only groups skip the voxel read. */
+inline void pack8(__global ushort *field, __global const uchar *voxels, ushort8 distance)
+{
+    const ushort8 colour = any(distance == (ushort8)(0))
+        ? convert_ushort8(*(__global const uchar8 *)voxels) : (ushort8)(0);
+    *(__global ushort8 *)field = (distance << (ushort)8) | colour;
+}
 #endif
 
 /* x: lines are contiguous; each work-item holds SEG elements of two lines (one
@@ -180,16 +200,10 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
             if (b.valid)
                 init8(db, b, t, wx, voxels, field, r_lo, r_hi, seeded, cap);
 #else
-            if (a.valid) {
-                const uint8 v = convert_uint8(*(__global const uchar8 *)(work + a.work_row + t));
-                da[0] = v.s0; da[1] = v.s1; da[2] = v.s2; da[3] = v.s3;
-                da[4] = v.s4; da[5] = v.s5; da[6] = v.s6; da[7] = v.s7;
-            }
-            if (b.valid) {
-                const uint8 v = convert_uint8(*(__global const uchar8 *)(work + b.work_row + t));
-                db[0] = v.s0; db[1] = v.s1; db[2] = v.s2; db[3] = v.s3;
-                db[4] = v.s4; db[5] = v.s5; db[6] = v.s6; db[7] = v.s7;
-            }
+            if (a.valid)
+                load8(da, work + a.work_row + t);
+            if (b.valid)
+                load8(db, work + b.work_row + t);
 #endif
         }
         _Pragma("unroll") for (int k = 0; k < 8; ++k)
@@ -213,17 +227,10 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
         /* R's x-bounds are multiples of 8, like t: a group of 8 is all in R or all out. */
         const int wx = w_lo.x + t;
         const int x_in_r = wx >= r_lo.x && wx < r_hi.x;
-        /* Only solids (distance 0) carry a colour: air-only groups skip the voxel read. */
-        if (a.valid && a.in_r && x_in_r) {
-            const ushort8 colour = any(out_a == (ushort8)(0))
-                ? convert_ushort8(*(__global const uchar8 *)(voxels + a.world_row + t)) : (ushort8)(0);
-            *(__global ushort8 *)(field + a.world_row + t) = (out_a << (ushort)8) | colour;
-        }
-        if (b.valid && b.in_r && x_in_r) {
-            const ushort8 colour = any(out_b == (ushort8)(0))
-                ? convert_ushort8(*(__global const uchar8 *)(voxels + b.world_row + t)) : (ushort8)(0);
-            *(__global ushort8 *)(field + b.world_row + t) = (out_b << (ushort)8) | colour;
-        }
+        if (a.valid && a.in_r && x_in_r)
+            pack8(field + a.world_row + t, voxels + a.world_row + t, out_a);
+        if (b.valid && b.in_r && x_in_r)
+            pack8(field + b.world_row + t, voxels + b.world_row + t, out_b);
 #else
         if (a.valid)
             *(__global uchar8 *)(work + a.work_row + t) = convert_uchar8(out_a);

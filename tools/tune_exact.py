@@ -80,17 +80,17 @@ def main() -> None:
                     f.write(binary)
                 text = binary.decode(errors="replace")
                 info["ptx_local_decls"] = len(re.findall(r"\.local\s", text))
-        def enqueue(axis, kernel, nseg, global_, local):
+        def enqueue(kernel, global_, local):
             return exact.enqueue(gpu, job, kernel, global_, local)
         times = {0: [], 1: [], 2: []}
         for _ in range(2):  # warm-up
             for axis, kernel, nseg, g, l, _info in launches:
-                enqueue(axis, kernel, nseg, g, l)
+                enqueue(kernel, g, l)
         gpu.queue.finish()
         events = []
         for _ in range(args.reps):
             for axis, kernel, nseg, g, l, _info in launches:
-                events.append((axis, enqueue(axis, kernel, nseg, g, l)))
+                events.append((axis, enqueue(kernel, g, l)))
         gpu.queue.finish()
         for axis, e in events:
             times[axis].append((e.profile.end - e.profile.start) * 1e-6)

@@ -115,6 +115,7 @@ class Brushes:
 @dataclass
 class Tally:
     edit_ms: array.array = field(default_factory=lambda: array.array("d"))
+    edit_at_s: array.array = field(default_factory=lambda: array.array("d"))  # when each edit was sent
     read_ms: array.array = field(default_factory=lambda: array.array("d"))
     round_trip_ms: array.array = field(default_factory=lambda: array.array("d"))  # edit + its read
     errors: dict[str, int] = field(default_factory=dict)
@@ -187,6 +188,7 @@ async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget,
                 version = await asyncio.wait_for(send_edit(batch), cfg.timeout_s)
                 edit_ms = (time.perf_counter() - t0) * 1e3
                 tally.edit_ms.append(edit_ms)
+                tally.edit_at_s.append(t0 - start)
                 edits_sent += 1
                 if cfg.read_every and edits_sent % cfg.read_every == 0:
                     pending_read = (brushes.read_box(center), version, edit_ms)
@@ -226,7 +228,7 @@ def _worker(cfg: LoadConfig, indices: list[int], requests: int, out: "multiproce
     go.wait()  # every worker has imported everything: start together
     elapsed = asyncio.run(run_clients(cfg, indices, requests, tally, progress))
     out.put(("done", os.getpid(), tally.edit_ms.tobytes(), tally.read_ms.tobytes(), tally.errors, elapsed,
-             tally.round_trip_ms.tobytes()))
+             tally.round_trip_ms.tobytes(), tally.edit_at_s.tobytes()))
 
 
 # -- driving and reporting --------------------------------------------------------------------------
@@ -283,6 +285,7 @@ def drive(cfg: LoadConfig, processes: int = 1, show_progress: bool = True) -> tu
             tally.edit_ms.frombytes(message[2])
             tally.read_ms.frombytes(message[3])
             tally.round_trip_ms.frombytes(message[6])
+            tally.edit_at_s.frombytes(message[7])
             for k, v in message[4].items():
                 tally.errors[k] = tally.errors.get(k, 0) + v
             counts[message[1]] = (0, 0)

@@ -47,6 +47,17 @@ def latency_summary(samples: array.array, elapsed_s: float) -> dict:
     return summary
 
 
+def edit_timeline(tally: Any) -> list[dict]:
+    """Edits per second of the run and their p99: shows whether the tail is steady or in bursts."""
+    at = np.frombuffer(tally.edit_at_s, dtype=np.float64)
+    ms = np.frombuffer(tally.edit_ms, dtype=np.float64)
+    if not at.size:
+        return []
+    second = at.astype(np.int64)
+    return [{"second": int(s), "edits": int(n), "p99_ms": float(np.percentile(ms[second == s], 99))}
+            for s, n in zip(*np.unique(second, return_counts=True))]
+
+
 def report(cfg: Any, tally: Any, elapsed_s: float, world: dict) -> dict:
     error_count = sum(tally.errors.values())
     return {
@@ -59,6 +70,7 @@ def report(cfg: Any, tally: Any, elapsed_s: float, world: dict) -> dict:
         "edits": latency_summary(tally.edit_ms, elapsed_s),
         "reads": latency_summary(tally.read_ms, elapsed_s),
         "round_trips": latency_summary(tally.round_trip_ms, elapsed_s),  # an edit and its min_version read
+        "edit_timeline": edit_timeline(tally),
         "errors": {"count": error_count, "by_code": dict(sorted(tally.errors.items()))},
     }
 

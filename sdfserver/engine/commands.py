@@ -29,6 +29,7 @@ class EngineLimits:
     max_read_voxels: int = 1 << 27
     max_subscription_voxels: int = 1 << 27
     max_wait_s: float = 5.0
+    slow_step_ms: float = 20.0  # a step this long is logged with its phases
 
 
 @dataclass(frozen=True)
@@ -106,3 +107,4 @@ class StepReport:
     recomputed: dict[str, Any] = field(default_factory=dict)  # world id -> RecomputeResult
     served: int = 0
     waiting: int = 0
+    phases_ms: dict[str, float] = field(default_factory=dict)  # apply, recompute, publish, serve

@@ -233,16 +233,36 @@ class Engine:
         serve = self._waiting + [c for c in commands if not isinstance(c[0], APPLY)]
         self._waiting = []
         report = StepReport()
+        clock = [time.perf_counter()]
+
+        def lap(phase: str) -> None:
+            clock.append(time.perf_counter())
+            report.phases_ms[phase] = (clock[-1] - clock[-2]) * 1e3
+
         try:
             touched = self._apply([c for c in commands if isinstance(c[0], APPLY)], report)
+            lap("apply")
             report.recomputed = self._recompute(touched)
+            lap("recompute")
             self._publish(report.recomputed)
+            lap("publish")
             self._serve(serve, report)
+            lap("serve")
         except cl.Error as exc:
             self._lose_device(exc, commands + serve + self._waiting)
             self._waiting = []
-        self.metrics.steps.inc()
+        self._count_step(report, clock[-1] - clock[0])
         return report
+
+    def _count_step(self, report: StepReport, seconds: float) -> None:
+        self.metrics.steps.inc()
+        self.metrics.step_seconds.observe(seconds)
+        for phase, ms in report.phases_ms.items():
+            self.metrics.phase_seconds.labels(phase).inc(ms / 1e3)
+        if seconds * 1e3 >= self.limits.slow_step_ms:
+            phases = ", ".join(f"{k} {v:.1f}" for k, v in report.phases_ms.items())
+            log.warning("slow engine step: %.1f ms (%s), %d batches", seconds * 1e3, phases,
+                        report.applied_batches)
 
     def _drain(self) -> list[Pending]:
         out = []

@@ -19,6 +19,10 @@ class EngineMetrics:
         self.rejected_batches = Counter("sdfserver_rejected_batches", "Edit batches rejected (nothing applied).",
                                         registry=registry)
         self.steps = Counter("sdfserver_engine_steps", "Engine steps run.", registry=registry)
+        self.step_seconds = Histogram("sdfserver_engine_step_seconds", "Wall time of one engine step.",
+                                      buckets=RECOMPUTE_BUCKETS_S, registry=registry)
+        self.phase_seconds = Counter("sdfserver_engine_phase_seconds", "Engine-thread wall time by step phase "
+                                     "(apply, recompute, publish, serve).", ["phase"], registry=registry)
         self.recompute_seconds = Histogram(
             "sdfserver_recompute_seconds", "Wall time of one world's recompute, by algorithm.",
             ["algorithm"], buckets=RECOMPUTE_BUCKETS_S, registry=registry)

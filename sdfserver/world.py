@@ -16,6 +16,7 @@ its capped distance, so the result equals a full recompute.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -326,6 +327,15 @@ class World:
 
     def read_voxels(self, box: Box | None = None) -> np.ndarray:
         return self._read(self.buffers.voxels, 1, np.uint8, box)
+
+    def copy_voxels_out(self) -> tuple[np.ndarray, Callable[[], None]]:
+        """All voxels, (z, y, x), copied without waiting: read them only after calling the
+        returned ``wait`` (any thread may). Later commands on the queue run after the copy, so
+        it holds this version's voxels. One linear copy: a rectangular read of a whole world
+        costs far more on some drivers."""
+        out = np.empty(self.world_box.shape_zyx, dtype=np.uint8)
+        event = cl.enqueue_copy(self.gpu.queue, out, self.buffers.voxels, is_blocking=False)
+        return out, event.wait
 
 
 __all__ = ["ALGORITHMS", "EditPlan", "Focus", "RecomputeResult", "World", "WorldConfig"]

@@ -101,7 +101,7 @@ class RecordingJournal:
     def wants_snapshot(self, world_id):
         return False
 
-    def record_snapshot(self, world_id, version, config, voxels):
+    def record_snapshot(self, world_id, version, config, voxels, ready):
         raise AssertionError("wants_snapshot said no")
 
 

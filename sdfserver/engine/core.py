@@ -399,8 +399,9 @@ class Engine:
             self.last_recompute_ms[world_id] = result.wall_ms
             results[world_id] = result
             if self.journal is not None and self.journal.wants_snapshot(world_id):
+                voxels, ready = world.copy_voxels_out()  # the journal's thread waits, not this one
                 self.journal.record_snapshot(world_id, world.version, world_config_dict(world.config),
-                                             world.read_voxels())
+                                             voxels, ready)
         return results
 
     # -- publishing ---------------------------------------------------------------------------------

@@ -18,8 +18,10 @@ The engine calls these on its own thread, in the order things happen:
 - ``record_config(world_id, config)`` after a world was reconfigured.
 - ``record_delete(world_id)`` after a world was deleted.
 - ``wants_snapshot(world_id)`` after a world's recompute; when it answers True the
-  engine calls ``record_snapshot(world_id, version, config, voxels)`` with a host copy
-  of the voxels (uint8, (z, y, x)) at that version.
+  engine calls ``record_snapshot(world_id, version, config, voxels, ready)`` with a host
+  array (uint8, (z, y, x)) that a device copy is filling with the voxels at that version,
+  and ``ready``, which waits until the copy is done: call it (from any thread) before
+  reading ``voxels``. The engine does not wait for the copy, nor for the snapshot.
 
 A journal must not call back into the engine.
 """
@@ -27,7 +29,7 @@ A journal must not call back into the engine.
 from __future__ import annotations
 
 from concurrent.futures import Future
-from typing import Any, Protocol
+from typing import Any, Callable, Protocol
 
 import numpy as np
 
@@ -46,4 +48,4 @@ class Journal(Protocol):
     def wants_snapshot(self, world_id: str) -> bool: ...
 
     def record_snapshot(self, world_id: str, version: int, config: dict[str, Any],
-                        voxels: np.ndarray) -> Any: ...
+                        voxels: np.ndarray, ready: Callable[[], None]) -> Any: ...

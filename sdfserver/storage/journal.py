@@ -9,7 +9,8 @@ The engine calls it on its own thread:
 - ``record_delete`` removes the world's directory;
 - ``wants_snapshot`` / ``record_snapshot``: after a recompute, a world with
   ``snapshot_every_batches`` records since its last snapshot hands over a copy of its
-  voxels; a background thread writes the snapshot and trims the log.
+  voxels (still being filled by the device); a background thread waits for it, writes the
+  snapshot and trims the log.
 
 ``adopt`` registers a world restored at start-up (``sdfserver.engine.restore``).
 """
@@ -18,7 +19,7 @@ from __future__ import annotations
 
 import logging
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -73,17 +74,20 @@ class StorageJournal:
         return (store is not None and not busy and self.storage.committer.failure is None
                 and store.records_since_snapshot >= self.snapshot_every_batches)
 
-    def record_snapshot(self, world_id: str, version: int, config: dict[str, Any], voxels: np.ndarray) -> Future:
+    def record_snapshot(self, world_id: str, version: int, config: dict[str, Any], voxels: np.ndarray,
+                        ready: Callable[[], None] = lambda: None) -> Future:
         store = self._store(world_id)
-        future = self._snapshots.submit(self._snapshot, store, version, config, voxels)
+        future = self._snapshots.submit(self._snapshot, store, version, config, voxels, ready)
         self._snapshotting[world_id] = future
         return future
 
     # -- the rest ------------------------------------------------------------------------------------
 
     @staticmethod
-    def _snapshot(store: WorldStore, version: int, config: dict[str, Any], voxels: np.ndarray) -> None:
+    def _snapshot(store: WorldStore, version: int, config: dict[str, Any], voxels: np.ndarray,
+                  ready: Callable[[], None]) -> None:
         try:
+            ready()  # the device copy of the voxels
             store.snapshot(version, config, voxels)
         except Exception:  # the log still holds everything; the next snapshot tries again
             log.exception("snapshot of world %s at version %d failed", store.world_id, version)

@@ -33,7 +33,7 @@ from sdfserver.storage.codec import encode_batch
 from sdfserver.storage.fsutil import fsync_dir, write_atomic
 from sdfserver.storage.recovery import Recovered, recover_world
 from sdfserver.storage.snapshot import remove_snapshot_files, write_snapshot
-from sdfserver.storage.wal import Committer, WorldLog
+from sdfserver.storage.wal import SEGMENT_LIMIT_BYTES, Committer, WorldLog
 
 DEFAULT_DATA_DIR = "data"  # relative to the working directory; see docs/configuration.md
 WORLD_ID = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9_.-]{0,127}$")  # never a leading dot
@@ -75,15 +75,14 @@ class WorldStore:
     def snapshot(self, version: int, config: dict[str, Any], voxels: np.ndarray) -> None:
         """Persist the voxels at ``version`` and trim the log to the records after it.
 
-        ``version`` at most the last logged version is an ordinary checkpoint; a version
-        above it records a replacement of the whole world (an import or upload)."""
+        ``version`` at most the last logged version is an ordinary checkpoint: the log goes on
+        in its segment (appends never wait for a snapshot) and loses the segments the snapshot
+        covers. A version above it records a replacement of the whole world (an import or
+        upload): the log starts over after it."""
         self.log.committer.check()
+        write_snapshot(self.directory, version, config, voxels)
         if version > self.log.last_version:
-            write_snapshot(self.directory, version, config, voxels)
             self.log.rotate(version)
-        else:
-            self.log.rotate()
-            write_snapshot(self.directory, version, config, voxels)
         self.log.trim(version)
         self.snapshot_version = version
         self.records_since_snapshot = self.log.last_version - version
@@ -97,7 +96,8 @@ class WorldStore:
 
 class Storage:
     def __init__(self, data_dir: str | Path = DEFAULT_DATA_DIR, *, sync: bool = True,
-                 commit_window_ms: float = 0.0):
+                 commit_window_ms: float = 0.0, segment_limit: int = SEGMENT_LIMIT_BYTES):
+        self.segment_limit = segment_limit
         self.data_dir = Path(data_dir).expanduser().resolve()
         self.worlds_dir = self.data_dir / "worlds"
         try:
@@ -165,7 +165,7 @@ class Storage:
         if segment is None:  # the snapshot is newer than the log: continue in a fresh segment
             segment = WorldLog.create_segment(directory, recovered.last_version)
             end = segment.stat().st_size
-        log = WorldLog(directory, self.committer, segment, end, recovered.last_version)
+        log = WorldLog(directory, self.committer, segment, end, recovered.last_version, self.segment_limit)
         store = WorldStore(world_id, directory, log)
         store.snapshot_version = recovered.snapshot_version
         store.records_since_snapshot = recovered.last_version - recovered.snapshot_version

@@ -4,7 +4,9 @@
 log's lock, so records of one world are in version order; ``append_many`` writes several
 consecutive records with one ``os.write``) and hands the file to the
 ``Committer``; it returns a ``concurrent.futures.Future`` that completes once the record is
-durable. Block on it with ``.result()`` or await it with ``asyncio.wrap_future``; acknowledge
+durable. A segment that has grown past ``segment_limit`` bytes is closed and the next append
+starts a new one, so snapshots never have to rotate the log (which would stall the appender)
+and the log is trimmed a whole segment at a time. Block on it with ``.result()`` or await it with ``asyncio.wrap_future``; acknowledge
 the batch only after that.
 
 Group commit: the committer thread takes every record waiting (optionally after a short
@@ -31,6 +33,7 @@ from sdfserver.storage.fsutil import fsync_dir, write_atomic
 
 SEGMENT_PATTERN = "wal-*.log"
 SYNC_THREADS = 8
+SEGMENT_LIMIT_BYTES = 16 << 20  # about 160k brush batches: a second or so of replay at start-up
 
 
 def segment_name(base_version: int) -> str:
@@ -139,9 +142,11 @@ class Committer:
 class WorldLog:
     """Appends to the newest segment of one world's log directory."""
 
-    def __init__(self, directory: Path, committer: Committer, segment: Path, end: int, last_version: int):
+    def __init__(self, directory: Path, committer: Committer, segment: Path, end: int, last_version: int,
+                 segment_limit: int = SEGMENT_LIMIT_BYTES):
         self.directory = Path(directory)
         self.committer = committer
+        self.segment_limit = segment_limit
         self._lock = threading.Lock()
         self._path = segment
         self._fd = os.open(segment, os.O_WRONLY | os.O_APPEND)
@@ -177,6 +182,8 @@ class WorldLog:
             if first_version != self.last_version + 1:
                 raise ValueError(f"log of {self.directory.name}: version {first_version} follows "
                                  f"{self.last_version}; versions must be continuous")
+            if self._end >= self.segment_limit:
+                self._rotate_locked(self.last_version)
             view = memoryview(frame)
             try:
                 while view:
@@ -209,12 +216,15 @@ class WorldLog:
             if base == self.last_version and self._end == len(encode_segment_header(0)) \
                     and segment_base(self._path) == base:
                 return  # already an empty segment at that base
-            self.committer.check()
-            self._flush_locked()
-            path = self.create_segment(self.directory, base)
-            os.close(self._fd)
-            self._fd = os.open(path, os.O_WRONLY | os.O_APPEND)
-            self._path, self._end, self.last_version = path, len(encode_segment_header(0)), base
+            self._rotate_locked(base)
+
+    def _rotate_locked(self, base: int) -> None:
+        self.committer.check()
+        self._flush_locked()
+        path = self.create_segment(self.directory, base)
+        os.close(self._fd)
+        self._fd = os.open(path, os.O_WRONLY | os.O_APPEND)
+        self._path, self._end, self.last_version = path, len(encode_segment_header(0)), base
 
     def trim(self, upto_version: int) -> list[Path]:
         """Delete the segments whose records are all ``<= upto_version``; returns them."""

@@ -18,6 +18,7 @@ from sdfserver.errors import WritesDisabled
 from sdfserver.gpu import GpuContext
 from sdfserver.storage import Storage
 from sdfserver.storage.journal import StorageJournal
+from sdfserver.storage.snapshot import decode_snapshot
 from sdfserver.world import WorldConfig
 
 from durable_server import apply_reference, random_batch
@@ -76,18 +77,23 @@ def test_snapshots_and_restore_into_a_fresh_engine(gpu, journal, tmp_path):
     engine.step()
     world_id = created.result()["id"]
     expected = np.zeros((8, 24, 16), np.uint8)
-    for _ in range(11):
+    at_version = {}
+    for version in range(1, 12):
         batch = random_batch(rng, (16, 24, 8))
         future = edits(engine, world_id, batch)
         engine.step()
         future.result(timeout=10)
         apply_reference(expected, batch)
+        at_version[version] = expected.copy()
         # Let a snapshot finish before the next batch: one still being written when the next is
         # due is skipped (by design), which on a loaded machine made the schedule vary.
         journal._wait_snapshot(world_id)
     directory = tmp_path / "data" / "worlds" / world_id
     snaps = sorted(directory.glob("snap-*"))
     assert snaps and int(snaps[-1].stem.split("-")[1]) == 9  # every 3 batches: 3, 6, 9
+    # The snapshot holds the voxels of its own version, though the device copied them while
+    # the engine went on (the copy is queued before any later edit).
+    np.testing.assert_array_equal(decode_snapshot(snaps[-1].read_bytes()).voxels, at_version[9])
     field = engine.submit(Read(world_id, "distance"))
     engine.step()
     before = field.result().array

@@ -10,7 +10,7 @@ import pytest
 from sdfserver.errors import CorruptData, InvalidInput, NotFound, WritesDisabled
 from sdfserver.storage import Storage, decode_batch
 from sdfserver.storage.framing import encode_record
-from sdfserver.storage.wal import segment_name
+from sdfserver.storage.wal import segment_base, segment_name
 
 CONFIG = {"size": [8, 8, 16], "chunk_size": 8, "max_distance": 255, "algorithm": "exact"}
 
@@ -95,23 +95,51 @@ def test_corruption_in_the_middle_refuses_the_world(storage):
         fresh.close()
 
 
-def test_snapshot_trims_the_log_and_recovery_replays_the_rest(storage):
+def test_snapshot_trims_the_log_and_recovery_replays_the_rest(tmp_path):
+    rng = np.random.default_rng()
+    storage = Storage(tmp_path / "data", segment_limit=64)  # a new segment every few records
+    store = storage.create_world("w", {"config": CONFIG})
+    directory = storage.worlds_dir / "w"
+    for v in range(1, 11):
+        store.append(v, b"%d" % v).result()
+    bases = sorted(segment_base(p) for p in directory.glob("wal-*"))
+    assert len(bases) >= 3 and bases[0] == 0  # appends rotated the log as it grew
+    voxels = random_voxels(rng)
+    store.snapshot(7, CONFIG, voxels)  # a lagging snapshot: 8..10 stay in the log
+    kept = sorted(segment_base(p) for p in directory.glob("wal-*"))
+    assert kept[0] <= 7 and (len(kept) == 1 or kept[1] > 7)  # only segments wholly <= 7 went
+    assert kept == [b for b in bases if b >= kept[0]]
+    for v in range(11, 14):
+        store.append(v, b"%d" % v).result()
+    store.snapshot(13, CONFIG, voxels)
+    kept = sorted(segment_base(p) for p in directory.glob("wal-*"))
+    assert kept[0] <= 13 and all(b > 13 for b in kept[1:])
+    assert [p.name for p in directory.glob("snap-*")] == ["snap-00000000000000000013.sdfsnap"]
+    store.append(14, b"14").result()
+    store.close()
+    storage.close()
+    storage = Storage(tmp_path / "data", segment_limit=64)
+    store, rec = storage.open_world("w")
+    assert rec.snapshot_version == 13 and rec.records == [(14, b"14")]
+    np.testing.assert_array_equal(rec.voxels, voxels)
+    store.close()
+    storage.close()
+
+
+def test_a_snapshot_leaves_the_open_segment_alone(storage):
+    """A checkpoint never rotates the log: the engine's appends do not wait for it."""
     rng = np.random.default_rng()
     store = storage.create_world("w", {"config": CONFIG})
     for v in range(1, 11):
         store.append(v, b"%d" % v).result()
-    voxels = random_voxels(rng)
-    store.snapshot(7, CONFIG, voxels)  # a lagging snapshot: 8..10 stay in the log
-    for v in range(11, 14):
-        store.append(v, b"%d" % v).result()
-    store.snapshot(13, CONFIG, voxels)
     directory = storage.worlds_dir / "w"
-    assert sorted(p.name for p in directory.glob("wal-*")) == [segment_name(13)]
-    assert [p.name for p in directory.glob("snap-*")] == ["snap-00000000000000000013.sdfsnap"]
-    store.append(14, b"14").result()
+    voxels = random_voxels(rng)
+    store.snapshot(10, CONFIG, voxels)
+    assert [p.name for p in directory.glob("wal-*")] == [segment_name(0)]
+    store.append(11, b"11").result()
     store.close()
     storage, store, rec = reopen(storage)
-    assert rec.snapshot_version == 13 and rec.records == [(14, b"14")]
+    assert (rec.snapshot_version, rec.records, rec.last_version) == (10, [(11, b"11")], 11)
     np.testing.assert_array_equal(rec.voxels, voxels)
     store.close()
     storage.close()
@@ -132,7 +160,8 @@ def test_replacing_snapshot_starts_a_new_log(storage):
     storage.close()
 
 
-def test_a_gap_between_snapshot_and_log_is_refused(storage):
+def test_a_gap_between_snapshot_and_log_is_refused(tmp_path):
+    storage = Storage(tmp_path / "data", segment_limit=1)  # one record per segment
     store = storage.create_world("w", {"config": CONFIG})
     for v in range(1, 4):
         store.append(v, b"x").result()

@@ -329,13 +329,11 @@ class World:
         return self._read(self.buffers.voxels, 1, np.uint8, box)
 
     def copy_voxels_out(self) -> tuple[np.ndarray, Callable[[], None]]:
-        """All voxels, (z, y, x), copied without waiting: read them only after calling the
-        returned ``wait`` (any thread may). Later commands on the queue run after the copy, so
-        it holds this version's voxels. One linear copy: a rectangular read of a whole world
-        costs far more on some drivers."""
+        """All voxels, (z, y, x), as they are now, without waiting for them: read the array
+        only after calling the returned ``wait`` (any thread may; see
+        ``GpuContext.download_later``)."""
         out = np.empty(self.world_box.shape_zyx, dtype=np.uint8)
-        event = cl.enqueue_copy(self.gpu.queue, out, self.buffers.voxels, is_blocking=False)
-        return out, event.wait
+        return out, self.gpu.download_later(self.buffers.voxels, out)
 
 
 __all__ = ["ALGORITHMS", "EditPlan", "Focus", "RecomputeResult", "World", "WorldConfig"]

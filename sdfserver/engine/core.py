@@ -46,7 +46,8 @@ from sdfserver.engine.metrics import EngineMetrics
 from sdfserver.engine.publish import check_subscription_region, chunks_of, publish
 from sdfserver.engine.query import QueryResult, query_points
 from sdfserver.errors import (
-    InvalidInput, NotFound, NotReady, SdfServerError, StorageError, TooLarge, VersionNotReached,
+    DeviceMemoryExceeded, InvalidInput, NotFound, NotReady, SdfServerError, StorageError, TooLarge,
+    VersionNotReached,
 )
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
@@ -399,10 +400,16 @@ class Engine:
             self.last_recompute_ms[world_id] = result.wall_ms
             results[world_id] = result
             if self.journal is not None and self.journal.wants_snapshot(world_id):
-                voxels, ready = world.copy_voxels_out()  # the journal's thread waits, not this one
-                self.journal.record_snapshot(world_id, world.version, world_config_dict(world.config),
-                                             voxels, ready)
+                self._snapshot(world_id, world)
         return results
+
+    def _snapshot(self, world_id: str, world: World) -> None:
+        try:
+            voxels, ready = world.copy_voxels_out()  # the journal's thread waits for it, not this one
+        except DeviceMemoryExceeded as exc:  # no room to stage the copy; the log still has every batch
+            log.warning("snapshot of world %s skipped: %s", world_id, exc)
+            return
+        self.journal.record_snapshot(world_id, world.version, world_config_dict(world.config), voxels, ready)
 
     # -- publishing ---------------------------------------------------------------------------------
 

@@ -1,7 +1,9 @@
 """GpuContext: the single owner of an OpenCL context, its queue and its device memory.
 
 Whoever holds a GpuContext owns the device: the engine thread in the server,
-the test or the benchmark otherwise. Buffers are allocated through
+the test or the benchmark otherwise. The one exception is ``download_later``'s
+``wait``, which any thread may call: it reads a private staging buffer on a queue
+of its own. Buffers are allocated through
 ``allocate`` so that every byte is counted against the memory budget before
 the driver is asked for it.
 """
@@ -9,6 +11,7 @@ the driver is asked for it.
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 
 import numpy as np
 import pyopencl as cl
@@ -28,6 +31,8 @@ class GpuContext:
         self.queue = cl.CommandQueue(
             self.context, properties=cl.command_queue_properties.PROFILING_ENABLE
         )
+        # Device-to-host transfers that must not hold up the work queue (download_later).
+        self.transfer_queue = cl.CommandQueue(self.context)
         self.programs = ProgramCache(self.context, device_defines(device))
         device_bytes = int(device.global_mem_size)
         if memory_budget_bytes is None:
@@ -77,6 +82,31 @@ class GpuContext:
         with self._lock:
             buffer.release()
             self._allocated_bytes -= nbytes
+
+    def download_later(self, buffer: cl.Buffer, out: np.ndarray) -> Callable[[], None]:
+        """Copy ``buffer`` as it will be once the work queued so far has run into ``out``,
+        without holding up the work queue. Returns ``wait``; ``out`` is filled once it returns.
+
+        Only a device-side copy into a staging buffer joins the work queue (microseconds);
+        ``wait`` reads the staging buffer on the transfer queue, from the calling thread. A
+        read into pageable host memory crawls (tens of milliseconds for 16 MiB on the H200's
+        driver), and on the work queue every later kernel waited behind it."""
+        nbytes = out.nbytes
+        staging = self.allocate(nbytes)
+        try:
+            copied = cl.enqueue_copy(self.queue, staging, buffer, byte_count=nbytes)
+            self.queue.flush()
+        except BaseException:
+            self.release(staging, nbytes)
+            raise
+
+        def wait() -> None:
+            try:
+                cl.enqueue_copy(self.transfer_queue, out, staging, wait_for=[copied], is_blocking=True)
+            finally:
+                self.release(staging, nbytes)
+
+        return wait
 
     def upload(self, array: np.ndarray) -> cl.Buffer:
         """A short-lived read-only buffer (edit lists); not counted against the budget."""

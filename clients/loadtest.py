@@ -21,6 +21,13 @@ when any request failed. Latency is measured from the moment a request is
 sent to its answer; with ``--rate`` a client that falls behind sends at once.
 With ``--processes P`` the clients are spread over P processes (one Python
 process tops out at a few thousand requests per second).
+
+Each game client holds one connection. With ``--http lean`` (the default) it is
+a ``sdfclient.lean.LeanConnection``, hand-written HTTP/1.1 on asyncio streams,
+so that the load generator costs little next to the server it measures;
+``--http httpx`` uses ``AsyncClient`` instead. The report says what the load
+generator itself cost: its processes' CPU time per request
+(``client_cpu_us_per_request``).
 """
 
 from __future__ import annotations
@@ -46,6 +53,8 @@ import httpx  # noqa: E402
 
 from loadtest_report import ProgressLine, format_report, latency_summary, report  # noqa: E402,F401
 from sdfclient import AsyncClient, Client, RateLimited, SdfClientError, ServerError, edits  # noqa: E402
+from sdfclient.lean import LeanConnection  # noqa: E402
+from sdfclient.stream import Stream  # noqa: E402
 
 MAX_DURATION_S = 3600.0
 
@@ -70,6 +79,7 @@ class LoadConfig:
     seed: int = 0
     timeout_s: float = 30.0
     edits_over: str = "http"  # http: POST /edits; ws: the WebSocket stream (reads stay HTTP)
+    http: str = "lean"  # lean: LeanConnection; httpx: AsyncClient
     api_key: str | None = field(default=None, repr=False)  # sent as a bearer token; never reported
 
 
@@ -119,6 +129,7 @@ class Tally:
     read_ms: array.array = field(default_factory=lambda: array.array("d"))
     round_trip_ms: array.array = field(default_factory=lambda: array.array("d"))  # edit + its read
     errors: dict[str, int] = field(default_factory=dict)
+    cpu_s: float = 0.0  # the load generator's own CPU time (time.process_time) over the run
 
     @property
     def count(self) -> int:
@@ -153,14 +164,23 @@ async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget,
     next_at = start + interval * index / cfg.clients
     edits_sent = 0
     async with contextlib.AsyncExitStack() as stack:
-        client = await stack.enter_async_context(
-            AsyncClient(cfg.url, api_key=cfg.api_key, timeout=cfg.timeout_s,
-                        limits=httpx.Limits(max_connections=1)))
-        if cfg.edits_over == "ws":
-            stream = await stack.enter_async_context(client.stream(cfg.world_id))
-            send_edit = stream.edit
+        if cfg.http == "lean":
+            client = LeanConnection(cfg.url, api_key=cfg.api_key, timeout=cfg.timeout_s)
         else:
-            send_edit = functools.partial(client.edit, cfg.world_id)
+            client = AsyncClient(cfg.url, api_key=cfg.api_key, timeout=cfg.timeout_s,
+                                 limits=httpx.Limits(max_connections=1))
+        await stack.enter_async_context(client)
+        if cfg.edits_over == "ws":  # what AsyncClient.stream opens, whichever HTTP client reads
+            stream = await stack.enter_async_context(Stream.connect(cfg.url, cfg.world_id, api_key=cfg.api_key))
+            edit = stream.edit
+        else:
+            edit = functools.partial(client.edit, cfg.world_id)
+        # LeanConnection's timeout bounds the whole exchange; httpx's are per phase, the stream has none.
+        if cfg.http == "lean" and cfg.edits_over == "http":
+            send_edit = edit
+        else:
+            def send_edit(batch: list[dict]):
+                return asyncio.wait_for(edit(batch), cfg.timeout_s)
         pending_read = None
         while True:
             if interval:
@@ -185,7 +205,7 @@ async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget,
                     tally.round_trip_ms.append(edit_ms + read_ms)
                     continue
                 batch, center = brushes.batch()
-                version = await asyncio.wait_for(send_edit(batch), cfg.timeout_s)
+                version = await send_edit(batch)
                 edit_ms = (time.perf_counter() - t0) * 1e3
                 tally.edit_ms.append(edit_ms)
                 tally.edit_at_s.append(t0 - start)
@@ -201,6 +221,7 @@ async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget,
 
 async def run_clients(cfg: LoadConfig, indices: list[int], requests: int, tally: Tally,
                       progress=None) -> float:
+    cpu_start = time.process_time()
     start = time.perf_counter()
     budget = Budget(requests, start + cfg.duration_s)
     tasks = [asyncio.create_task(game_client(i, cfg, tally, budget, start)) for i in indices]
@@ -210,6 +231,7 @@ async def run_clients(cfg: LoadConfig, indices: list[int], requests: int, tally:
             progress(tally)
     for t in tasks:
         t.result()  # a bug in the load test itself surfaces here
+    tally.cpu_s += time.process_time() - cpu_start
     return time.perf_counter() - start
 
 
@@ -228,7 +250,7 @@ def _worker(cfg: LoadConfig, indices: list[int], requests: int, out: "multiproce
     go.wait()  # every worker has imported everything: start together
     elapsed = asyncio.run(run_clients(cfg, indices, requests, tally, progress))
     out.put(("done", os.getpid(), tally.edit_ms.tobytes(), tally.read_ms.tobytes(), tally.errors, elapsed,
-             tally.round_trip_ms.tobytes(), tally.edit_at_s.tobytes()))
+             tally.round_trip_ms.tobytes(), tally.edit_at_s.tobytes(), tally.cpu_s))
 
 
 # -- driving and reporting --------------------------------------------------------------------------
@@ -288,6 +310,7 @@ def drive(cfg: LoadConfig, processes: int = 1, show_progress: bool = True) -> tu
             tally.edit_at_s.frombytes(message[7])
             for k, v in message[4].items():
                 tally.errors[k] = tally.errors.get(k, 0) + v
+            tally.cpu_s += message[8]
             counts[message[1]] = (0, 0)
             elapsed = max(elapsed, message[5])
         line.update(tally.count + sum(c for c, _ in counts.values()),
@@ -326,6 +349,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--read-format", choices=("distance", "packed"), default="distance")
     ap.add_argument("--edits-over", choices=("http", "ws"), default="http",
                     help="post edits over HTTP or send them over each client's WebSocket stream")
+    ap.add_argument("--http", choices=("lean", "httpx"), default="lean",
+                    help="each client's HTTP connection: sdfclient.lean.LeanConnection (little client CPU) "
+                         "or sdfclient.AsyncClient (httpx)")
     ap.add_argument("--ops-per-batch", type=int, default=1, help="brushes per edit batch")
     ap.add_argument("--brush-min", type=float, default=1.0, help="smallest brush radius / half-side, voxels")
     ap.add_argument("--brush-max", type=float, default=8.0, help="largest brush radius / half-side, voxels")
@@ -369,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
         read_size=args.read_size, read_format=args.read_format, ops_per_batch=args.ops_per_batch,
         brush_min=args.brush_min, brush_max=args.brush_max, delete_fraction=args.delete_fraction,
         sphere_fraction=args.sphere_fraction, seed=args.seed, timeout_s=args.timeout,
-        edits_over=args.edits_over, api_key=args.api_key,
+        edits_over=args.edits_over, http=args.http, api_key=args.api_key,
     )
     try:
         tally, elapsed = drive(cfg, args.processes, show_progress=not args.quiet)

@@ -72,6 +72,8 @@ def report(cfg: Any, tally: Any, elapsed_s: float, world: dict) -> dict:
         "round_trips": latency_summary(tally.round_trip_ms, elapsed_s),  # an edit and its min_version read
         "edit_timeline": edit_timeline(tally),
         "errors": {"count": error_count, "by_code": dict(sorted(tally.errors.items()))},
+        # The load generator's own cost: if it nears the time a request takes, it measures itself.
+        "client_cpu_us_per_request": tally.cpu_s / tally.count * 1e6 if tally.count else None,
     }
 
 
@@ -86,6 +88,8 @@ def format_report(result: dict) -> str:
             lines.append(f"  {name:9s} {s['count']:8d}  {s['throughput_per_s']:9.1f}/s  "
                          f"p50 {lat['p50']:.2f} ms  p95 {lat['p95']:.2f} ms  p99 {lat['p99']:.2f} ms  "
                          f"max {lat['max']:.2f} ms")
+    if result.get("client_cpu_us_per_request") is not None:
+        lines.append(f"  load generator CPU {result['client_cpu_us_per_request']:.0f} us/request")
     for code, n in result["errors"]["by_code"].items():
         lines.append(f"  error {code}: {n}")
     return "\n".join(lines)

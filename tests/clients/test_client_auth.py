@@ -98,6 +98,31 @@ def test_wrong_or_missing_key_is_unauthorized(url, worlds):
         assert alice.get_world(a_id).version == 3  # nothing changed
 
 
+def test_lean_connection_sends_the_key(url, worlds):
+    from sdfclient.lean import LeanConnection
+
+    a_id, a_voxels = worlds["alice"]
+
+    async def run():
+        async with LeanConnection(url, api_key=ALICE) as alice:
+            voxels = (await alice.read_voxels(a_id)).data
+            field = await alice.read_field(a_id)
+        refused = []
+        for key in (BOB, "not-a-key-0123456789abc", None):
+            async with LeanConnection(url, api_key=key) as other:
+                try:
+                    await other.edit(a_id, [edits.box((0, 0, 0), (8, 8, 8), 0x11)])
+                except (NotFound, Unauthorized) as exc:
+                    refused.append(exc)
+        return voxels, field, refused
+
+    voxels, field, refused = asyncio.run(run())
+    np.testing.assert_array_equal(voxels, a_voxels)
+    np.testing.assert_array_equal(field.distance, oracle_distance(a_voxels, CAP))
+    assert [type(e) for e in refused] == [NotFound, Unauthorized, Unauthorized]
+    assert [e.status for e in refused] == [404, 401, 401]
+
+
 def test_stream_carries_the_key(url, worlds):
     a_id, a_voxels = worlds["alice"]
 

@@ -67,6 +67,13 @@ def _run(server_url: str, tmp_path, *args: str) -> tuple[subprocess.CompletedPro
     return proc, json.loads(out.read_text())
 
 
+def _check_client_cpu(result: dict, stdout: str, processes: int) -> None:
+    """The load generator's CPU per request: positive, and no more than its processes could spend."""
+    cpu_us = result["client_cpu_us_per_request"]
+    assert 0 < cpu_us * result["requests"] / 1e6 <= result["elapsed_s"] * processes + 0.5
+    assert f"load generator CPU {cpu_us:.0f} us/request" in stdout
+
+
 def test_short_run_reports_sane_numbers(server_url, tmp_path):
     proc, result = _run(server_url, tmp_path, "--clients", "4", "--duration", "2", "--size", "32", "32", "32")
     assert result["errors"] == {"count": 0, "by_code": {}}
@@ -84,6 +91,8 @@ def test_short_run_reports_sane_numbers(server_url, tmp_path):
     assert trips["latency_ms"]["min"] >= reads["latency_ms"]["min"] + edits["latency_ms"]["min"] - 1e-9
     assert trips["latency_ms"]["max"] <= reads["latency_ms"]["max"] + edits["latency_ms"]["max"] + 1e-9
     assert "requests/s" in proc.stdout and "p99" in proc.stdout and "edit+read" in proc.stdout
+    assert result["config"]["http"] == "lean"
+    _check_client_cpu(result, proc.stdout, processes=1)
     assert proc.stderr.startswith("\r") and "requests" in proc.stderr  # the progress line
     with Client(server_url) as client:  # the world made for the run is gone
         assert result["world"]["id"] not in [w.id for w in client.list_worlds()]
@@ -93,10 +102,11 @@ def test_request_count_and_rate_bound_the_run_on_a_given_world(server_url, tmp_p
     with Client(server_url) as client:
         world = client.create_world((32, 32, 32), chunk_size=16, max_distance=16)
         try:
-            _, result = _run(server_url, tmp_path, "--world", world.id, "--clients", "2", "--requests", "30",
-                             "--read-every", "0", "--processes", "2", "--quiet", "--seed", "5")
+            proc, result = _run(server_url, tmp_path, "--world", world.id, "--clients", "2", "--requests", "30",
+                                "--read-every", "0", "--processes", "2", "--quiet", "--seed", "5")
             assert result["requests"] == 30 and result["edits"]["count"] == 30 and result["reads"]["count"] == 0
             assert client.get_world(world.id).version == 30
+            _check_client_cpu(result, proc.stdout, processes=2)  # summed over the workers
 
             _, result = _run(server_url, tmp_path, "--world", world.id, "--clients", "2", "--rate", "20",
                              "--duration", "1", "--read-every", "0", "--quiet")
@@ -112,6 +122,14 @@ def test_request_count_and_rate_bound_the_run_on_a_given_world(server_url, tmp_p
             assert edits + reads == 20 and edits in (10, 11)
             assert result["errors"]["count"] == 0 and result["config"]["edits_over"] == "ws"
             assert client.get_world(world.id).version == version + edits
+            version += edits
+
+            proc, result = _run(server_url, tmp_path, "--world", world.id, "--clients", "2", "--requests", "20",
+                                "--http", "httpx", "--quiet")
+            edits, reads = result["edits"]["count"], result["reads"]["count"]
+            assert edits + reads == 20 and edits in (10, 11) and result["errors"]["count"] == 0
+            assert result["config"]["http"] == "httpx" and client.get_world(world.id).version == version + edits
+            _check_client_cpu(result, proc.stdout, processes=1)
         finally:
             client.delete_world(world.id)
 

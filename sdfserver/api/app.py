@@ -12,6 +12,7 @@ The hot request paths (edits, field reads, point queries) go through the fast la
 from __future__ import annotations
 
 import contextlib
+import logging
 from typing import AsyncIterator
 
 from fastapi import Depends, FastAPI
@@ -22,9 +23,12 @@ from starlette.types import Receive, Scope, Send
 from sdfserver import __version__
 from sdfserver.api import auth, errors, health, models, render_routes, routes, stream, transfer
 from sdfserver.api.fastlane import FastLane
+from sdfserver.api.gcpauses import GcPauses, freeze_startup_objects
 from sdfserver.engine import Engine, EngineLimits, EngineMetrics, Journal
 from sdfserver.gpu import GpuContext
 from sdfserver.settings import Settings
+
+log = logging.getLogger("sdfserver")
 
 
 class ApiMetrics:
@@ -65,13 +69,19 @@ def build_engine(settings: Settings, journal: Journal | None = None,
     return Engine(gpu, engine_limits(settings), journal=journal, metrics=metrics)
 
 
-def create_app(settings: Settings, engine: Engine | None = None, *, fast_lane: bool = True) -> FastAPI:
+def create_app(settings: Settings, engine: Engine | None = None, *, fast_lane: bool = True,
+               freeze_gc: bool = False) -> FastAPI:
+    """``freeze_gc``: at start-up, exempt every object alive from garbage collection and count
+    collections on /metrics (``gcpauses.py``); for a server process, not a test's."""
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         if app.state.engine is None:
             app.state.engine = build_engine(settings, metrics=EngineMetrics(registry))
         if not app.state.engine.started:
             app.state.engine.start(warm_up=settings.warm_up)
+        if freeze_gc:  # here, once uvicorn has imported all it serves with
+            GcPauses(registry)
+            log.info("%d start-up objects exempted from garbage collection", freeze_startup_objects())
         try:
             yield
         finally:

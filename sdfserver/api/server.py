@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         logging.getLogger("sdfserver").info("data directory: %s (sync %s)", journal.storage.data_dir,
                                             "on" if settings.sync else "OFF")
         restore(engine, journal)
-    app = create_app(settings, engine)
+    app = create_app(settings, engine, freeze_gc=True)
     app.state.journal = journal
     try:
         uvicorn.run(app, host=settings.host, port=settings.port, log_config=log_config,

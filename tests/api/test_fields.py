@@ -141,5 +141,10 @@ def test_openapi_and_health(server):
         assert ref in schema["components"]["schemas"], f"dangling $ref {ref}"
     metrics = server.http.get("/metrics").text
     for name in ("sdfserver_edit_batches_total", "sdfserver_recompute_seconds_bucket", "sdfserver_queue_depth",
-                 "sdfserver_websocket_clients", "sdfserver_bytes_out_total", "sdfserver_dirty_chunks"):
+                 "sdfserver_websocket_clients", "sdfserver_bytes_out_total", "sdfserver_dirty_chunks",
+                 "sdfserver_engine_step_seconds_bucket", 'sdfserver_engine_phase_seconds_total{phase="apply"}',
+                 'sdfserver_gc_collections_total{generation="2"}'):
         assert name in metrics
+    # The server process froze its start-up objects (tens of thousands) out of the collector.
+    frozen = re.search(r"^sdfserver_gc_frozen_objects (\S+)$", metrics, re.M)
+    assert frozen and float(frozen.group(1)) > 10_000

@@ -80,8 +80,8 @@ def create_app(settings: Settings, engine: Engine | None = None, *, fast_lane: b
         if not app.state.engine.started:
             app.state.engine.start(warm_up=settings.warm_up)
         if freeze_gc:  # here, once uvicorn has imported all it serves with
-            GcPauses(registry)
             log.info("%d start-up objects exempted from garbage collection", freeze_startup_objects())
+            GcPauses(registry)
         try:
             yield
         finally:

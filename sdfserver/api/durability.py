@@ -13,7 +13,8 @@ from sdfserver.storage.journal import StorageJournal
 def open_journal(settings: Settings) -> StorageJournal | None:
     if not settings.persist:
         return None
-    storage = Storage(settings.data_dir, sync=settings.sync, commit_window_ms=settings.commit_window_ms)
+    storage = Storage(settings.data_dir, sync=settings.sync, commit_window_ms=settings.commit_window_ms,
+                      sync_inline=settings.sync_inline)
     return StorageJournal(storage, snapshot_every_batches=settings.snapshot_every_batches)
 
 

@@ -96,7 +96,8 @@ class WorldStore:
 
 class Storage:
     def __init__(self, data_dir: str | Path = DEFAULT_DATA_DIR, *, sync: bool = True,
-                 commit_window_ms: float = 0.0, segment_limit: int = SEGMENT_LIMIT_BYTES):
+                 commit_window_ms: float = 0.0, segment_limit: int = SEGMENT_LIMIT_BYTES,
+                 sync_inline: bool = False):
         self.segment_limit = segment_limit
         self.data_dir = Path(data_dir).expanduser().resolve()
         self.worlds_dir = self.data_dir / "worlds"
@@ -104,7 +105,7 @@ class Storage:
             self.worlds_dir.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise StorageError(f"cannot create the data directory {self.worlds_dir}: {exc}") from None
-        self.committer = Committer(sync=sync, window_ms=commit_window_ms)
+        self.committer = Committer(sync=sync, window_ms=commit_window_ms, inline=sync_inline)
         self._sweep()
 
     def _sweep(self) -> None:

@@ -231,7 +231,9 @@ def test_group_commit_shares_syncs(storage, monkeypatch):
     store.close()
 
 
-def test_a_failed_sync_is_never_retried_and_acknowledged(storage, monkeypatch):
+@pytest.mark.parametrize("inline", [False, True], ids=["committer", "inline"])
+def test_a_failed_sync_is_never_retried_and_acknowledged(tmp_path, monkeypatch, inline):
+    storage = Storage(tmp_path / "data", sync_inline=inline)
     store = storage.create_world("w", {"config": CONFIG})
     store.append(1, b"fine").result()
 
@@ -249,6 +251,28 @@ def test_a_failed_sync_is_never_retried_and_acknowledged(storage, monkeypatch):
         other.append(1, b"refused too")
     store.close()
     other.close()
+    storage.close()
+
+
+def test_inline_sync_completes_the_append_itself(tmp_path, monkeypatch):
+    storage = Storage(tmp_path / "data", sync_inline=True)
+    store = storage.create_world("w", {"config": CONFIG})
+    real, synced = os.fdatasync, []
+
+    def counting(fd):
+        synced.append((threading.get_ident(), fd))
+        real(fd)
+
+    monkeypatch.setattr(os, "fdatasync", counting)
+    futures = [store.append_many(1, [b"one", b"two"]), store.append(3, b"three")]
+    assert all(f.done() and f.exception() is None for f in futures)  # durable on return
+    assert synced == [(threading.get_ident(), store.log._fd)] * 2  # one sync a write, on this thread
+    monkeypatch.undo()
+    store.close()
+    storage, store, rec = reopen(storage)
+    assert rec.records == [(1, b"one"), (2, b"two"), (3, b"three")]
+    store.close()
+    storage.close()
 
 
 def test_a_failed_write_leaves_no_partial_record(storage, monkeypatch):

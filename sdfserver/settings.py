@@ -66,10 +66,9 @@ class Settings(BaseSettings):
     sync: bool = Field(True, description="fdatasync the log before an edit batch is acknowledged (batches that "
                                          "arrive together share one sync). Off only for measurements: a crash "
                                          "can then lose acknowledged edits.")
-    sync_inline: bool = Field(True, description="fdatasync the log on the engine thread right after each step's "
-                              "write (all of the step's batches share it): the quickest acknowledgement on a disk "
-                              "that syncs in well under a millisecond. Off: a committer thread syncs while the "
-                              "engine goes on, for disks whose syncs take milliseconds.")
+    sync_inline: bool = Field(False, description="fdatasync the log on the engine thread right after each step's "
+                              "write instead of on the committer thread: no thread hand-off before an "
+                              "acknowledgement, but the engine waits for the disk (see docs/benchmarks.md).")
     commit_window_ms: float = Field(0.0, ge=0, le=100, description="With sync_inline off: extra wait before each "
                                     "log sync so that more batches share it, in milliseconds (0: sync as soon as "
                                     "one is waiting).")

@@ -11,7 +11,7 @@ has() { [[ ",$sections," == *",$1,"* ]]; }
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
 
 if has tests; then
-  timeout 200 python3 -m pytest tests/core -q -p no:cacheprovider > "$OUT/core-tests.txt" 2>&1
+  timeout 200 python3 -m pytest tests/core tests/durability/test_engine_journal.py -q -p no:cacheprovider > "$OUT/core-tests.txt" 2>&1
   tail -1 "$OUT/core-tests.txt"
 fi
 if has bench; then
@@ -29,15 +29,17 @@ if has service; then
     > "$OUT/server.log" 2>&1 &
   server=$!
   for _ in $(seq 120); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.5; done
-  timeout 60 python3 tools/service_overhead.py --pid $server --url http://127.0.0.1:$port -- \
-    python3 clients/loadtest.py --url http://127.0.0.1:$port --clients 64 --processes 8 \
-    --duration 15 --size 256 256 256 --read-every 0 --quiet --json "$OUT/load-64.json" > "$OUT/load-64.txt" 2>&1
-  timeout 40 python3 tools/service_overhead.py --pid $server --url http://127.0.0.1:$port -- \
-    python3 clients/loadtest.py --url http://127.0.0.1:$port --clients 1 --duration 10 \
-    --size 256 256 256 --read-every 1 --read-size 16 --quiet --json "$OUT/load-rtt.json" > "$OUT/load-rtt.txt" 2>&1
+  for run in "load-64:--clients 64 --processes 8 --duration 15 --read-every 0" \
+             "load-64-rate5000:--clients 64 --processes 8 --duration 15 --read-every 0 --rate 5000" \
+             "load-rtt:--clients 1 --duration 10 --read-every 1 --read-size 16"; do
+    name=${run%%:*}
+    timeout 60 python3 tools/service_overhead.py --pid $server --url http://127.0.0.1:$port -- \
+      python3 clients/loadtest.py --url http://127.0.0.1:$port --size 256 256 256 --quiet \
+      --json "$OUT/$name.json" ${run#*:} > "$OUT/$name.txt" 2>&1
+  done
   timeout 40 python3 tools/ws_frames.py --url http://127.0.0.1:$port --size 512 --duration 10 \
     --json "$OUT/ws-frames.json" > "$OUT/ws-frames.txt" 2>&1
   curl -s http://127.0.0.1:$port/metrics > "$OUT/metrics.txt"
   kill $server; wait $server 2>/dev/null
 fi
-for f in bench.txt render.txt load-64.txt load-rtt.txt ws-frames.txt; do [ -f "$OUT/$f" ] && { echo "== $f"; cat "$OUT/$f"; }; done
+for f in bench.txt render.txt load-64.txt load-64-rate5000.txt load-rtt.txt ws-frames.txt; do [ -f "$OUT/$f" ] && { echo "== $f"; cat "$OUT/$f"; }; done

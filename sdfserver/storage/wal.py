@@ -11,11 +11,11 @@ the batch only after that.
 
 Two ways to sync, chosen per server (``sync_inline``):
 
-- inline (the default): the appending thread calls ``fdatasync`` right after its write and
+- inline: the appending thread calls ``fdatasync`` right after its write and
   gets back a future that is already complete. The engine appends once per world per step,
   so every batch of a step shares that sync; on a disk that syncs in tens of microseconds
   this is the shortest path to an acknowledgement (no thread hand-offs, no wait for the GIL).
-- group commit: the committer thread takes every record waiting (optionally after a short
+- group commit (the default): the committer thread takes every record waiting (optionally after a short
   window), calls ``fdatasync`` once per file, and completes all their futures together. While
   one sync runs, the appends that arrive queue up for the next, and the engine goes on: for
   disks whose syncs take milliseconds.

@@ -89,8 +89,8 @@ class GpuContext:
 
         Only a device-side copy into a staging buffer joins the work queue (microseconds);
         ``wait`` reads the staging buffer on the transfer queue, from the calling thread. A
-        read into pageable host memory crawls (tens of milliseconds for 16 MiB on the H200's
-        driver), and on the work queue every later kernel waited behind it."""
+        blocking read of a whole world on the work queue would hold every later kernel (and the
+        engine thread) for as long as the transfer to pageable host memory takes."""
         nbytes = out.nbytes
         staging = self.allocate(nbytes)
         try:

@@ -4,10 +4,10 @@
 log's lock, so records of one world are in version order; ``append_many`` writes several
 consecutive records with one ``os.write``) and hands the file to the
 ``Committer``; it returns a ``concurrent.futures.Future`` that completes once the record is
-durable. A segment that has grown past ``segment_limit`` bytes is closed and the next append
-starts a new one, so snapshots never have to rotate the log (which would stall the appender)
-and the log is trimmed a whole segment at a time. Block on it with ``.result()`` or await it with ``asyncio.wrap_future``; acknowledge
-the batch only after that.
+durable. Block on it with ``.result()`` or await it with ``asyncio.wrap_future``; acknowledge
+the batch only after that. A segment that has grown past ``segment_limit`` bytes is closed and
+the next append starts a new one, so snapshots never rotate the log (which would hold up the
+appender) and the log is trimmed a whole segment at a time.
 
 Two ways to sync, chosen per server (``sync_inline``):
 
@@ -15,10 +15,10 @@ Two ways to sync, chosen per server (``sync_inline``):
   gets back a future that is already complete. The engine appends once per world per step,
   so every batch of a step shares that sync; on a disk that syncs in tens of microseconds
   this is the shortest path to an acknowledgement (no thread hand-offs, no wait for the GIL).
-- group commit (the default): the committer thread takes every record waiting (optionally after a short
-  window), calls ``fdatasync`` once per file, and completes all their futures together. While
-  one sync runs, the appends that arrive queue up for the next, and the engine goes on: for
-  disks whose syncs take milliseconds.
+- group commit (the default): the committer thread takes every record waiting (optionally
+  after a short window), calls ``fdatasync`` once per file, and completes all their futures
+  together. While one sync runs, the appends that arrive queue up for the next, and the engine
+  goes on.
 
 A failed write or sync is never retried: the committer enters a failed state, every waiting
 future and every later append raises ``WritesDisabled`` naming the file and the OS error.

@@ -92,6 +92,11 @@ def test_short_run_reports_sane_numbers(server_url, tmp_path):
     assert trips["latency_ms"]["max"] <= reads["latency_ms"]["max"] + edits["latency_ms"]["max"] + 1e-9
     assert "requests/s" in proc.stdout and "p99" in proc.stdout and "edit+read" in proc.stdout
     assert result["config"]["http"] == "lean"
+    timeline = result["edit_timeline"]  # each second's edits and their p99
+    seconds = [t["second"] for t in timeline]
+    assert seconds == sorted(set(seconds)) and 0 <= seconds[0] and seconds[-1] <= result["elapsed_s"]
+    assert sum(t["edits"] for t in timeline) == edits["count"]
+    assert all(edits["latency_ms"]["min"] <= t["p99_ms"] <= edits["latency_ms"]["max"] for t in timeline)
     _check_client_cpu(result, proc.stdout, processes=1)
     assert proc.stderr.startswith("\r") and "requests" in proc.stderr  # the progress line
     with Client(server_url) as client:  # the world made for the run is gone

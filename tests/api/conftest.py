@@ -3,11 +3,7 @@ NumPy/SciPy references to check what it answers."""
 
 from __future__ import annotations
 
-import os
-import socket
 import subprocess
-import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +14,8 @@ from scipy.ndimage import distance_transform_cdt
 
 from sdfserver import wire
 
-ROOT = Path(__file__).resolve().parents[2]
+from server_process import ServerProcess
+
 MEMORY_BUDGET_BYTES = 32 << 20
 SERVER_FLAGS = [
     "--memory-budget-bytes", str(MEMORY_BUDGET_BYTES),
@@ -31,12 +28,6 @@ SERVER_FLAGS = [
     "--max-query-points", "1000",
     "--max-wait-ms", "1500",
 ]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Server:
@@ -98,40 +89,13 @@ class Server:
 
 @pytest.fixture(scope="session")
 def server(tmp_path_factory) -> Server:
-    port = free_port()
     # A data directory of its own: worlds are durable, and servers sharing one would see each
     # other's leftovers.
-    data_dir = tmp_path_factory.mktemp("api-server") / "data"
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    env.pop("SDFSERVER_PORT", None)
-    process = subprocess.Popen(
-        [sys.executable, "-m", "sdfserver", "serve", "--host", "127.0.0.1", "--port", str(port),
-         "--data-dir", str(data_dir), *SERVER_FLAGS],
-        cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 120
-    while True:
-        if process.poll() is not None:
-            raise RuntimeError(f"server exited: {process.stdout.read().decode(errors='replace')}")
-        try:
-            if httpx.get(url + "/readyz", timeout=2).status_code == 200:
-                break
-        except httpx.TransportError:
-            pass
-        if time.monotonic() > deadline:
-            process.kill()
-            raise RuntimeError("server did not become ready")
-        time.sleep(0.1)
-    srv = Server(process, url)
+    process = ServerProcess(tmp_path_factory.mktemp("api-server") / "data", *SERVER_FLAGS).wait_ready()
+    srv = Server(process.process, process.url)
     yield srv
     srv.http.close()
-    process.terminate()
-    try:
-        process.wait(15)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.wait()
-    process.stdout.close()
+    process.stop()
 
 
 # -- references -------------------------------------------------------------------------------------

@@ -4,79 +4,33 @@ semantics, capped taxicab)."""
 from __future__ import annotations
 
 import contextlib
-import os
-import socket
-import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Iterator
-
-import httpx
 
 import numpy as np
 from scipy.ndimage import distance_transform_cdt
 
-ROOT = Path(__file__).resolve().parents[2]
+from server_process import ROOT, ServerProcess, checkout_env, free_port  # noqa: F401  (tests import them here)
+
 CLIENTS = ROOT / "clients"
 if str(CLIENTS) not in sys.path:
     sys.path.insert(0, str(CLIENTS))
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def env_with_paths() -> dict[str, str]:
-    """This environment with the checkout on PYTHONPATH and no SDFSERVER_* settings (a developer's
-    own keys or data directory must not leak into the servers and scripts the tests start)."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("SDFSERVER_")}
-    paths = [str(ROOT), str(CLIENTS)]
-    if env.get("PYTHONPATH"):
-        paths.append(env["PYTHONPATH"])
-    env["PYTHONPATH"] = os.pathsep.join(paths)
-    return env
-
-
-READY_TIMEOUT_S = 120.0  # PoCL builds the kernels while the server warms up
+    """For the scripts the tests run: the checkout and clients/ on PYTHONPATH, no SDFSERVER_*."""
+    return checkout_env(CLIENTS)
 
 
 @contextlib.contextmanager
 def serve(directory: Path, *flags: str) -> Iterator[str]:
     """Run ``sdfserver serve`` with ``flags`` and its data in ``directory``; yields its URL once ready."""
-    port = free_port()
-    log_path = directory / "server.log"
-    log = open(log_path, "wb")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sdfserver", "serve", "--host", "127.0.0.1", "--port", str(port),
-         "--data-dir", str(directory / "data"), *flags],
-        cwd=ROOT, env=env_with_paths(), stdout=log, stderr=subprocess.STDOUT,
-    )
-    url = f"http://127.0.0.1:{port}"
+    server = ServerProcess(directory / "data", *flags).wait_ready()
     try:
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        while True:
-            if proc.poll() is not None:
-                raise RuntimeError(f"sdfserver serve exited with {proc.returncode}:\n{log_path.read_text()}")
-            try:
-                if httpx.get(url + "/readyz", timeout=1.0).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"sdfserver serve not ready in {READY_TIMEOUT_S:g} s:\n{log_path.read_text()}")
-            time.sleep(0.2)
-        yield url
+        yield server.url
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-        log.close()
+        server.stop()
 
 
 def apply_edits(voxels: np.ndarray, batch: list[dict]) -> None:

@@ -20,7 +20,8 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+HERE = Path(__file__).resolve().parent
+sys.path[:0] = [str(HERE), str(HERE.parent)]  # durable_server and the server_process it uses
 from durable_server import ServerProcess  # noqa: E402
 
 

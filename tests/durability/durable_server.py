@@ -4,81 +4,28 @@ voxels edits the tests send."""
 
 from __future__ import annotations
 
-import os
-import signal
-import socket
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import httpx
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
+import server_process
+
 FLAGS = ["--memory-budget-bytes", str(32 << 20), "--no-warm-up", "--max-request-bytes", str(1 << 20),
          "--max-ops-per-batch", "64", "--max-brush-radius-vox", "40", "--max-wait-ms", "3000"]
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+class ServerProcess(server_process.ServerProcess):
+    """A server with the durability tests' limits and an HTTP client (with ``token``, if given)."""
 
-
-class ServerProcess:
     def __init__(self, data_dir: Path, *flags: str, token: str | None = None, env: dict | None = None):
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        self.log_path = data_dir.parent / f"server-{self.port}.log"
-        self.log = open(self.log_path, "wb")
-        full_env = {**os.environ, "PYTHONPATH": str(ROOT), **(env or {})}
-        full_env.pop("SDFSERVER_PORT", None)
-        self.process = subprocess.Popen(
-            [sys.executable, "-m", "sdfserver", "serve", "--host", "127.0.0.1", "--port", str(self.port),
-             "--data-dir", str(data_dir), *FLAGS, *flags],
-            cwd=ROOT, env=full_env, stdout=self.log, stderr=subprocess.STDOUT)
+        super().__init__(data_dir, *FLAGS, *flags, env=env)
         headers = {"authorization": f"Bearer {token}"} if token else {}
         self.http = httpx.Client(base_url=self.url, timeout=30, headers=headers)
 
-    def wait_ready(self, timeout_s: float = 120) -> "ServerProcess":
-        deadline = time.monotonic() + timeout_s
-        while True:
-            if self.process.poll() is not None:
-                raise RuntimeError(f"server exited {self.process.returncode}: {self.output()}")
-            try:
-                if httpx.get(self.url + "/readyz", timeout=2).status_code == 200:
-                    return self
-            except httpx.TransportError:
-                pass
-            if time.monotonic() > deadline:
-                self.kill()
-                raise RuntimeError(f"server did not become ready: {self.output()}")
-            time.sleep(0.05)
-
-    def output(self) -> str:
-        self.log.flush()
-        return self.log_path.read_text(errors="replace")[-4000:]
-
-    def kill(self) -> None:
-        if self.process.poll() is None:
-            os.kill(self.process.pid, signal.SIGKILL)
-        self.process.wait()
-        self.close()
-
-    def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(15)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
-        self.close()
-
     def close(self) -> None:
         self.http.close()
-        self.log.close()
+        super().close()
 
 
 def apply_reference(voxels: np.ndarray, edits: list[dict]) -> None:

@@ -11,7 +11,7 @@ from websockets.sync.client import connect
 
 from sdfserver import wire
 
-from durable_server import ROOT
+from server_process import ROOT
 
 ALICE, BOB, ROOT_KEY, CAROL = "alice-token-0123456789", "bob-token-0123456789ab", "root-token-0123456789", \
     "carol-token-0123456789"

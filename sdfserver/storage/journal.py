@@ -75,7 +75,7 @@ class StorageJournal:
                 and store.records_since_snapshot >= self.snapshot_every_batches)
 
     def record_snapshot(self, world_id: str, version: int, config: dict[str, Any], voxels: np.ndarray,
-                        ready: Callable[[], None] = lambda: None) -> Future:
+                        ready: Callable[[], None]) -> Future:
         store = self._store(world_id)
         future = self._snapshots.submit(self._snapshot, store, version, config, voxels, ready)
         self._snapshotting[world_id] = future

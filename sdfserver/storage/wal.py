@@ -39,7 +39,7 @@ from sdfserver.storage.fsutil import fsync_dir, write_atomic
 
 SEGMENT_PATTERN = "wal-*.log"
 SYNC_THREADS = 8
-SEGMENT_LIMIT_BYTES = 16 << 20  # about 160k brush batches: a second or so of replay at start-up
+SEGMENT_LIMIT_BYTES = 16 << 20  # some 160k records of a brush or two (~100 bytes each)
 
 
 def segment_name(base_version: int) -> str:

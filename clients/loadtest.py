@@ -139,6 +139,14 @@ class Tally:
         key = exc.code if isinstance(exc, ServerError) else type(exc).__name__
         self.errors[key] = self.errors.get(key, 0) + 1
 
+    def merge(self, other: "Tally") -> None:
+        """Add a worker's tally to this one."""
+        for name in ("edit_ms", "edit_at_s", "read_ms", "round_trip_ms"):
+            getattr(self, name).extend(getattr(other, name))
+        for key, n in other.errors.items():
+            self.errors[key] = self.errors.get(key, 0) + n
+        self.cpu_s += other.cpu_s
+
 
 class Budget:
     """Request tickets shared by the clients of one worker, and the deadline."""
@@ -249,8 +257,7 @@ def _worker(cfg: LoadConfig, indices: list[int], requests: int, out: "multiproce
     out.put(("ready", os.getpid()))
     go.wait()  # every worker has imported everything: start together
     elapsed = asyncio.run(run_clients(cfg, indices, requests, tally, progress))
-    out.put(("done", os.getpid(), tally.edit_ms.tobytes(), tally.read_ms.tobytes(), tally.errors, elapsed,
-             tally.round_trip_ms.tobytes(), tally.edit_at_s.tobytes(), tally.cpu_s))
+    out.put(("done", os.getpid(), tally, elapsed))
 
 
 # -- driving and reporting --------------------------------------------------------------------------
@@ -304,15 +311,9 @@ def drive(cfg: LoadConfig, processes: int = 1, show_progress: bool = True) -> tu
             counts[message[1]] = (message[2], message[3])
         elif message and message[0] == "done":
             done += 1
-            tally.edit_ms.frombytes(message[2])
-            tally.read_ms.frombytes(message[3])
-            tally.round_trip_ms.frombytes(message[6])
-            tally.edit_at_s.frombytes(message[7])
-            for k, v in message[4].items():
-                tally.errors[k] = tally.errors.get(k, 0) + v
-            tally.cpu_s += message[8]
+            tally.merge(message[2])
             counts[message[1]] = (0, 0)
-            elapsed = max(elapsed, message[5])
+            elapsed = max(elapsed, message[3])
         line.update(tally.count + sum(c for c, _ in counts.values()),
                     sum(tally.errors.values()) + sum(e for _, e in counts.values()))
     for w in workers:

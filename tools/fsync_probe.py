@@ -1,8 +1,8 @@
 """How long an fdatasync of a small log record takes on this disk, back to back and after idling.
 
-    python tools/fsync_probe.py /path/on/the/disk [--records 400]
+    python tools/fsync_probe.py /path/on/the/disk [--records 400] [--gaps-ms 0,1,2.5]
 
-For each gap between syncs (0, 1 and 2.5 ms) and each way of writing the record — appending
+For each gap between syncs (default 0, 1 and 2.5 ms) and each way of writing the record — appending
 (the file grows), overwriting pre-zeroed blocks, overwriting fallocated blocks — writes
 150-byte records, each followed by ``fdatasync``, and prints p50/p90/p99 of write + sync.
 """
@@ -14,7 +14,7 @@ import os
 import time
 
 RECORD = b"x" * 150
-GAPS_S = (0.0, 0.001, 0.0025)
+GAPS_MS = "0,1,2.5"
 MODES = ("append", "zeroed", "fallocate")
 
 
@@ -52,8 +52,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("directory", help="a directory on the disk to measure (the data directory's disk)")
     ap.add_argument("--records", type=int, default=400)
+    ap.add_argument("--gaps-ms", default=GAPS_MS, help="idle time before each write, comma-separated")
     args = ap.parse_args()
-    for gap_s in GAPS_S:
+    for gap_s in [float(g) / 1e3 for g in args.gaps_ms.split(",")]:
         for mode in MODES:
             s = probe(args.directory, mode, gap_s, args.records)
             pick = lambda q: s[min(len(s) - 1, int(len(s) * q))] * 1e6  # noqa: E731

@@ -18,7 +18,10 @@ Two ways to sync, chosen per server (``sync_inline``):
 - group commit (the default): the committer thread takes every record waiting (optionally
   after a short window), calls ``fdatasync`` once per file, and completes all their futures
   together. While one sync runs, the appends that arrive queue up for the next, and the engine
-  goes on.
+  goes on. An append that finds the committer idle waits (GIL released) until it has taken
+  the record, so the sync starts at once: otherwise the committer would wait for the GIL
+  while the appending thread works on, and the sync would start up to a switch interval late
+  (measured on the H200 host: 0.49 ms of a one-client edit's 1.7 ms).
 
 A failed write or sync is never retried: the committer enters a failed state, every waiting
 future and every later append raises ``WritesDisabled`` naming the file and the OS error.
@@ -40,6 +43,7 @@ from sdfserver.storage.fsutil import fsync_dir, write_atomic
 SEGMENT_PATTERN = "wal-*.log"
 SYNC_THREADS = 8
 SEGMENT_LIMIT_BYTES = 16 << 20  # some 160k records of a brush or two (~100 bytes each)
+HANDOVER_TIMEOUT_S = 0.005  # a committer not scheduled by then: go on, the record stays queued
 
 
 def segment_name(base_version: int) -> str:
@@ -61,6 +65,9 @@ class Committer:
         self._pending: list[tuple[int, str, Future]] = []
         self._failure: WritesDisabled | None = None
         self._closed = False
+        self._idle = False  # the committer waits for records
+        self._queued = 0  # records ever queued, and of those taken for a sync
+        self._taken = 0
         self.syncs = 0  # fdatasync calls made
         self.records = 0  # records made durable
         self._pool = ThreadPoolExecutor(max_workers=SYNC_THREADS, thread_name_prefix="sdfserver-fdatasync")
@@ -70,6 +77,12 @@ class Committer:
     @property
     def failure(self) -> WritesDisabled | None:
         return self._failure
+
+    @property
+    def waiting(self) -> int:
+        """Records handed over but not yet taken for a sync."""
+        with self._cond:
+            return len(self._pending)
 
     def check(self) -> None:
         if self._failure is not None:
@@ -84,6 +97,8 @@ class Committer:
                     f"writes are disabled: {what} of {path} failed ({exc}); nothing after the last "
                     "acknowledged edit is kept, and no edit is accepted until the server is restarted")
                 pending, self._pending = self._pending, []
+                self._taken = self._queued
+                self._cond.notify_all()
                 for _, _, future in pending:
                     future.set_exception(self._failure)
             return self._failure
@@ -107,20 +122,28 @@ class Committer:
         with self._cond:
             self.check()
             self._pending.append((fd, path, future))
-            self._cond.notify()
+            self._queued += 1
+            mine = self._queued
+            self._cond.notify_all()
+            if self._idle and not self.window_s:
+                self._cond.wait_for(lambda: self._taken >= mine or self._closed, HANDOVER_TIMEOUT_S)
         return future
 
     def _run(self) -> None:
         while True:
             with self._cond:
+                self._idle = True
                 while not self._pending and not self._closed:
                     self._cond.wait()
+                self._idle = False
                 if not self._pending:
                     return
             if self.window_s:
                 time.sleep(self.window_s)
             with self._cond:
                 batch, self._pending = self._pending, []
+                self._taken = self._queued
+                self._cond.notify_all()  # an append waiting for the hand-over goes on
             files = {fd: path for fd, path, _ in batch}
             # Several files (worlds) sync side by side, so the file system can merge them; one file
             # syncs right here (a pool round trip costs two more waits for the GIL under load).
@@ -151,7 +174,7 @@ class Committer:
     def close(self) -> None:
         with self._cond:
             self._closed = True
-            self._cond.notify()
+            self._cond.notify_all()
         self._thread.join()
         self._pool.shutdown()
 

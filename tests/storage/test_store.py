@@ -9,6 +9,7 @@ import pytest
 
 from sdfserver.errors import CorruptData, InvalidInput, NotFound, WritesDisabled
 from sdfserver.storage import Storage, decode_batch
+from sdfserver.storage import wal
 from sdfserver.storage.framing import encode_record
 from sdfserver.storage.wal import segment_base, segment_name
 
@@ -228,6 +229,17 @@ def test_group_commit_shares_syncs(storage, monkeypatch):
         t.join()
     assert storage.committer.records == 160
     assert len(calls) < 80, f"{len(calls)} syncs for 160 records"
+    store.close()
+
+
+def test_an_append_to_an_idle_committer_returns_once_its_sync_is_under_way(storage, monkeypatch):
+    monkeypatch.setattr(wal, "HANDOVER_TIMEOUT_S", 30.0)  # a slow CI machine still hands over
+    store = storage.create_world("w", {"config": CONFIG})
+    for version in range(1, 21):
+        durable = store.append(version, b"batch")
+        # Taken already: the sync does not wait for this thread to give up the GIL.
+        assert storage.committer.waiting == 0
+        durable.result()  # the committer is idle again for the next
     store.close()
 
 

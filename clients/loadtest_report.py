@@ -89,7 +89,8 @@ def format_report(result: dict) -> str:
                          f"p50 {lat['p50']:.2f} ms  p95 {lat['p95']:.2f} ms  p99 {lat['p99']:.2f} ms  "
                          f"max {lat['max']:.2f} ms")
     if result.get("client_cpu_us_per_request") is not None:
-        lines.append(f"  load generator CPU {result['client_cpu_us_per_request']:.0f} us/request")
+        lines.append(f"  load generator CPU {result['client_cpu_us_per_request']:.0f} us/request "
+                     f"({result['config']['http']} HTTP client on {result['config']['loop']})")
     for code, n in result["errors"]["by_code"].items():
         lines.append(f"  error {code}: {n}")
     return "\n".join(lines)

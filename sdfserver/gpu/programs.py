@@ -8,6 +8,11 @@ KernelBuildError with the file, the options and the build log.
 
 Every build also gets the device's own defines (``device_defines``): what the
 device can do beyond OpenCL C, e.g. NVIDIA sm_90's packed 16-bit min.
+
+Kernels come with their by-value argument types declared to pyopencl, read from the
+program's own argument info (``-cl-kernel-arg-info``): pyopencl then packs scalars with
+``struct`` instead of probing each argument, which took ~50 us of the engine thread per
+launch of an 11-argument kernel on the H200 host (82 us on PoCL, against ~1 us declared).
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ import warnings
 from pathlib import Path
 
 import pyopencl as cl
+from pyopencl import cltypes
 
 from sdfserver.errors import KernelBuildError
 
@@ -83,13 +89,14 @@ class ProgramCache:
         kernel = self._kernels.get(key)
         if kernel is None:
             kernel = cl.Kernel(self.get(filename, **defines), name)
+            declare_scalar_args(kernel)
             self._kernels[key] = kernel
         return kernel
 
     def _build(self, filename: str, defines: tuple[str, ...]) -> cl.Program:
         path = KERNEL_DIR / filename
         source = path.read_text()
-        options = [f"-I{INCLUDE_DIR}", *defines]
+        options = [f"-I{INCLUDE_DIR}", "-cl-kernel-arg-info", *defines]
         try:
             # A successful build with a non-empty log (NVIDIA notes inlining) is not a
             # failure: keep the log for debugging instead of raising a warning.
@@ -101,3 +108,29 @@ class ProgramCache:
         for w in caught:
             log.debug("build of %s %s: %s", filename, " ".join(defines), w.message)
         return program
+
+
+def scalar_arg_dtypes(kernel: cl.Kernel) -> list | None:
+    """Each argument's dtype (None for buffers and local memory), from the kernel's argument
+    info; None when the driver gives none or names a type cltypes does not know."""
+    dtypes = []
+    try:
+        for i in range(kernel.num_args):
+            if kernel.get_arg_info(i, cl.kernel_arg_info.ADDRESS_QUALIFIER) != cl.kernel_arg_address_qualifier.PRIVATE:
+                dtypes.append(None)
+                continue
+            dtype = getattr(cltypes, kernel.get_arg_info(i, cl.kernel_arg_info.TYPE_NAME).strip(), None)
+            if dtype is None:
+                return None
+            dtypes.append(dtype)
+    except cl.Error:  # CL_KERNEL_ARG_INFO_NOT_AVAILABLE
+        return None
+    return dtypes
+
+
+def declare_scalar_args(kernel: cl.Kernel) -> None:
+    dtypes = scalar_arg_dtypes(kernel)
+    if dtypes is None:
+        log.debug("no argument info for kernel %s: its arguments are set the slow way", kernel.function_name)
+        return
+    kernel.set_scalar_arg_dtypes(dtypes)

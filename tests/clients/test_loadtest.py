@@ -71,7 +71,8 @@ def _check_client_cpu(result: dict, stdout: str, processes: int) -> None:
     """The load generator's CPU per request: positive, and no more than its processes could spend."""
     cpu_us = result["client_cpu_us_per_request"]
     assert 0 < cpu_us * result["requests"] / 1e6 <= result["elapsed_s"] * processes + 0.5
-    assert f"load generator CPU {cpu_us:.0f} us/request" in stdout
+    assert f"load generator CPU {cpu_us:.0f} us/request ({result['config']['http']} HTTP client on " \
+        f"{result['config']['loop']})" in stdout
 
 
 def test_short_run_reports_sane_numbers(server_url, tmp_path):
@@ -91,7 +92,7 @@ def test_short_run_reports_sane_numbers(server_url, tmp_path):
     assert trips["latency_ms"]["min"] >= reads["latency_ms"]["min"] + edits["latency_ms"]["min"] - 1e-9
     assert trips["latency_ms"]["max"] <= reads["latency_ms"]["max"] + edits["latency_ms"]["max"] + 1e-9
     assert "requests/s" in proc.stdout and "p99" in proc.stdout and "edit+read" in proc.stdout
-    assert result["config"]["http"] == "lean"
+    assert result["config"]["http"] == "lean" and result["config"]["loop"] == "uvloop"  # installed here
     timeline = result["edit_timeline"]  # each second's edits and their p99
     seconds = [t["second"] for t in timeline]
     assert seconds == sorted(set(seconds)) and 0 <= seconds[0] and seconds[-1] <= result["elapsed_s"]
@@ -130,10 +131,11 @@ def test_request_count_and_rate_bound_the_run_on_a_given_world(server_url, tmp_p
             version += edits
 
             proc, result = _run(server_url, tmp_path, "--world", world.id, "--clients", "2", "--requests", "20",
-                                "--http", "httpx", "--quiet")
+                                "--http", "httpx", "--loop", "asyncio", "--quiet")
             edits, reads = result["edits"]["count"], result["reads"]["count"]
             assert edits + reads == 20 and edits in (10, 11) and result["errors"]["count"] == 0
-            assert result["config"]["http"] == "httpx" and client.get_world(world.id).version == version + edits
+            assert (result["config"]["http"], result["config"]["loop"]) == ("httpx", "asyncio")
+            assert client.get_world(world.id).version == version + edits
             _check_client_cpu(result, proc.stdout, processes=1)
         finally:
             client.delete_world(world.id)

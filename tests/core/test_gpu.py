@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pyopencl as cl
 import pytest
 
 from sdfserver.algorithms.base import WORK_PLANE_PAD
+from sdfserver.algorithms.exact import Exact
 from sdfserver.errors import DeviceMemoryExceeded, InvalidInput, KernelBuildError, NoOpenCLDevice
 from sdfserver.gpu import GpuContext, choose_device, describe_devices
 from sdfserver.gpu import programs
@@ -46,6 +48,26 @@ def test_programs_are_memoized_per_options(gpu):
     a = gpu.programs.get("exact.cl", AXIS=1, SEG=4, LOCAL_X=32, LOCAL_Y=2)
     assert gpu.programs.get("exact.cl", SEG=4, LOCAL_Y=2, AXIS=1, LOCAL_X=32) is a
     assert gpu.programs.get("exact.cl", AXIS=2, SEG=4, LOCAL_X=32, LOCAL_Y=2) is not a
+
+
+def test_every_kernel_declares_its_scalar_argument_types(gpu):
+    """Without declared types pyopencl probes each argument on every launch (~50 us a kernel on
+    the H200 host): every kernel in kernels/ must have argument info the loader understands."""
+    int4 = cl.cltypes.int4
+    expected = {"fill_sphere": [None, int4, int4, int4, cl.cltypes.float4, np.float32, np.uint32],
+                "set_voxels": [None, int4, None, np.int32]}
+    kernels = [Exact().launch_shape(gpu, axis, 64, 64, 64, 64)[0] for axis in range(3)]  # needs defines
+    for path in sorted(programs.KERNEL_DIR.glob("*.cl")):
+        if path.name != "exact.cl":
+            kernels += gpu.programs.get(path.name).all_kernels()
+    found = {}
+    for kernel in kernels:
+        dtypes = programs.scalar_arg_dtypes(kernel)
+        assert dtypes is not None and len(dtypes) == kernel.num_args, kernel.function_name
+        found[kernel.function_name] = dtypes
+    assert {"pass_x", "pass_yz", "render", "query_points", "init_work"} <= set(found)
+    for name, dtypes in expected.items():
+        assert found[name] == expected[name], name
 
 
 def test_world_over_budget_fails_before_allocating(gpu):

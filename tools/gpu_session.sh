@@ -29,9 +29,13 @@ if has service; then
     > "$OUT/server.log" 2>&1 &
   server=$!
   for _ in $(seq 120); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.5; done
-  for run in "load-64:--clients 64 --processes 8 --duration 15 --read-every 0" \
+  # The one-client round trip four times: its sync time depends on how long the disk idled
+  # between syncs (docs/benchmarks.md), so one run says little about the next.
+  rtt="--clients 1 --duration 8 --read-every 1 --read-size 16"
+  for run in "load-rtt-1:$rtt" "load-rtt-2:$rtt" "load-rtt-3:$rtt" "load-rtt-4:$rtt" \
+             "load-64:--clients 64 --processes 8 --duration 15 --read-every 0" \
              "load-64-rate5000:--clients 64 --processes 8 --duration 15 --read-every 0 --rate 5000" \
-             "load-rtt:--clients 1 --duration 10 --read-every 1 --read-size 16"; do
+             "load-64-again:--clients 64 --processes 8 --duration 15 --read-every 0"; do
     name=${run%%:*}
     timeout 60 python3 tools/service_overhead.py --pid $server --url http://127.0.0.1:$port -- \
       python3 clients/loadtest.py --url http://127.0.0.1:$port --size 256 256 256 --quiet \
@@ -42,4 +46,5 @@ if has service; then
   curl -s http://127.0.0.1:$port/metrics > "$OUT/metrics.txt"
   kill $server; wait $server 2>/dev/null
 fi
-for f in bench.txt render.txt load-64.txt load-64-rate5000.txt load-rtt.txt ws-frames.txt; do [ -f "$OUT/$f" ] && { echo "== $f"; cat "$OUT/$f"; }; done
+for f in bench.txt render.txt load-rtt-1.txt load-rtt-2.txt load-rtt-3.txt load-rtt-4.txt load-64.txt \
+         load-64-rate5000.txt load-64-again.txt ws-frames.txt; do [ -f "$OUT/$f" ] && { echo "== $f"; cat "$OUT/$f"; }; done

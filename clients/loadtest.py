@@ -46,6 +46,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Coroutine, TypeVar
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -56,6 +57,7 @@ from sdfclient import AsyncClient, Client, RateLimited, SdfClientError, ServerEr
 from sdfclient.lean import LeanConnection  # noqa: E402
 from sdfclient.stream import Stream  # noqa: E402
 
+T = TypeVar("T")
 MAX_DURATION_S = 3600.0
 
 
@@ -254,14 +256,14 @@ def event_loop_kind(wanted: str) -> str:
     return wanted
 
 
-def run_loop(cfg: LoadConfig, main):
-    """Run ``main`` on the configured loop: the generator's own CPU per request is part of every
-    latency it measures, and uvloop spends less of it."""
+def run_loop(cfg: LoadConfig, coroutine: Coroutine[Any, Any, T]) -> T:
+    """Run ``coroutine`` on the configured loop: the generator's own CPU per request is part of
+    every latency it measures, and uvloop spends less of it."""
     if event_loop_kind(cfg.loop) == "asyncio":
-        return asyncio.run(main)
+        return asyncio.run(coroutine)
     import uvloop
     with asyncio.Runner(loop_factory=uvloop.new_event_loop) as runner:
-        return runner.run(main)
+        return runner.run(coroutine)
 
 
 def _worker(cfg: LoadConfig, indices: list[int], requests: int, out: "multiprocessing.Queue",

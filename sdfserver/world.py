@@ -31,7 +31,6 @@ from sdfserver.gpu import GpuContext
 
 CHUNK_SIZES = (8, 16, 32, 64, 128)
 MAX_SIDE_VOX = 2048  # exact.cl: at most 128 segments of 16 elements per line
-BYTES_PER_VOXEL = 1 + 2 + 1 + 1  # voxels, field, work, work2 (work also has WORK_PLANE_PAD per z-plane)
 
 
 @dataclass(frozen=True)
@@ -116,6 +115,7 @@ class World:
         self.limits = limits
         sx, sy, sz = config.size
         self.voxel_count = sx * sy * sz
+        # voxels, field, work (a pad per z-plane), work2: 5 bytes per voxel
         sizes = [self.voxel_count, 2 * self.voxel_count, self.voxel_count + sz * WORK_PLANE_PAD, self.voxel_count]
         gpu.check_fits(sizes, f"a {sx}x{sy}x{sz} world")
         self._sizes = sizes

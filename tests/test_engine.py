@@ -80,6 +80,7 @@ def test_step_applies_each_batch_alone_and_recomputes_each_world_once(engine):
 class RecordingJournal:
     def __init__(self, fail_on_version: int | None = None):
         self.calls = []
+        self.sync_starts = []  # len(calls) at each start_syncs
         self.fail_on_version = fail_on_version
 
     def record_create(self, world_id, config, owner=None):
@@ -91,6 +92,9 @@ class RecordingJournal:
             self.fail_on_version = None  # fails once
             raise OSError("disk full")
         self.calls.extend(("batch", world_id, v, edits) for v, edits in zip(versions, batches))
+
+    def start_syncs(self):
+        self.sync_starts.append(len(self.calls))
 
     def record_delete(self, world_id):
         self.calls.append(("delete", world_id))
@@ -138,6 +142,7 @@ def test_journal_records_before_acknowledging(gpu):
     engine.step()
     assert third.result() == 3 and gone.result() is None
     assert journal.calls[-2][:3] == ("batch", world_id, 3) and journal.calls[-1] == ("delete", world_id)
+    assert journal.sync_starts == [3, 4]  # once after each step's batches; none when none was recorded
     engine.stop()
 
 

@@ -319,6 +319,7 @@ class Engine:
         by_world: dict[str, list[tuple[ApplyEdits, Future, EditPlan]]] = {}
         for item in batches:
             by_world.setdefault(item[0].world_id, []).append(item)
+        journaled = []
         for world_id, items in by_world.items():
             world = items[0][2].world
             durable = None
@@ -329,6 +330,10 @@ class Engine:
                     for _, future, _ in items:
                         self._reject(future, exc, report)
                     continue
+            journaled.append((world_id, world, items, durable))
+        if self.journal is not None and journaled:
+            self.journal.start_syncs()  # every world's records in one round of syncs
+        for world_id, world, items, durable in journaled:
             for command, future, plan in items:
                 version = world.apply_plan(plan)
                 self.metrics.edit_batches.inc()

@@ -15,6 +15,9 @@ The engine calls these on its own thread, in the order things happen:
   It may return a ``concurrent.futures.Future`` that completes once the batches are
   durable; the engine then acknowledges them only when that future completes (and fails
   them if the future fails). Returning None acknowledges at once.
+- ``start_syncs()`` after the ``record_batches`` calls of a run of edit batches, before
+  they are applied: what was recorded may start becoming durable now (the storage journal
+  makes sure its committer has taken them, so the sync overlaps the engine's work).
 - ``record_config(world_id, config)`` after a world was reconfigured.
 - ``record_delete(world_id)`` after a world was deleted.
 - ``wants_snapshot(world_id)`` after a world's recompute; when it answers True the
@@ -40,6 +43,8 @@ class Journal(Protocol):
 
     def record_batches(self, world_id: str, first_version: int,
                        batches: list[list[dict[str, Any]]]) -> Future | None: ...
+
+    def start_syncs(self) -> None: ...
 
     def record_config(self, world_id: str, config: dict[str, Any]) -> None: ...
 

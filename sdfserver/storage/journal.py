@@ -5,6 +5,7 @@ The engine calls it on its own thread:
 - ``record_create`` creates the world's directory (catalog entry and an empty log);
 - ``record_batches`` appends a step's batches for a world to its log in one write and returns
   the future that completes once they are durable — the engine acknowledges them only then;
+- ``start_syncs`` hands what the step appended to the committer (``Committer.hand_over``);
 - ``record_config`` rewrites the catalog entry after a reconfiguration;
 - ``record_delete`` removes the world's directory;
 - ``wants_snapshot`` / ``record_snapshot``: after a recompute, a world with
@@ -57,7 +58,10 @@ class StorageJournal:
         self.owners[world_id] = owner
 
     def record_batches(self, world_id: str, first_version: int, batches: list[list[dict[str, Any]]]) -> Future:
-        return self._store(world_id).append_many(first_version, batches)
+        return self._store(world_id).append_many(first_version, batches, wake=False)  # see start_syncs
+
+    def start_syncs(self) -> None:
+        self.storage.committer.hand_over()
 
     def record_config(self, world_id: str, config: dict[str, Any]) -> None:
         self._store(world_id).write_meta({"config": config, "owner": self.owners.get(world_id)})

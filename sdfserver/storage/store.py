@@ -66,9 +66,10 @@ class WorldStore:
         """Log one batch; the future completes when it is durable (acknowledge after that)."""
         return self.append_many(version, [edits_wire])
 
-    def append_many(self, first_version: int, batches_wire: list[Any]) -> Future:
-        """Log consecutive batches with one write; one future for all of them."""
-        future = self.log.append_many(first_version, [encode_batch(b) for b in batches_wire])
+    def append_many(self, first_version: int, batches_wire: list[Any], *, wake: bool = True) -> Future:
+        """Log consecutive batches with one write; one future for all of them (``wake`` as in
+        ``Committer.submit``)."""
+        future = self.log.append_many(first_version, [encode_batch(b) for b in batches_wire], wake=wake)
         self.records_since_snapshot += len(batches_wire)
         return future
 

@@ -232,15 +232,19 @@ def test_group_commit_shares_syncs(storage, monkeypatch):
     store.close()
 
 
-def test_an_append_to_an_idle_committer_returns_once_its_sync_is_under_way(storage, monkeypatch):
+def test_hand_over_returns_once_an_idle_committer_has_taken_every_world(storage, monkeypatch):
     monkeypatch.setattr(wal, "HANDOVER_TIMEOUT_S", 30.0)  # a slow CI machine still hands over
-    store = storage.create_world("w", {"config": CONFIG})
-    for version in range(1, 21):
-        durable = store.append(version, b"batch")
-        # Taken already: the sync does not wait for this thread to give up the GIL.
+    stores = [storage.create_world(name, {"config": CONFIG}) for name in "abc"]
+    for version in range(1, 11):
+        durable = [store.append_many(version, [b"batch"], wake=False) for store in stores]
+        storage.committer.hand_over()
+        # Taken already, all three in one round: the syncs do not wait for this thread to
+        # give up the GIL.
         assert storage.committer.waiting == 0
-        durable.result()  # the committer is idle again for the next
-    store.close()
+        for future in durable:
+            future.result()  # the committer is idle again for the next
+    for store in stores:
+        store.close()
 
 
 @pytest.mark.parametrize("inline", [False, True], ids=["committer", "inline"])

@@ -100,12 +100,28 @@ class EditPlan:
 
 @dataclass
 class RecomputeResult:
-    changed_chunks: np.ndarray  # (N, 3) int32 chunk coordinates (x, y, z)
-    regions: list[Box] = field(default_factory=list)
+    regions: list[Box]  # rewritten: chunk-aligned, no two touching (merge_regions)
+    chunk_size: int
     device_ms: float = 0.0  # summed kernel time from profiling events
     wall_ms: float = 0.0
     iterations: int = 0
     kernel_ms: list[float] = field(default_factory=list)  # each launch, in order
+
+    @property
+    def changed_chunk_count(self) -> int:
+        return sum(r.chunk_range(self.chunk_size).volume for r in self.regions)
+
+    @property
+    def changed_chunks(self) -> np.ndarray:
+        """(N, 3) int32 chunk coordinates (x, y, z) rewritten; built only when asked for (publishing
+        reads the regions), since a 256^3 world under cap 255 rewrites all 4096 chunks a step."""
+        ranges = [r.chunk_range(self.chunk_size) for r in self.regions]
+        if not ranges:
+            return np.zeros((0, 3), dtype=np.int32)
+        # The regions do not touch, so neither do their chunk ranges: no chunk twice.
+        return np.concatenate([
+            np.stack(np.meshgrid(*(np.arange(lo, hi, dtype=np.int32) for lo, hi in zip(c.lo, c.hi)),
+                                 indexing="ij"), axis=-1).reshape(-1, 3) for c in ranges])
 
 
 class World:
@@ -273,9 +289,8 @@ class World:
         self._dirty.clear()
         self._dirty_all = False
         self.field_version = self.version
-        changed = np.argwhere(self._chunk_mask(regions))[:, ::-1].astype(np.int32)
         each = [(e.profile.end - e.profile.start) * 1e-6 for e in events]
-        return RecomputeResult(changed, regions, sum(each),
+        return RecomputeResult(regions, self.config.chunk_size, sum(each),
                                (time.perf_counter() - start) * 1e3, iterations, each)
 
     def _compute_region(self, region: Box):

@@ -401,7 +401,7 @@ class Engine:
             algorithm = world.config.algorithm
             self.metrics.recompute_seconds.labels(algorithm).observe(result.wall_ms / 1e3)
             self.metrics.recompute_device_seconds.labels(algorithm).inc(result.device_ms / 1e3)
-            self.metrics.changed_chunks.inc(len(result.changed_chunks))
+            self.metrics.changed_chunks.inc(result.changed_chunk_count)
             self.last_recompute_ms[world_id] = result.wall_ms
             results[world_id] = result
             if self.journal is not None and self.journal.wants_snapshot(world_id):

@@ -130,7 +130,13 @@ def test_incremental_equals_full_equals_oracle(gpu, rng, algorithm, cap):
             voxels = world.read_voxels()
             check_field(world, voxels)
             touched = {tuple(c) for c in (np.argwhere(voxels != previous)[:, ::-1] // chunk).tolist()}
-            assert touched <= {tuple(c) for c in result.changed_chunks.tolist()}
+            changed = result.changed_chunks
+            assert touched <= {tuple(c) for c in changed.tolist()}
+            covered = np.zeros(world.config.chunks[::-1], dtype=bool)  # the regions' chunks, by mask
+            for region in result.regions:
+                covered[region.chunk_range(chunk).slices_zyx()] = True
+            assert len(changed) == result.changed_chunk_count == covered.sum()  # no chunk twice
+            assert {tuple(c) for c in changed.tolist()} == {tuple(c) for c in np.argwhere(covered)[:, ::-1].tolist()}
             previous = voxels
             world.mark_all_dirty()
             world.recompute()
@@ -152,6 +158,21 @@ def test_incremental_region_is_local(gpu, rng):
         assert set(map(tuple, result.changed_chunks)) <= {(x, y, z) for x in range(2) for y in range(2) for z in range(2)}
         voxels[3, 3, 3] = 9
         check_field(world, voxels)
+    finally:
+        world.release()
+
+
+def test_changed_chunks_of_separate_regions(gpu):
+    """Two edits far apart under a small cap: two regions, each chunk of each reported once."""
+    world = World(gpu, WorldConfig((128, 32, 32), 16, 4))
+    try:
+        # Each voxel sits at a chunk corner, so its cap-4 neighbourhood spans 2x2x2 chunks.
+        world.apply_edits([VoxelsEdit(np.array([[15, 15, 15, 9], [112, 16, 16, 9]]))])
+        result = world.recompute()
+        assert len(result.regions) == 2
+        expected = {(x + dx, y, z) for x, y, z in np.ndindex(2, 2, 2) for dx in (0, 6)}
+        assert {tuple(c) for c in result.changed_chunks.tolist()} == expected
+        assert len(result.changed_chunks) == result.changed_chunk_count == len(expected)
     finally:
         world.release()
 

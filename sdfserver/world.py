@@ -15,6 +15,7 @@ its capped distance, so the result equals a full recompute.
 
 from __future__ import annotations
 
+import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -30,6 +31,7 @@ from sdfserver.geometry import Box, Vec3, merge_regions
 from sdfserver.gpu import GpuContext
 
 CHUNK_SIZES = (8, 16, 32, 64, 128)
+_FLOAT4 = struct.Struct("<4f")
 MAX_SIDE_VOX = 2048  # exact.cl: at most 128 segments of 16 elements per line
 
 
@@ -212,7 +214,7 @@ class World:
             kernels.kernel("edits.cl", "fill_box")(q, gsize, lsize, b.voxels, dims, int4(box.lo), int4(box.shape_xyz),
                              np.uint32(e.colour))
         elif isinstance(e, SphereEdit):
-            center = np.array([*e.center, 0], dtype=np.float32).view(cl.cltypes.float4)[0]
+            center = _FLOAT4.pack(*e.center, 0.0)  # a by-value float4 goes to pyopencl as its bytes
             kernels.kernel("edits.cl", "fill_sphere")(q, gsize, lsize, b.voxels, dims, int4(box.lo), int4(box.shape_xyz),
                                 center, np.float32(e.radius * e.radius), np.uint32(e.colour))
 
@@ -265,6 +267,8 @@ class World:
     def dirty_chunk_count(self) -> int:
         if self._dirty_all:
             return int(np.prod(self.config.chunks))
+        if len(self._dirty) == 1:  # one brush, the common step: no mask to build
+            return self._dirty[0].chunk_range(self.config.chunk_size).volume
         return int(self._chunk_mask(self._dirty).sum())
 
     def _chunk_mask(self, boxes: list[Box]) -> np.ndarray:

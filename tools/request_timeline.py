@@ -1,8 +1,8 @@
 """Where one request's time goes inside the server: ``sdfserver serve`` with timing hooks.
 
 Runs the server in this process (same flags as ``sdfserver serve``) with timestamps taken at the
-hand-offs of the hot path — the fast lane's start and end (event loop), ``Engine.submit``, the
-engine step and its phases, the log's hand-over (append_many), its write and
+hand-offs of the hot path — uvicorn receiving the request's bytes, the fast lane's start and end
+(event loop), ``Engine.submit``, the engine step and a read's device copy, the log's hand-over (append_many), its write and
 ``fdatasync``, the future's completion and the event loop resuming — and, when it stops
 (Ctrl-C or SIGTERM), prints the median of each gap for edits and reads:
 
@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from sdfserver.api import fastlane, server  # noqa: E402
 from sdfserver.engine import core  # noqa: E402
+from sdfserver import world  # noqa: E402
 from sdfserver.storage import wal  # noqa: E402
 
 EVENTS: list[tuple[int, str]] = []  # (perf_counter_ns, tag); list.append is atomic under the GIL
@@ -62,7 +63,11 @@ def hook(owner: object, name: str, tag: str) -> None:
 
 
 def install() -> None:
+    from uvicorn.protocols.http import httptools_impl
+
+    hook(httptools_impl.HttpToolsProtocol, "data_received", "recv")  # the request's bytes arrive
     hook(fastlane.FastLane, "__call__", "lane")
+    hook(world.World, "read_field", "read")
     hook(core.Engine, "step", "step")
     hook(core.Engine, "call", "call")
     hook(wal.WorldLog, "append_many", "hand-over")
@@ -80,18 +85,20 @@ def install() -> None:
     core.Engine.submit = timed_submit
 
 
-GAPS = [("lane>", "submit"), ("submit", "step>"), ("submit", "hand-over<"), ("hand-over>", "write>"),
+GAPS = [("recv>", "lane>"), ("lane>", "submit"), ("submit", "step>"), ("step>", "read>"), ("read>", "read<"),
+        ("step>", "step<"), ("submit", "hand-over<"), ("hand-over>", "write>"),
         ("hand-over>", "fdatasync>"), ("fdatasync>", "fdatasync<"), ("submit", "done"), ("done", "call<"),
-        ("call<", "lane<"), ("lane>", "lane<")]
+        ("call<", "lane<"), ("lane>", "lane<"), ("recv>", "lane<")]
 
 
 def summary() -> str:
     requests: list[dict[str, float]] = []
     for t, tag in EVENTS:
-        if tag == "lane>":
+        if tag == "recv>":
             requests.append({})
-        if requests:
-            requests[-1].setdefault(tag.split(" ")[0], t / 1e3)
+        name = tag.split(" ")[0]
+        if requests and (not name.endswith("<") or name[:-1] + ">" in requests[-1]):  # an end after its start
+            requests[-1].setdefault(name, t / 1e3)
             if tag.startswith("done "):
                 requests[-1]["kind"] = tag.split(" ", 1)[1]
     lines = []

@@ -235,6 +235,7 @@ class Engine:
         self._waiting = []
         report = StepReport()
         clock = [time.perf_counter()]
+        answers: list[tuple[Future, Any]] = []
 
         def lap(phase: str) -> None:
             clock.append(time.perf_counter())
@@ -247,19 +248,23 @@ class Engine:
             lap("recompute")
             self._publish(report.recomputed)
             lap("publish")
-            self._serve(serve, report)
+            answers = self._serve(serve, report)
             lap("serve")
         except cl.Error as exc:
             self._lose_device(exc, commands + serve + self._waiting)
             self._waiting = []
+        self._count_pending()
         self._count_step(report, clock[-1] - clock[0])
+        # Answer last: each answer wakes the event loop, which then needs the GIL this thread holds.
+        for future, result in answers:
+            future.set_result(result)
         return report
 
     def _count_step(self, report: StepReport, seconds: float) -> None:
         self.metrics.steps.inc()
         self.metrics.step_seconds.observe(seconds)
         for phase, ms in report.phases_ms.items():
-            self.metrics.phase_seconds.labels(phase).inc(ms / 1e3)
+            self.metrics.phase(phase).inc(ms / 1e3)
         if seconds * 1e3 >= self.limits.slow_step_ms:
             phases = ", ".join(f"{k} {v:.1f}" for k, v in report.phases_ms.items())
             log.warning("slow engine step: %.1f ms (%s), %d batches", seconds * 1e3, phases,
@@ -398,9 +403,9 @@ class Engine:
         self.metrics.dirty_chunks.set(sum(w.dirty_chunk_count for w in worlds.values()))
         for world_id, world in worlds.items():
             result = world.recompute()
-            algorithm = world.config.algorithm
-            self.metrics.recompute_seconds.labels(algorithm).observe(result.wall_ms / 1e3)
-            self.metrics.recompute_device_seconds.labels(algorithm).inc(result.device_ms / 1e3)
+            wall_seconds, device_seconds = self.metrics.recompute_by(world.config.algorithm)
+            wall_seconds.observe(result.wall_ms / 1e3)
+            device_seconds.inc(result.device_ms / 1e3)
             self.metrics.changed_chunks.inc(result.changed_chunk_count)
             self.last_recompute_ms[world_id] = result.wall_ms
             results[world_id] = result
@@ -424,7 +429,6 @@ class Engine:
                 subs = list(self._subscribers.get(world_id, ()))
             if subs:
                 self.metrics.merged_chunks.inc(publish(self.worlds[world_id], result, subs))
-        self._count_pending()
 
     def _subscribe(self, sub: Subscription) -> None:
         world = self._world(sub.world_id)
@@ -440,8 +444,10 @@ class Engine:
 
     # -- serving -------------------------------------------------------------------------------------
 
-    def _serve(self, commands: list[Pending], report: StepReport) -> None:
+    def _serve(self, commands: list[Pending], report: StepReport) -> list[tuple[Future, Any]]:
+        """Run the serving commands; returns the answers for the caller to deliver."""
         now = time.monotonic()
+        answers = []
         for command, future in commands:
             if future.cancelled():
                 continue
@@ -457,10 +463,10 @@ class Engine:
             except Exception as exc:
                 self._fail(future, exc)
             else:
-                future.set_result(result)
+                answers.append((future, result))
                 report.served += 1
         report.waiting = len(self._waiting)
-        self._count_pending()
+        return answers
 
     def _must_wait(self, command: Read | Query, now: float) -> bool:
         world = self._world(command.world_id)

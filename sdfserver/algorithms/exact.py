@@ -14,6 +14,7 @@ most 2048 voxels (the world size limit), 128 segments of 16 at the longest.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,6 +48,7 @@ PASS_SHAPES = {
 # field; the order is free (the transform is separable). Measured on the H200 at 512^3.
 PASS_ORDER = (0, 1, 2)
 X_PASS_THREADS = 128  # work-items per work-group for the x pass (tuned on the H200)
+PASSES_MEMO_SIZE = 1024  # work-box shapes remembered per device; region shapes repeat
 
 
 def segment_length(line_len: int, shape: PassShape) -> int:
@@ -81,6 +83,10 @@ def work_plane(job: RegionJob) -> int:
 class Exact:
     name = "exact"
     exact = True
+
+    def __init__(self) -> None:
+        # Per program cache (one per device context), gone with it.
+        self._passes: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
     def launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int,
                      seg: int | None = None, lanes: int | None = None, vec: int | None = None,
@@ -138,11 +144,20 @@ class Exact:
             line *= 2
         return len(programs)
 
+    def passes(self, gpu: GpuContext, n: tuple[int, int, int]) -> list:
+        """The three passes' (kernel, segments, global, local) for a work box of shape ``n``,
+        memoized per device: working them out costs more host time than launching them."""
+        memo = self._passes.setdefault(gpu.programs, {})
+        found = memo.get(n)
+        if found is None:
+            if len(memo) >= PASSES_MEMO_SIZE:
+                memo.clear()
+            found = memo[n] = [self.launch_shape(gpu, axis, n[axis], *n, first=position == 0, last=position == 2)
+                               for position, axis in enumerate(PASS_ORDER)]
+        return found
+
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
-        n = job.work_box.shape_xyz
         run = AlgorithmRun()
-        for position, axis in enumerate(PASS_ORDER):
-            kernel, _, global_, local = self.launch_shape(
-                gpu, axis, n[axis], *n, first=position == 0, last=position == 2)
+        for kernel, _, global_, local in self.passes(gpu, job.work_box.shape_xyz):
             run.events.append(self.enqueue(gpu, job, kernel, global_, local))
         return run

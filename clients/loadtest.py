@@ -23,7 +23,7 @@ With ``--processes P`` the clients are spread over P processes (one Python
 process tops out at a few thousand requests per second).
 
 Each game client holds one connection. With ``--http lean`` (the default) it is
-a ``sdfclient.lean.LeanConnection``, hand-written HTTP/1.1 on asyncio streams,
+a ``sdfclient.lean.LeanConnection``, hand-written HTTP/1.1 on an asyncio protocol,
 so that the load generator costs little next to the server it measures;
 ``--http httpx`` uses ``AsyncClient`` instead. The report says what the load
 generator itself cost: its processes' CPU time per request

@@ -58,14 +58,14 @@ class Call:
 
 
 def decode(response: httpx.Response) -> Any:
-    ctype = response.headers.get("content-type", "").split(";")[0].strip().lower()
+    ctype = response.headers.get("content-type", "").partition(";")[0].strip().lower()
     if not response.content:
         return None
     try:
-        if ctype == "application/json" or ctype.endswith("+json"):
-            return response.json()
         if ctype in _wire.CONTENT_TYPES:
             return _wire.decode(response.content)
+        if ctype == "application/json" or ctype.endswith("+json"):
+            return response.json()
     except ValueError as exc:
         raise ProtocolError(f"{response.request.method} {response.request.url.path}: "
                             f"unreadable {ctype} body: {exc}") from exc
@@ -111,7 +111,7 @@ def _block(fmt: str) -> Callable[[httpx.Response], Block]:
         data = _array(body["data"], body.get("dtype"), body.get("shape"))
         if "shape" in body and tuple(data.shape) != tuple(body["shape"]):
             data = data.reshape(tuple(body["shape"]))
-        return Block(origin=tuple(int(v) for v in body.get("origin", (0, 0, 0))),
+        return Block(origin=tuple(map(int, body.get("origin", (0, 0, 0)))),
                      version=int(body.get("version", 0)), data=data, format=fmt)
     return parse
 
@@ -206,7 +206,8 @@ def _box_params(box: BoxArg) -> dict[str, str]:
     lo, hi = box
     if len(lo) != 3 or len(hi) != 3:
         raise ValueError(f"a box is ((x, y, z), (x, y, z)), got {box!r}")
-    return {"min": ",".join(str(int(v)) for v in lo), "max": ",".join(str(int(v)) for v in hi)}
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    return {"min": f"{int(x0)},{int(y0)},{int(z0)}", "max": f"{int(x1)},{int(y1)},{int(z1)}"}
 
 
 def _focus(focus: Any) -> dict | None:

@@ -16,7 +16,8 @@ from typing import Any
 
 import numpy as np
 from fastapi import Request
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import Response
+from starlette.requests import ClientDisconnect, HTTPConnection
 
 from sdfserver import wire
 from sdfserver.errors import InvalidInput, TooLarge
@@ -24,22 +25,50 @@ from sdfserver.errors import InvalidInput, TooLarge
 MSGPACK = wire.CONTENT_TYPE
 JSON = "application/json"
 OCTET = "application/octet-stream"
+# JSONResponse's encoding (compact, NaN refused), built once rather than per response
+JSON_ENCODER = json.JSONEncoder(ensure_ascii=False, allow_nan=False, separators=(",", ":"))
+
+
+class Encoded(Response):
+    """An encoded body with the raw headers starlette's Response would send (any given, then
+    content-length and content-type), set here instead of by Response.__init__, which costs twice
+    as much: every hot request answers with one (tests/api/test_bodies.py keeps them equal)."""
+
+    def __init__(self, body: bytes, media_type: str, status_code: int = 200,
+                 headers: list[tuple[bytes, bytes]] | None = None) -> None:
+        self.status_code, self.media_type, self.body, self.background = status_code, media_type, body, None
+        self.raw_headers = [*(headers or ()), (b"content-length", str(len(body)).encode()),
+                            (b"content-type", media_type.encode())]
 
 
 def _no_constant(name: str) -> Any:
     raise InvalidInput(f"JSON bodies must not contain {name}")
 
 
+def header(connection: HTTPConnection, name: bytes) -> str | None:
+    """The first value of a request header (``name`` in lower case), as ``connection.headers.get``
+    finds it, without building starlette's Headers: hot requests read three or four."""
+    for key, value in connection.scope["headers"]:
+        if key == name:
+            return value.decode("latin-1")
+    return None
+
+
 async def read_body(request: Request, limit: int) -> bytes:
-    length = request.headers.get("content-length")
+    length = header(request, b"content-length")
     if length is not None and length.isdigit() and int(length) > limit:
         raise TooLarge(f"request body of {length} bytes exceeds the limit of {limit}")
-    chunks, size = [], 0
-    async for chunk in request.stream():
+    chunks, size, more = [], 0, True
+    while more:  # the ASGI messages as they come: request.stream() costs twice as much
+        message = await request.receive()
+        if message["type"] == "http.disconnect":
+            raise ClientDisconnect()
+        chunk = message.get("body", b"")
         size += len(chunk)
         if size > limit:
             raise TooLarge(f"request body exceeds the limit of {limit} bytes")
         chunks.append(chunk)
+        more = message.get("more_body", False)
     return b"".join(chunks)
 
 
@@ -51,7 +80,7 @@ async def decode_body(request: Request) -> Any:
     """The request body as Python data; msgpack blobs stay maps (see wire.unpack_array)."""
     settings = request.app.state.settings
     data = await read_body(request, settings.max_request_bytes)
-    kind = media_type(request.headers.get("content-type")) or JSON
+    kind = media_type(header(request, b"content-type")) or JSON
     if kind == MSGPACK:
         return wire.decode(data, settings.wire_limits())
     if kind == JSON or kind.endswith("+json"):
@@ -63,12 +92,12 @@ async def decode_body(request: Request) -> Any:
 
 
 def wants_msgpack(request: Request) -> bool:
-    accept = request.headers.get("accept", "")
+    accept = header(request, b"accept") or ""
     if MSGPACK in accept:
         return True
     if JSON in accept:
         return False
-    return media_type(request.headers.get("content-type")) == MSGPACK
+    return media_type(header(request, b"content-type")) == MSGPACK
 
 
 def _jsonable(value: Any) -> Any:
@@ -86,8 +115,8 @@ def _jsonable(value: Any) -> Any:
 def respond(request: Request, content: Any, status_code: int = 200) -> Response:
     """JSON or msgpack, as the request asks; counts the bytes sent."""
     if wants_msgpack(request):
-        response: Response = Response(wire.encode(content), status_code=status_code, media_type=MSGPACK)
+        body, kind = wire.encode(content), MSGPACK
     else:
-        response = JSONResponse(_jsonable(content), status_code=status_code)
-    request.app.state.metrics.bytes_out.inc(len(response.body))
-    return response
+        body, kind = JSON_ENCODER.encode(_jsonable(content)).encode(), JSON
+    request.app.state.metrics.bytes_out.inc(len(body))
+    return Encoded(body, kind, status_code)

@@ -16,7 +16,7 @@ from starlette.concurrency import run_in_threadpool
 
 from sdfserver import wire
 from sdfserver.api.auth import check_world_quota, principal_of
-from sdfserver.api.bodies import MSGPACK, OCTET, decode_body, respond
+from sdfserver.api.bodies import MSGPACK, OCTET, Encoded, decode_body, header, respond
 from sdfserver.api.models import CreateWorldBody, EditsBody, PatchWorldBody, QueryBody, request_body
 from sdfserver.edits import parse_edits
 from sdfserver.engine import Engine
@@ -25,6 +25,7 @@ from sdfserver.geometry import Box
 from sdfserver.world import Focus, WorldConfig
 
 router = APIRouter(prefix="/v1")
+LITTLE_ENDIAN = {name: np.dtype(name).newbyteorder("<") for name in ("uint8", "uint16")}  # reads' wire dtypes
 
 
 def engine_of(request: Request) -> Engine:
@@ -113,11 +114,9 @@ async def post_edits(request: Request, world_id: str) -> Response:
 def _vec3(text: str | None, name: str) -> tuple[int, int, int] | None:
     if text is None:
         return None
-    parts = text.split(",")
     try:
-        if len(parts) != 3:
-            raise ValueError
-        return tuple(int(p) for p in parts)
+        x, y, z = text.split(",")
+        return int(x), int(y), int(z)
     except ValueError:
         raise InvalidInput(f"{name} must be three integers 'x,y,z', got {text!r}") from None
 
@@ -135,20 +134,20 @@ def _array_response(request: Request, result: Any, dtype: str) -> Response:
     """The read as msgpack {origin, shape, dtype, version, data}, raw bytes, or JSON with base64 data."""
     array = result.array
     facts = {"origin": list(result.origin), "shape": list(array.shape), "dtype": dtype, "version": result.version}
-    accept = request.headers.get("accept", "")
+    accept = header(request, b"accept") or ""
     if OCTET in accept:
-        headers = {"X-Sdf-Origin": ",".join(map(str, facts["origin"])),
-                   "X-Sdf-Shape": ",".join(map(str, facts["shape"])),
-                   "X-Sdf-Dtype": dtype, "X-Sdf-Version": str(result.version)}
-        body = np.ascontiguousarray(array, dtype=np.dtype(dtype).newbyteorder("<")).tobytes()
-        response = Response(body, media_type=OCTET, headers=headers)
+        headers = [(b"x-sdf-origin", ",".join(map(str, facts["origin"])).encode()),
+                   (b"x-sdf-shape", ",".join(map(str, facts["shape"])).encode()),
+                   (b"x-sdf-dtype", dtype.encode()), (b"x-sdf-version", str(result.version).encode())]
+        body = np.ascontiguousarray(array, dtype=LITTLE_ENDIAN[dtype]).tobytes()
+        response = Encoded(body, OCTET, headers=headers)
     elif "application/json" in accept and MSGPACK not in accept:
         facts["data"] = base64.b64encode(array.tobytes()).decode()
         facts["encoding"] = "base64"
         return respond(request, facts)
     else:
-        facts["data"] = array.astype(np.dtype(dtype).newbyteorder("<"), copy=False).tobytes()
-        response = Response(wire.encode(facts), media_type=MSGPACK)
+        facts["data"] = array.astype(LITTLE_ENDIAN[dtype], copy=False).tobytes()
+        response = Encoded(wire.encode(facts), MSGPACK)
     request.app.state.metrics.bytes_out.inc(len(response.body))
     return response
 

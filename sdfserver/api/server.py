@@ -94,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from sdfserver.api.app import build_engine, create_app
     from sdfserver.api.auth import is_loopback, parse_keys
+    from sdfserver.api.coalesce import CoalescingHttpToolsProtocol
     from sdfserver.api.durability import open_journal, restore
     from sdfserver.engine import EngineMetrics
     from sdfserver.storage.lock import lock_data_dir
@@ -135,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     app.state.journal = journal
     try:
         uvicorn.run(app, host=settings.host, port=settings.port, log_config=log_config,
+                    http=CoalescingHttpToolsProtocol,  # one send per answer, not one per head and body
                     log_level=settings.log_level, access_log=settings.access_log,
                     ws_max_size=settings.max_request_bytes, timeout_graceful_shutdown=5)
     finally:

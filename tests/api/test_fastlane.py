@@ -9,8 +9,11 @@ import httpx
 import numpy as np
 import pytest
 
+from starlette.datastructures import QueryParams
+
 from sdfserver import wire
 from sdfserver.api.app import create_app
+from sdfserver.api.fastlane import query_params
 from sdfserver.engine import Engine, EngineLimits
 from sdfserver.gpu import GpuContext
 from sdfserver.settings import Settings
@@ -112,3 +115,12 @@ def test_the_lane_is_on_by_default_and_openapi_still_documents_its_routes():
     field = paths["/v1/worlds/{world_id}/field"]["get"]
     assert {p["name"] for p in field["parameters"]} >= {"world_id", "min", "max", "format", "min_version"}
     assert "post" in paths["/v1/worlds/{world_id}/query"]
+
+
+@pytest.mark.parametrize("query", [b"", b"&&", b"min_version", b"min_version=", b"=3", b"min=0,0,0&max=16,8,4",
+                                   b"min_version=1&min_version=2", b"min=0%2C0%2C0&format=packed", b"format=a+b",
+                                   b"min_version=%zz&x=%C3%A9", b"a=b=c", b"min_version=\xff", b"x=1;format=packed"])
+def test_the_lanes_query_string_reads_as_starlettes(query):
+    """httpx escapes the commas of min and max; the lean client sends them plain (the lane's fast path)."""
+    starlette = QueryParams(query)
+    assert query_params({"query_string": query}) == {name: starlette[name] for name in starlette}

@@ -14,7 +14,7 @@ from clients_support import apply_edits, free_port, oracle_distance, random_batc
 
 from sdfclient import (
     AsyncClient, Client, InvalidEdit, NotFound, ProtocolError, RateLimited, ServerError, Timeout, TransportError,
-    edits,
+    edits, lean,
 )
 from sdfclient.edits import normalize
 from sdfclient.lean import LeanConnection
@@ -113,8 +113,9 @@ def reply(body: dict, status: int = 200, headers: str = "", ctype: str = "applic
 
 
 class RawServer:
-    """Answers each request with the next scripted reply; records requests and connections. A reply
-    containing ``connection: close``, or followed by ``None`` in the script, ends its connection."""
+    """Answers each request with the next scripted reply (given as ``(seconds, reply)``, after that
+    delay); records requests and connections. A reply containing ``connection: close``, or followed
+    by ``None`` in the script, ends its connection."""
 
     def __init__(self, *replies):
         self.replies = list(replies)
@@ -138,6 +139,9 @@ class RawServer:
                 length = [int(line[15:]) for line in head.split(b"\r\n") if line.startswith(b"content-length:")]
                 self.requests.append(head + await reader.readexactly(length[0] if length else 0))
                 answer = self.replies.pop(0)
+                if isinstance(answer, tuple):  # (seconds, reply): a slow answer
+                    delay, answer = answer
+                    await asyncio.sleep(delay)
                 if answer is HANG:
                     await reader.read()
                     self.hung_up += 1
@@ -173,7 +177,7 @@ def test_request_bytes_and_parsed_answers():
         f"authorization: Bearer key-0123\r\naccept: application/msgpack\r\ncontent-type: application/msgpack\r\n"
         f"content-length: {len(body)}\r\n\r\n").encode() + body
     assert srv.requests[1] == (
-        f"GET /prefix/v1/worlds/w1/field?min=1%2C2%2C3&max=5%2C5%2C5&format=distance&min_version=7 HTTP/1.1\r\n"
+        f"GET /prefix/v1/worlds/w1/field?min=1,2,3&max=5,5,5&format=distance&min_version=7 HTTP/1.1\r\n"
         f"host: {host}\r\nuser-agent: sdfclient-lean\r\nauthorization: Bearer key-0123\r\n"
         f"accept: application/msgpack\r\n\r\n").encode()
     assert srv.connections == 1  # kept alive
@@ -212,6 +216,58 @@ def test_chunked_and_close_delimited_bodies():
 
     srv, versions = asyncio.run(run())
     assert versions == [42, 43, 44] and srv.connections == 2  # the body without a length ended its connection
+
+
+def test_interim_answers_and_query_values_that_need_quoting():
+    interim = b"HTTP/1.1 100 Continue\r\n\r\nHTTP/1.1 102 Processing\r\nx-step: 1\r\n\r\n"
+
+    async def run():
+        async with RawServer(interim + reply({"version": 8})) as srv, LeanConnection(srv.url) as conn:
+            return await conn.edit("w", [edits.sphere((1, 1, 1), 1)])
+
+    assert asyncio.run(run()) == 8
+    assert lean._query({"min": "-1,2,3", "format": "distance"}) == "min=-1,2,3&format=distance"
+    assert lean._query({"min": "1,2,3", "q": "a b&c=d"}) == "min=1%2C2%2C3&q=a+b%26c%3Dd"  # urlencode's
+
+
+def test_concurrent_callers_take_turns_on_one_connection():
+    async def run():
+        async with RawServer(*[reply({"version": v}) for v in range(1, 9)]) as srv, \
+                LeanConnection(srv.url) as conn:
+            versions = await asyncio.gather(*[conn.edit("w", [edits.sphere((x, 1, 1), 1)]) for x in range(8)])
+            return srv, versions
+
+    srv, versions = asyncio.run(run())
+    bodies = [wire.decode(request.partition(b"\r\n\r\n")[2]) for request in srv.requests]
+    assert [body["edits"][0]["center"][0] for body in bodies] == list(range(8))  # one at a time, in call order
+    assert versions == list(range(1, 9)) and srv.connections == 1
+
+
+def test_one_timer_follows_each_exchange_deadline():
+    """The connection keeps one timer for all its exchanges: a deadline that passes while a later
+    exchange is in flight raises nothing, and a short timeout after a long one still fires on time."""
+    async def run():
+        script = (reply({"version": 1}), (0.05, reply({"version": 2})), reply({"version": 3}), HANG)
+        async with RawServer(*script) as srv, LeanConnection(srv.url, timeout=0.1) as conn:
+            sphere = [edits.sphere((1, 1, 1), 1)]
+            versions = [await conn.edit("w", sphere)]
+            await asyncio.sleep(0.08)
+            versions.append(await conn.edit("w", sphere))  # in flight when the first deadline passes
+            await asyncio.sleep(0.15)
+            conn.timeout = 30.0
+            versions.append(await conn.edit("w", sphere))  # the timer is set 30 s ahead
+            conn.timeout = 0.1
+            loop = asyncio.get_running_loop()
+            start = loop.time()
+            with pytest.raises(Timeout):
+                await conn.edit("w", sphere)
+            waited = loop.time() - start
+            await asyncio.sleep(0.05)
+            return srv, versions, waited
+
+    srv, versions, waited = asyncio.run(run())
+    assert versions == [1, 2, 3] and 0.09 < waited < 1.0
+    assert srv.connections == 1 and srv.hung_up == 1
 
 
 def test_timeout_then_a_fresh_connection():

@@ -8,6 +8,8 @@ all and a test keeps the two in step.
 
 from __future__ import annotations
 
+import functools
+
 from typing import Literal
 
 from pydantic import Field
@@ -92,7 +94,9 @@ class Settings(BaseSettings):
                           max_voxels_per_batch=self.max_voxels_per_batch,
                           max_brush_radius_vox=self.max_brush_radius_vox)
 
+    @functools.cached_property
     def wire_limits(self) -> WireLimits:
+        """Built once: every msgpack body is decoded with them."""
         n = self.max_request_bytes
         return WireLimits(max_bin_len=n, max_str_len=min(n, 1 << 20), max_array_len=n,
                           max_map_len=1 << 12, max_buffer_size=n)

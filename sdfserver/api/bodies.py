@@ -82,7 +82,7 @@ async def decode_body(request: Request) -> Any:
     data = await read_body(request, settings.max_request_bytes)
     kind = media_type(header(request, b"content-type")) or JSON
     if kind == MSGPACK:
-        return wire.decode(data, settings.wire_limits())
+        return wire.decode(data, settings.wire_limits)
     if kind == JSON or kind.endswith("+json"):
         try:
             return json.loads(data, parse_constant=_no_constant)

@@ -105,7 +105,7 @@ class StreamSession:
         self.metrics.bytes_out.inc(len(data))
 
     async def _receive(self) -> None:
-        limits = self.settings.wire_limits()
+        limits = self.settings.wire_limits
         while True:
             message = await self.websocket.receive()
             if message["type"] == "websocket.disconnect":

@@ -9,7 +9,6 @@ all and a test keeps the two in step.
 from __future__ import annotations
 
 import functools
-
 from typing import Literal
 
 from pydantic import Field

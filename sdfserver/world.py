@@ -15,7 +15,6 @@ its capped distance, so the result equals a full recompute.
 
 from __future__ import annotations
 
-import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -24,14 +23,13 @@ import numpy as np
 import pyopencl as cl
 
 from sdfserver.algorithms import ALGORITHMS, RegionJob, WorldBuffers, get_algorithm
-from sdfserver.algorithms.base import WORK_PLANE_PAD, grid, int4
+from sdfserver.algorithms.base import WORK_PLANE_PAD, float4, grid, int4
 from sdfserver.edits import BoxEdit, Edit, EditLimits, SphereEdit, VoxelsEdit, edit_bounds, validate_batch
 from sdfserver.errors import InvalidInput
 from sdfserver.geometry import Box, Vec3, merge_regions
 from sdfserver.gpu import GpuContext
 
 CHUNK_SIZES = (8, 16, 32, 64, 128)
-_FLOAT4 = struct.Struct("<4f")
 MAX_SIDE_VOX = 2048  # exact.cl: at most 128 segments of 16 elements per line
 
 
@@ -214,7 +212,7 @@ class World:
             kernels.kernel("edits.cl", "fill_box")(q, gsize, lsize, b.voxels, dims, int4(box.lo), int4(box.shape_xyz),
                              np.uint32(e.colour))
         elif isinstance(e, SphereEdit):
-            center = _FLOAT4.pack(*e.center, 0.0)  # a by-value float4 goes to pyopencl as its bytes
+            center = float4(e.center)
             kernels.kernel("edits.cl", "fill_sphere")(q, gsize, lsize, b.voxels, dims, int4(box.lo), int4(box.shape_xyz),
                                 center, np.float32(e.radius * e.radius), np.uint32(e.colour))
 

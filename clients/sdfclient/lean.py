@@ -281,10 +281,8 @@ class _Connection(asyncio.Protocol):
     def _read_head(self) -> Head | None:
         buffer = self.buffer
         while True:
-            end = buffer.find(b"\r\n\r\n")
+            end = _find(buffer, b"\r\n\r\n", 0, "the answer's head")
             if end < 0:
-                if len(buffer) > HEAD_LIMIT:
-                    raise ProtocolError(f"no end of the answer's head in {HEAD_LIMIT} bytes")
                 return None
             raw = bytes(buffer[:end])
             del buffer[:end + 4]
@@ -306,10 +304,8 @@ class _Connection(asyncio.Protocol):
         """A chunked body, chunk by chunk as each is whole; None until the last one is in."""
         buffer = self.buffer
         while True:
-            eol = buffer.find(b"\r\n")
+            eol = _find(buffer, b"\r\n", 0, "a chunk-size line")
             if eol < 0:
-                if len(buffer) > HEAD_LIMIT:
-                    raise ProtocolError(f"no end of a chunk-size line in {HEAD_LIMIT} bytes")
                 return None
             size = int(buffer[:eol].split(b";")[0], 16)
             if size < 0:
@@ -317,10 +313,8 @@ class _Connection(asyncio.Protocol):
             if size == 0:
                 # Trailers (none that the client reads) end at the first empty line; the size line's
                 # own CRLF starts it when there are none.
-                end = buffer.find(b"\r\n\r\n", eol)
+                end = _find(buffer, b"\r\n\r\n", eol, "the trailers")
                 if end < 0:
-                    if len(buffer) > HEAD_LIMIT:
-                        raise ProtocolError(f"no end of the trailers in {HEAD_LIMIT} bytes")
                     return None
                 del buffer[:end + 4]
                 return b"".join(self.chunks)
@@ -331,6 +325,14 @@ class _Connection(asyncio.Protocol):
                 raise ProtocolError("a chunk not followed by CRLF")
             self.chunks.append(bytes(memoryview(buffer)[eol + 2:end]))
             del buffer[:end + 2]
+
+
+def _find(buffer: bytearray, end: bytes, start: int, what: str) -> int:
+    """Where ``end`` starts in ``buffer`` (-1: not in yet), refusing to wait past HEAD_LIMIT bytes."""
+    at = buffer.find(end, start)
+    if at < 0 and len(buffer) > HEAD_LIMIT:
+        raise ProtocolError(f"no end of {what} in {HEAD_LIMIT} bytes")
+    return at
 
 
 def _parse_head(raw: bytes) -> Head:

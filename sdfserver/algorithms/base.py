@@ -23,6 +23,7 @@ from sdfserver.gpu import GpuContext
 
 
 _INT4 = struct.Struct("<4i")
+_FLOAT4 = struct.Struct("<4f")
 
 
 def int4(v: tuple[int, int, int], w: int = 0) -> bytes:
@@ -30,6 +31,11 @@ def int4(v: tuple[int, int, int], w: int = 0) -> bytes:
     argument as a buffer, and packing one costs a seventh of building a NumPy int4
     (cltypes.make_int4 goes through eval: ~35 us a call)."""
     return _INT4.pack(v[0], v[1], v[2], w)
+
+
+def float4(v: tuple[float, float, float], w: float = 0.0) -> bytes:
+    """An OpenCL float4 kernel argument, as its 16 bytes (see int4)."""
+    return _FLOAT4.pack(v[0], v[1], v[2], w)
 
 
 def grid(shape_xyz: tuple[int, int, int], local: tuple[int, int, int] = (8, 4, 4)):

@@ -14,7 +14,7 @@ RECOMPUTE_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 
 class EngineMetrics:
     def __init__(self, registry: CollectorRegistry | None = None):
         self.registry = registry = registry or CollectorRegistry()
-        self._children: dict[tuple[str, str], object] = {}
+        self._children: dict[tuple[object, str], object] = {}
         self.edit_ops = Counter("sdfserver_edit_ops", "Edit operations applied.", registry=registry)
         self.edit_batches = Counter("sdfserver_edit_batches", "Edit batches applied.", registry=registry)
         self.rejected_batches = Counter("sdfserver_rejected_batches", "Edit batches rejected (nothing applied).",
@@ -48,16 +48,16 @@ class EngineMetrics:
                                      registry=registry)
 
     # Labelled children, looked up once: labels() validates and locks on every call (~3 us).
-    def phase(self, name: str) -> Counter:
-        child = self._children.get(("phase", name))
+    def _labelled(self, metric, value: str):
+        child = self._children.get((metric, value))
         if child is None:
-            child = self._children[("phase", name)] = self.phase_seconds.labels(name)
+            child = self._children[(metric, value)] = metric.labels(value)
         return child
+
+    def phase(self, name: str) -> Counter:
+        return self._labelled(self.phase_seconds, name)
 
     def recompute_by(self, algorithm: str) -> tuple[Histogram, Counter]:
         """The wall-time histogram and device-time counter of one algorithm."""
-        pair = self._children.get(("recompute", algorithm))
-        if pair is None:
-            pair = self._children[("recompute", algorithm)] = (
-                self.recompute_seconds.labels(algorithm), self.recompute_device_seconds.labels(algorithm))
-        return pair
+        return (self._labelled(self.recompute_seconds, algorithm),
+                self._labelled(self.recompute_device_seconds, algorithm))

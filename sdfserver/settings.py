@@ -32,6 +32,11 @@ class Settings(BaseSettings):
     log_format: Literal["text", "json"] = Field("text", description="Log line format: 'text' or 'json' "
                                                                     "(one JSON object per line).")
     log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Lowest level logged.")
+    fronts: int = Field(
+        0, ge=0, le=64, description="Front processes that parse HTTP for the hot requests (edits, field reads, "
+                                    "point queries) and pass them to this process's engine; every other "
+                                    "connection is handed to this process. 0: this process serves everything "
+                                    "(see docs/architecture.md).")
     access_log: bool = Field(False, description="Log every HTTP request (costs throughput).")
     switch_interval_ms: float = Field(
         0.5, gt=0, le=100, description="Longest the event loop keeps Python's GIL while the engine thread waits "

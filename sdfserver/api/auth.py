@@ -24,6 +24,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from fastapi import Request
 from starlette.requests import HTTPConnection
@@ -152,28 +153,44 @@ def bearer_token(connection: HTTPConnection, allow_query: bool = False) -> str |
     return None
 
 
-def check_owner(connection: HTTPConnection, principal: Principal, world_id: str) -> None:
+def check_owner(engine: Any, principal: Principal, world_id: str) -> None:
     """Another tenant's world is NotFound, word for word as a missing one."""
     if principal.admin:
         return
-    owner = connection.app.state.engine.owner_of(world_id)
-    if owner != principal.name:
+    if engine.owner_of(world_id) != principal.name:
         raise NotFound(f"no world {world_id!r}")
 
 
-async def guard(request: Request) -> None:
-    """The dependency of every /v1 route: key, rate limit, world owner. On an open server it
-    reads no key and stores no principal (``principal_of`` answers OPEN): a few us less."""
-    gate: Gatekeeper = request.app.state.gatekeeper
-    principal = OPEN if gate.open else gate.authenticate(bearer_token(request))
-    if gate.rate_per_s > 0:  # the client's address is needed only then
-        client = request.client
-        gate.throttle(principal, client.host if client else "unknown")
-    if principal is not OPEN:
-        request.state.principal = principal
-    world_id = request.path_params.get("world_id")
+def admit(gate: Gatekeeper, engine: Any, principal: Principal, client: str, world_id: str | None) -> None:
+    """Rate limit and world owner, for a principal already authenticated (here or in a front)."""
+    if gate.rate_per_s > 0:
+        gate.throttle(principal, client)
     if world_id is not None:
-        check_owner(request, principal, world_id)
+        check_owner(engine, principal, world_id)
+
+
+def client_host(connection: HTTPConnection) -> str:
+    client = connection.client
+    return client.host if client else "unknown"
+
+
+def authenticate(request: Request) -> Principal:
+    """The request's key; on an open server it reads none (a few us less) and stores none
+    (``principal_of`` answers OPEN)."""
+    gate: Gatekeeper = request.app.state.gatekeeper
+    if gate.open:
+        return OPEN
+    principal = gate.authenticate(bearer_token(request))
+    request.state.principal = principal
+    return principal
+
+
+async def guard(request: Request) -> None:
+    """The dependency of every /v1 route: key, rate limit, world owner."""
+    principal = authenticate(request)
+    gate: Gatekeeper = request.app.state.gatekeeper
+    client = client_host(request) if gate.rate_per_s > 0 else "unknown"  # the address is needed only then
+    admit(gate, request.app.state.engine, principal, client, request.path_params.get("world_id"))
 
 
 def principal_of(request: Request) -> Principal:

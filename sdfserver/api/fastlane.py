@@ -14,6 +14,10 @@ itself: the same ``auth.guard``, the same handlers in ``routes.py``, the same er
 FastAPI unchanged. FastAPI keeps the three routes: OpenAPI documents them from there, and
 they serve the requests when the lane is off (``create_app(..., fast_lane=False)``; the
 tests compare both).
+
+With front processes (``--fronts``, ``front.py``) the same handlers run in each front, where
+``request.app.state.engine`` is the link to the server process and ``guard`` only
+authenticates: the server process rate-limits and checks the owner when the command arrives.
 """
 
 from __future__ import annotations
@@ -82,21 +86,28 @@ ROUTES: dict[tuple[str, str], Handler] = {
 PATH = re.compile(r"/v1/worlds/([^/]+)/(edits|field|query)")
 
 
+def lane_route(method: str, path: str) -> tuple[Handler, str] | None:
+    """(handler, world id) for a request the lane answers, else None."""
+    match = PATH.fullmatch(path)
+    if match is None:
+        return None
+    handler = ROUTES.get((method, match.group(2)))
+    return None if handler is None else (handler, match.group(1))
+
+
 class FastLane:
     """ASGI: the lane's requests to their handlers, the rest to ``app``."""
 
-    def __init__(self, app: ASGIApp, state_app: ASGIApp):
+    def __init__(self, app: ASGIApp, state_app: ASGIApp,
+                 guard: Callable[[Request], Awaitable[None]] = auth.guard):
         self.app = app
         self.state_app = state_app  # what ``request.app`` answers (the FastAPI app and its state)
+        self.guard = guard
 
     def handler(self, scope: Scope) -> tuple[Handler, str] | None:
         if scope["type"] != "http":
             return None
-        match = PATH.fullmatch(scope["path"])
-        if match is None:
-            return None
-        handler = ROUTES.get((scope["method"], match.group(2)))
-        return None if handler is None else (handler, match.group(1))
+        return lane_route(scope["method"], scope["path"])
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         found = self.handler(scope)
@@ -108,7 +119,7 @@ class FastLane:
         scope["path_params"] = {"world_id": world_id}
         request = Request(scope, receive)
         try:
-            await auth.guard(request)
+            await self.guard(request)
             response = await handler(request, world_id)
         except Exception as exc:  # the one mapping to status and body, as FastAPI's handlers use
             response = error_response(exc)

@@ -2,17 +2,15 @@
 
 Flags are generated from the Settings fields (``--max-request-bytes`` for
 ``max_request_bytes``) and override ``SDFSERVER_*`` environment variables.
-Scale with one process per device, never with uvicorn workers on one device.
+Scale with one process per device, never with uvicorn workers on one device; ``--fronts N``
+adds processes that parse the hot requests' HTTP for this one (``fronts.py``).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
-import re
 import sys
-import time
 import typing
 from typing import Any
 
@@ -52,43 +50,6 @@ def settings_from(argv: list[str]) -> Settings:
     return Settings(**overrides)
 
 
-class JsonFormatter(logging.Formatter):
-    def format(self, record: logging.LogRecord) -> str:
-        line = {"time": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(record.created)),
-                "level": record.levelname.lower(), "logger": record.name, "message": record.getMessage()}
-        if record.exc_info:
-            line["exception"] = self.formatException(record.exc_info)
-        return json.dumps(line)
-
-
-class RedactTokens(logging.Filter):
-    """Keys in a query string (``?access_token=`` on a WebSocket, ``?key=`` on the demo page) must
-    not reach the log: uvicorn logs a WebSocket's path with its query."""
-
-    PATTERN = re.compile(r"([?&](?:access_token|key)=)[^&\s\"']*")
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        message = record.getMessage()
-        redacted = self.PATTERN.sub(r"\1[redacted]", message)
-        if redacted != message:
-            record.msg, record.args = redacted, None
-        return True
-
-
-def configure_logging(settings: Settings) -> dict[str, Any]:
-    """Our handler on the root logger; uvicorn's loggers propagate to it."""
-    handler = logging.StreamHandler(sys.stderr)
-    handler.addFilter(RedactTokens())
-    handler.setFormatter(JsonFormatter() if settings.log_format == "json"
-                         else logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-    root = logging.getLogger()
-    root.handlers[:] = [handler]
-    root.setLevel(settings.log_level.upper())
-    return {"version": 1, "disable_existing_loggers": False,
-            "loggers": {name: {"handlers": [], "propagate": True}
-                        for name in ("uvicorn", "uvicorn.error", "uvicorn.access")}}
-
-
 def main(argv: list[str] | None = None) -> int:
     import uvicorn
 
@@ -96,6 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     from sdfserver.api.auth import is_loopback, parse_keys
     from sdfserver.api.coalesce import CoalescingHttpToolsProtocol
     from sdfserver.api.durability import open_journal, restore
+    from sdfserver.api.fronts import FrontedServer, FrontPool
+    from sdfserver.api.logs import configure_logging
     from sdfserver.engine import EngineMetrics
     from sdfserver.storage.lock import lock_data_dir
 
@@ -135,10 +98,17 @@ def main(argv: list[str] | None = None) -> int:
     app = create_app(settings, engine, freeze_gc=True)
     app.state.journal = journal
     try:
-        uvicorn.run(app, host=settings.host, port=settings.port, log_config=log_config,
-                    http=CoalescingHttpToolsProtocol,  # one send per answer, not one per head and body
-                    log_level=settings.log_level, access_log=settings.access_log,
-                    ws_max_size=settings.max_request_bytes, timeout_graceful_shutdown=5)
+        config = uvicorn.Config(app, host=settings.host, port=settings.port, log_config=log_config,
+                                http=CoalescingHttpToolsProtocol,  # one send per answer, not one per head and body
+                                log_level=settings.log_level, access_log=settings.access_log,
+                                ws_max_size=settings.max_request_bytes, timeout_graceful_shutdown=5)
+        server = FrontedServer(config, FrontPool(settings, app.state)) if settings.fronts else uvicorn.Server(config)
+        try:
+            server.run()
+        except KeyboardInterrupt:
+            pass
+        if not server.started:
+            return 3  # uvicorn's start-up failure status, as uvicorn.run exits with
     finally:
         if journal is not None:
             journal.close()

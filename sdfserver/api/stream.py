@@ -48,7 +48,7 @@ async def stream(websocket: WebSocket, world_id: str) -> None:
     await websocket.accept()
     try:
         principal = gate.authenticate(bearer_token(websocket, allow_query=True))
-        check_owner(websocket, principal, world_id)
+        check_owner(engine, principal, world_id)
         described = await engine.describe(world_id)
     except SdfServerError as exc:
         await websocket.close(code=close_code_for(exc), reason=str(exc)[:120])

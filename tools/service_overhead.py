@@ -1,7 +1,8 @@
 """The server's host overhead per edit batch, next to the device time it bought.
 
 Runs a command (a load test) against a running ``sdfserver serve`` and reads, before and after,
-the server process's CPU time (``/proc/<pid>/stat``, all threads) and its ``/metrics``:
+the server process's CPU time (``/proc/<pid>/stat``, all threads), its front processes' (if
+it runs ``--fronts``) and its ``/metrics``:
 
     python tools/service_overhead.py --pid $SERVER_PID --url http://127.0.0.1:8765 -- \\
         python clients/loadtest.py --url http://127.0.0.1:8765 --clients 64 --processes 8 \\
@@ -29,6 +30,24 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime, all threads
 
 
+def children(pid: int) -> list[int]:
+    """The server's front processes (``--fronts``), if any."""
+    try:
+        return [int(c) for c in open(f"/proc/{pid}/task/{pid}/children").read().split()]
+    except OSError:
+        return []
+
+
+def fronts_cpu_seconds(pids: list[int]) -> float:
+    total = 0.0
+    for pid in pids:
+        try:
+            total += cpu_seconds(pid)
+        except OSError:  # a front that exited (and was started again) drops out
+            pass
+    return total
+
+
 def metrics(url: str) -> dict[str, float]:
     out = dict.fromkeys(COUNTERS, 0.0)
     for line in urllib.request.urlopen(url + "/metrics", timeout=10).read().decode().splitlines():
@@ -47,9 +66,10 @@ def main(argv: list[str] | None = None) -> int:
     command = args.command[1:] if args.command[:1] == ["--"] else args.command
     if not command:
         ap.error("give the load-test command after --")
-    m0, c0 = metrics(args.url), cpu_seconds(args.pid)
+    fronts = children(args.pid)
+    m0, c0, f0 = metrics(args.url), cpu_seconds(args.pid), fronts_cpu_seconds(fronts)
     code = subprocess.run(command).returncode
-    m1, c1 = metrics(args.url), cpu_seconds(args.pid)
+    m1, c1, f1 = metrics(args.url), cpu_seconds(args.pid), fronts_cpu_seconds(fronts)
     d = {k: m1[k] - m0[k] for k in COUNTERS}
     batches, steps = d["sdfserver_edit_batches_total"], d["sdfserver_engine_steps_total"]
     if batches <= 0:
@@ -58,7 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     per = lambda seconds: seconds / batches * 1e6  # noqa: E731
     print(f"{batches:.0f} batches in {steps:.0f} engine steps ({batches / max(steps, 1):.1f} per step); per batch: "
           f"server CPU {per(c1 - c0):.0f} us, recompute wall {per(d['sdfserver_recompute_seconds_sum']):.0f} us, "
-          f"recompute device {per(d['sdfserver_recompute_device_seconds_total']):.0f} us")
+          f"recompute device {per(d['sdfserver_recompute_device_seconds_total']):.0f} us"
+          + (f"; {len(fronts)} front processes: {per(f1 - f0):.0f} us CPU per batch between them" if fronts else ""))
     return code
 
 

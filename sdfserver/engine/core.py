@@ -267,6 +267,7 @@ class Engine:
             self.metrics.phase(phase).inc(ms / 1e3)
         if seconds * 1e3 >= self.limits.slow_step_ms:
             phases = ", ".join(f"{k} {v:.1f}" for k, v in report.phases_ms.items())
+            phases += " (" + ", ".join(f"{k} {v:.1f}" for k, v in report.apply_ms.items()) + " of apply)"
             log.warning("slow engine step: %.1f ms (%s), %d batches", seconds * 1e3, phases,
                         report.applied_batches)
 
@@ -288,10 +289,12 @@ class Engine:
             if not future.set_running_or_notify_cancel():
                 continue
             if isinstance(command, ApplyEdits):
+                started = time.perf_counter()
                 try:  # a bad batch fails alone: nothing logged or applied
                     batches.append((command, future, self._world(command.world_id).plan_edits(command.edits)))
                 except Exception as exc:
                     self._reject(future, exc, report)
+                report.apply_ms["plan"] += (time.perf_counter() - started) * 1e3
                 continue
             self._apply_batches(batches, touched, report)
             batches = []
@@ -324,6 +327,7 @@ class Engine:
         by_world: dict[str, list[tuple[ApplyEdits, Future, EditPlan]]] = {}
         for item in batches:
             by_world.setdefault(item[0].world_id, []).append(item)
+        started = time.perf_counter()
         journaled = []
         for world_id, items in by_world.items():
             world = items[0][2].world
@@ -338,9 +342,14 @@ class Engine:
             journaled.append((world_id, world, items, durable))
         if self.journal is not None and journaled:
             self.journal.start_syncs()  # every world's records in one round of syncs
+        logged = time.perf_counter()
+        report.apply_ms["log"] += (logged - started) * 1e3
+        launch_ms = 0.0
         for world_id, world, items, durable in journaled:
             for command, future, plan in items:
+                launch = time.perf_counter()
                 version = world.apply_plan(plan)
+                launch_ms += (time.perf_counter() - launch) * 1e3
                 self.metrics.edit_batches.inc()
                 self.metrics.edit_ops.inc(len(command.edits))
                 report.applied_batches += 1
@@ -349,6 +358,8 @@ class Engine:
                 else:
                     _acknowledge_when_durable(future, version, durable)
             touched.add(world_id)
+        report.apply_ms["launch"] += launch_ms
+        report.apply_ms["acknowledge"] += (time.perf_counter() - logged) * 1e3 - launch_ms
 
     def _reject(self, future: Future, exc: BaseException, report: StepReport) -> None:
         report.rejected_batches += 1

@@ -1,9 +1,10 @@
 """The write-ahead log of one world, and the group-commit thread shared by every log.
 
-``WorldLog.append(version, payload)`` frames one record (under the log's lock, so records of
-one world are in version order; ``append_many`` frames several consecutive records for one
-``os.write``) and hands it to the ``Committer``; it returns a ``concurrent.futures.Future``
-that completes once the record is durable. Block on it with ``.result()`` or await it with ``asyncio.wrap_future``; acknowledge
+``WorldLog.append(version, payload)`` writes one framed record with ``os.write`` (under the
+log's lock, so records of one world are in version order; ``append_many`` writes several
+consecutive records with one ``os.write``) and hands the file to the
+``Committer``; it returns a ``concurrent.futures.Future`` that completes once the record is
+durable. Block on it with ``.result()`` or await it with ``asyncio.wrap_future``; acknowledge
 the batch only after that. A segment that has grown past ``segment_limit`` bytes is closed and
 the next append starts a new one, so snapshots never rotate the log (which would hold up the
 appender) and the log is trimmed a whole segment at a time.
@@ -15,10 +16,8 @@ Two ways to sync, chosen per server (``sync_inline``):
   so every batch of a step shares that sync; on a disk that syncs in tens of microseconds
   this is the shortest path to an acknowledgement (no thread hand-offs, no wait for the GIL).
 - group commit (the default): the committer thread takes every record waiting (optionally
-  after a short window), writes them in order, calls ``fdatasync`` once per file, and completes
-  all their futures together. The write is the committer's, not the appender's: an append into
-  the page that the previous sync is still writing back waits for that I/O (stable pages: 17–35
-  ms on the GPU machine's disk), and the appender is the engine thread. While one sync runs, the appends that arrive queue up for the next, and the engine
+  after a short window), calls ``fdatasync`` once per file, and completes all their futures
+  together. While one sync runs, the appends that arrive queue up for the next, and the engine
   goes on. After its appends the engine calls ``hand_over``: if the committer was idle, the
   engine waits (GIL released) until it has taken every queued record, so the sync starts at
   once: otherwise the committer would wait for the GIL while the engine works on, and the
@@ -27,8 +26,7 @@ Two ways to sync, chosen per server (``sync_inline``):
   appends keeps the worlds of that step in one round of syncs.
 
 A failed write or sync is never retried: the committer enters a failed state, every waiting
-future and every later append raises ``WritesDisabled`` naming the file and the OS error; a
-failed write first truncates the file to where its records began.
+future and every later append raises ``WritesDisabled`` naming the file and the OS error.
 What reached the disk before the failure is recovered at the next start as usual.
 """
 
@@ -58,15 +56,6 @@ def segment_base(path: Path) -> int:
     return int(path.stem.split("-", 1)[1])
 
 
-Pending = tuple[int, str, "bytes | None", int, Future]  # fd, path, frame to write, end before it, future
-
-
-def write_fully(fd: int, data: bytes) -> None:
-    view = memoryview(data)
-    while view:
-        view = view[os.write(fd, view):]
-
-
 class Committer:
     """One thread that makes appended records durable, many at a time."""
 
@@ -75,7 +64,7 @@ class Committer:
         self.inline = inline
         self.window_s = max(0.0, window_ms) / 1e3
         self._cond = threading.Condition()
-        self._pending: list[Pending] = []
+        self._pending: list[tuple[int, str, Future]] = []
         self._failure: WritesDisabled | None = None
         self._closed = False
         self._idle = False  # the committer waits for records
@@ -112,20 +101,12 @@ class Committer:
                 pending, self._pending = self._pending, []
                 self._taken = self._queued
                 self._cond.notify_all()
-                for *_, future in pending:
+                for _, _, future in pending:
                     future.set_exception(self._failure)
             return self._failure
 
-    @property
-    def writes(self) -> bool:
-        """Whether appends hand their records to this thread to write (group commit with syncs)."""
-        return self.sync and not self.inline
-
-    def submit(self, fd: int, path: str, *, wake: bool = True, frame: bytes | None = None,
-               rollback_to: int = 0) -> Future:
-        """A future completed once everything written to ``fd`` so far, and ``frame`` (written
-        here, in submission order, when ``writes``; on failure ``fd`` is truncated to
-        ``rollback_to``), is durable.
+    def submit(self, fd: int, path: str, *, wake: bool = True) -> Future:
+        """A future completed once everything written to ``fd`` so far is durable.
 
         ``wake=False`` leaves an idle committer asleep until ``hand_over``: a caller appending
         to several files calls it once after the last, so they share one round of syncs (an
@@ -147,7 +128,7 @@ class Committer:
             return future
         with self._cond:
             self.check()
-            self._pending.append((fd, path, frame, rollback_to, future))
+            self._pending.append((fd, path, future))
             self._queued += 1
             if wake or self.window_s:
                 self._cond.notify_all()
@@ -181,13 +162,7 @@ class Committer:
                 batch, self._pending = self._pending, []
                 self._taken = self._queued
                 self._cond.notify_all()  # an append waiting for the hand-over goes on
-            error = self._write_all(batch)
-            if error is not None:
-                failure = self.fail(*error)
-                for *_, future in batch:
-                    future.set_exception(failure)
-                continue
-            files = {fd: path for fd, path, *_ in batch}
+            files = {fd: path for fd, path, _ in batch}
             # Several files (worlds) sync side by side, so the file system can merge them; one file
             # syncs right here (a pool round trip costs two more waits for the GIL under load).
             if len(files) == 1:
@@ -197,28 +172,13 @@ class Committer:
             errors = [e for e in results if e is not None]
             if errors:
                 failure = self.fail(*errors[0])
-                for *_, future in batch:
+                for _, _, future in batch:
                     future.set_exception(failure)
             else:
                 self.syncs += len(files)
                 self.records += len(batch)
-                for *_, future in batch:
+                for _, _, future in batch:
                     future.set_result(None)
-
-    @staticmethod
-    def _write_all(batch: list[Pending]) -> tuple[str, str, OSError] | None:
-        for fd, path, frame, rollback_to, _ in batch:
-            if frame is None:
-                continue
-            try:
-                write_fully(fd, frame)
-            except OSError as exc:
-                try:  # leave no partial record for a restart to read
-                    os.ftruncate(fd, rollback_to)
-                except OSError:
-                    pass  # the failed state refuses every later append anyway
-                return path, "write", exc
-        return None
 
     @staticmethod
     def _sync_one(item: tuple[int, str]) -> tuple[str, str, OSError] | None:
@@ -283,22 +243,19 @@ class WorldLog:
                                  f"{self.last_version}; versions must be continuous")
             if self._end >= self.segment_limit:
                 self._rotate_locked(self.last_version)
-            if self.committer.writes:  # the committer writes it, then syncs
-                future = self.committer.submit(self._fd, str(self._path), wake=wake, frame=frame,
-                                               rollback_to=self._end)
-            else:
-                try:
-                    write_fully(self._fd, frame)
-                except OSError as exc:
-                    try:  # leave no partial record for a later append to follow
-                        os.ftruncate(self._fd, self._end)
-                    except OSError:
-                        pass  # the failed state below refuses every later append anyway
-                    raise self.committer.fail(str(self._path), "write", exc) from None
-                future = self.committer.submit(self._fd, str(self._path), wake=wake)
+            view = memoryview(frame)
+            try:
+                while view:
+                    view = view[os.write(self._fd, view):]
+            except OSError as exc:
+                try:  # leave no partial record for a later append to follow
+                    os.ftruncate(self._fd, self._end)
+                except OSError:
+                    pass  # the failed state below refuses every later append anyway
+                raise self.committer.fail(str(self._path), "write", exc) from None
             self._end += len(frame)
             self.last_version = first_version + len(payloads) - 1
-            return future
+            return self.committer.submit(self._fd, str(self._path), wake=wake)
 
     def _flush_locked(self) -> None:
         self.committer.submit(self._fd, str(self._path)).result()

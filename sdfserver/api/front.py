@@ -206,12 +206,12 @@ class FrontProtocol(CoalescingHttpToolsProtocol):
         self._unset_keepalive_if_required()
         if self.transport.is_closing():
             return
+        if self.cycle is not None and not self.cycle.response_complete:
+            return  # the answer in flight first: on_response_complete calls again
         if not self._whole:  # its first bytes went into the parser with the request before it
             self.send_400_response("A request for the server process was pipelined behind another; "
                                    "send it once the answers before it have arrived.")
             return
-        if self.cycle is not None and not self.cycle.response_complete:
-            return  # on_response_complete calls again
         self.transport.flush()
         if self.transport.get_write_buffer_size():  # an answer still on its way out
             self.loop.call_later(0.002, self._hand_over)
@@ -254,9 +254,22 @@ async def serve(link_socket: socket.socket, channel: socket.socket) -> None:
     config = uvicorn.Config(app, log_config=log_config, log_level=settings.log_level, lifespan="off",
                             http=functools.partial(FrontProtocol, channel=channel),  # type: ignore[arg-type]
                             access_log=settings.access_log, timeout_graceful_shutdown=5)
-    server = uvicorn.Server(config)
+    server = ListeningServer(config, engine)
     loop.create_task(_send_bytes_out(engine, app.state.metrics.bytes_out))
     await server.serve(sockets=[listener])
+
+
+class ListeningServer(uvicorn.Server):
+    """Tells the server process once it listens: its /readyz waits for every front."""
+
+    def __init__(self, config: uvicorn.Config, engine: RemoteEngine):
+        super().__init__(config)
+        self.engine = engine
+
+    async def startup(self, sockets: list[socket.socket] | None = None) -> None:
+        await super().startup(sockets=sockets)
+        if self.engine.link is not None:
+            self.engine.link.send(("listening",))
 
 
 async def _send_bytes_out(engine: RemoteEngine, counter: BytesOut) -> None:

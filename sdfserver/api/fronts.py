@@ -15,6 +15,7 @@ import logging
 import socket
 import subprocess
 import sys
+import time
 from concurrent.futures import Future
 from typing import Any, Callable
 
@@ -28,6 +29,7 @@ from sdfserver.settings import Settings
 log = logging.getLogger("sdfserver.fronts")
 FRONT_COMMANDS = (ApplyEdits, Query, Read)  # what the lane sends; nothing else is taken from a front
 WATCH_EVERY_S = 0.5
+RESTART_DELAY_S = 5.0  # a front that lived less than this is started again only after it
 
 
 class FrontDesk:
@@ -37,12 +39,15 @@ class FrontDesk:
     def __init__(self, state: Any, on_lost: Callable[[], None]):
         self.engine, self.gate, self.metrics = state.engine, state.gatekeeper, state.metrics
         self.link = link.LinkProtocol(self.on_message, on_lost)
+        self.listening = False  # the front said it listens on the port
 
     def on_message(self, message: Any) -> None:
         if message[0] == "call":
             self._call(*message[1:])
         elif message[0] == "bytes_out":
             self.metrics.bytes_out.inc(message[1])
+        elif message[0] == "listening":
+            self.listening = True
 
     def _call(self, request_id: int, caller: tuple[str | None, bool, str], command: Any) -> None:
         try:
@@ -74,6 +79,8 @@ class Front:
 
     def __init__(self, index: int):
         self.index = index
+        self.started = time.monotonic()
+        self.desk: FrontDesk | None = None
         link_here, link_there = socket.socketpair()
         self.channel, channel_there = link.handoff_pair()
         self.process = subprocess.Popen(
@@ -96,6 +103,15 @@ class FrontPool:
         self._stopping = False
         self._watch: asyncio.Task | None = None
 
+    @property
+    def wanted(self) -> int:
+        return self.settings.fronts
+
+    @property
+    def listening(self) -> int:
+        """Fronts up and listening (/readyz answers 503 until all are)."""
+        return sum(1 for f in self.fronts if f.desk is not None and f.desk.listening and f.process.poll() is None)
+
     async def start(self, protocol_factory: Callable[[], asyncio.Protocol]) -> None:
         self._protocol_factory = protocol_factory
         self._reservation = link.reuseport_socket(self.settings.host, self.settings.port)
@@ -109,7 +125,7 @@ class FrontPool:
     async def _spawn(self, index: int) -> Front:
         loop = asyncio.get_running_loop()
         front = Front(index)
-        desk = FrontDesk(self.state, on_lost=lambda: None)
+        desk = front.desk = FrontDesk(self.state, on_lost=lambda: None)
         await loop.connect_accepted_socket(lambda: desk.link, sock=front.link_socket)
         desk.link.send(("hello", self.settings.model_dump(), self.port))
         loop.add_reader(front.channel.fileno(), self._take_connections, front)
@@ -160,14 +176,19 @@ class FrontPool:
             await asyncio.sleep(WATCH_EVERY_S)
             for i, front in enumerate(self.fronts):
                 if front.process.poll() is not None and not self._stopping:
-                    log.error("front process %d exited with %s; starting it again", front.index,
-                              front.process.returncode)
+                    # one that dies young waits before the next try: no start-up crash loop
+                    delay = RESTART_DELAY_S if time.monotonic() - front.started < RESTART_DELAY_S else 0.0
+                    log.error("front process %d exited with %s; starting it again%s", front.index,
+                              front.process.returncode, f" in {delay:g} s" if delay else "")
                     self._close(front)
-                    self.fronts[i] = await self._spawn(front.index)
+                    await asyncio.sleep(delay)
+                    if not self._stopping:
+                        self.fronts[i] = await self._spawn(front.index)
 
     def _close(self, front: Front) -> None:
-        loop = asyncio.get_running_loop()
-        loop.remove_reader(front.channel.fileno())
+        if front.channel.fileno() < 0:  # closed already (it died, and stop() came before its restart)
+            return
+        asyncio.get_running_loop().remove_reader(front.channel.fileno())
         front.channel.close()
 
     async def stop(self) -> None:
@@ -210,6 +231,7 @@ class FrontedServer(uvicorn.Server):
                                               app_state=self.lifespan.state)
 
         await self.pool.start(protocol)
+        self.pool.state.fronts = self.pool
 
     async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
         await self.pool.stop()

@@ -108,6 +108,7 @@ class StepReport:
     served: int = 0
     waiting: int = 0
     phases_ms: dict[str, float] = field(default_factory=dict)  # apply, recompute, publish, serve
+    cpu_ms: float = 0.0  # the engine thread's CPU time in the step (the rest: waiting, for the GIL among others)
     # within apply: validating batches (plan), handing them to the log (log), launching their edits
     # (launch), the rest of applying them (acknowledge); logged with a slow step
     apply_ms: dict[str, float] = field(

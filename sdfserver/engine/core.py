@@ -235,6 +235,7 @@ class Engine:
         self._waiting = []
         report = StepReport()
         clock = [time.perf_counter()]
+        cpu_started = time.thread_time()
         answers: list[tuple[Future, Any]] = []
 
         def lap(phase: str) -> None:
@@ -254,6 +255,7 @@ class Engine:
             self._lose_device(exc, commands + serve + self._waiting)
             self._waiting = []
         self._count_pending()
+        report.cpu_ms = (time.thread_time() - cpu_started) * 1e3
         self._count_step(report, clock[-1] - clock[0])
         # Answer last: each answer wakes the event loop, which then needs the GIL this thread holds.
         for future, result in answers:
@@ -268,7 +270,8 @@ class Engine:
         if seconds * 1e3 >= self.limits.slow_step_ms:
             phases = ", ".join(f"{k} {v:.1f}" for k, v in report.phases_ms.items())
             phases += " (" + ", ".join(f"{k} {v:.1f}" for k, v in report.apply_ms.items()) + " of apply)"
-            log.warning("slow engine step: %.1f ms (%s), %d batches", seconds * 1e3, phases,
+            log.warning("slow engine step: %.1f ms, %.1f ms of it on a CPU (%s), %d batches", seconds * 1e3,
+                        report.cpu_ms, phases,
                         report.applied_batches)
 
     def _drain(self) -> list[Pending]:

@@ -33,6 +33,11 @@ CHUNK_SIZES = (8, 16, 32, 64, 128)
 MAX_SIDE_VOX = 2048  # exact.cl: at most 128 segments of 16 elements per line
 
 
+# Up to this many (chunk, brush) pairs a step's dirty chunks are counted in a set: numpy on the
+# whole chunk mask lets go of the GIL and, with a busy event loop, waits up to a switch interval
+# to get it back, several times a step.
+SMALL_DIRTY_CHUNKS = 4096
+
 @dataclass(frozen=True)
 class Focus:
     """A box of chunks: ``center - size // 2 <= c < center - size // 2 + size``."""
@@ -265,8 +270,12 @@ class World:
     def dirty_chunk_count(self) -> int:
         if self._dirty_all:
             return int(np.prod(self.config.chunks))
-        if len(self._dirty) == 1:  # one brush, the common step: no mask to build
-            return self._dirty[0].chunk_range(self.config.chunk_size).volume
+        ranges = [box.chunk_range(self.config.chunk_size) for box in self._dirty]
+        if len(ranges) == 1:  # one brush, the common step: no mask to build
+            return ranges[0].volume
+        if sum(r.volume for r in ranges) <= SMALL_DIRTY_CHUNKS:  # a step of brushes: a set, in Python
+            return len({(x, y, z) for r in ranges for z in range(r.lo[2], r.hi[2])
+                        for y in range(r.lo[1], r.hi[1]) for x in range(r.lo[0], r.hi[0])})
         return int(self._chunk_mask(self._dirty).sum())
 
     def _chunk_mask(self, boxes: list[Box]) -> np.ndarray:

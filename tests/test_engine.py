@@ -93,7 +93,7 @@ class RecordingJournal:
             raise OSError("disk full")
         self.calls.extend(("batch", world_id, v, edits) for v, edits in zip(versions, batches))
 
-    def start_syncs(self):
+    def start_syncs(self, wait=True):
         self.sync_starts.append(len(self.calls))
 
     def record_delete(self, world_id):

@@ -344,7 +344,9 @@ class Engine:
                     continue
             journaled.append((world_id, world, items, durable))
         if self.journal is not None and journaled:
-            self.journal.start_syncs()  # every world's records in one round of syncs
+            # every world's records in one round of syncs; with more commands queued the engine
+            # does not wait for the committer to take them: under load that wait held up every step
+            self.journal.start_syncs(wait=self._commands.empty())
         logged = time.perf_counter()
         report.apply_ms["log"] += (logged - started) * 1e3
         launch_ms = 0.0

@@ -17,7 +17,8 @@ The engine calls these on its own thread, in the order things happen:
   them if the future fails). Returning None acknowledges at once.
 - ``start_syncs()`` after the ``record_batches`` calls of a run of edit batches, before
   they are applied: what was recorded may start becoming durable now (the storage journal
-  makes sure its committer has taken them, so the sync overlaps the engine's work).
+  makes sure its committer has taken them, so the sync overlaps the engine's work; with
+  ``wait=False``, when more commands are queued, it only wakes the committer).
 - ``record_config(world_id, config)`` after a world was reconfigured.
 - ``record_delete(world_id)`` after a world was deleted.
 - ``wants_snapshot(world_id)`` after a world's recompute; when it answers True the
@@ -44,7 +45,7 @@ class Journal(Protocol):
     def record_batches(self, world_id: str, first_version: int,
                        batches: list[list[dict[str, Any]]]) -> Future | None: ...
 
-    def start_syncs(self) -> None: ...
+    def start_syncs(self, wait: bool = True) -> None: ...
 
     def record_config(self, world_id: str, config: dict[str, Any]) -> None: ...
 

@@ -60,8 +60,8 @@ class StorageJournal:
     def record_batches(self, world_id: str, first_version: int, batches: list[list[dict[str, Any]]]) -> Future:
         return self._store(world_id).append_many(first_version, batches, wake=False)  # see start_syncs
 
-    def start_syncs(self) -> None:
-        self.storage.committer.hand_over()
+    def start_syncs(self, wait: bool = True) -> None:
+        self.storage.committer.hand_over(wait)
 
     def record_config(self, world_id: str, config: dict[str, Any]) -> None:
         self._store(world_id).write_meta({"config": config, "owner": self.owners.get(world_id)})

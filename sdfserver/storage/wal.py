@@ -134,16 +134,17 @@ class Committer:
                 self._cond.notify_all()
         return future
 
-    def hand_over(self) -> None:
+    def hand_over(self, wait: bool = True) -> None:
         """Wake the committer for what is queued; if it was idle, wait (GIL released) until it
-        has taken all of it, at most HANDOVER_TIMEOUT_S (with a commit window: do not wait)."""
+        has taken all of it, at most HANDOVER_TIMEOUT_S (with a commit window, or ``wait``
+        false: do not wait)."""
         if not self.sync or self.inline:
             return
         with self._cond:
             if not self._pending:
                 return
             self._cond.notify_all()
-            if self._idle and not self.window_s:
+            if wait and self._idle and not self.window_s:
                 queued = self._queued
                 self._cond.wait_for(lambda: self._taken >= queued or self._closed, HANDOVER_TIMEOUT_S)
 

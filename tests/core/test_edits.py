@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from sdfserver.edits import BoxEdit, EditLimits, SphereEdit, VoxelsEdit, parse_edits
 from sdfserver.errors import InvalidEdit, TooLarge
-from sdfserver.world import World, WorldConfig
+from sdfserver.world import SMALL_DIRTY_CHUNKS, World, WorldConfig
 
 from .conftest import oracle
 
@@ -124,5 +124,26 @@ def test_small_worlds_incremental_matches_oracle(gpu, initial, edits, cap):
         world.recompute()
         assert np.array_equal(world.read_voxels(), voxels)
         assert np.array_equal(world.read_distance(), oracle(voxels, cap))
+    finally:
+        world.release()
+
+
+def test_dirty_chunk_count_is_the_chunks_the_brushes_touch(gpu, rng):
+    """A step's dirty chunks are counted in a set when they are few and with the chunk mask
+    otherwise; both must give the chunks the brushes' boxes touch, overlaps counted once."""
+    world = World(gpu, WorldConfig((128, 128, 96), 8, 16), EditLimits(max_brush_radius_vox=64))
+    try:
+        for brushes, radius in ((2, 3.0), (7, 5.0), (3, 60.0)):  # the last: over 4,096 (chunk, brush) pairs
+            edits = [SphereEdit(tuple(float(v) for v in rng.uniform(0, 96, 3)), radius, 1) for _ in range(brushes)]
+            for edit in edits:
+                world.apply_edits([edit])
+            expected = np.zeros(world.config.chunks[::-1], dtype=bool)
+            for box in world._dirty:
+                expected[box.chunk_range(8).slices_zyx()] = True
+            pairs = sum(box.chunk_range(8).volume for box in world._dirty)
+            assert (pairs > SMALL_DIRTY_CHUNKS) == (radius == 60.0)  # both ways of counting are exercised
+            assert world.dirty_chunk_count == int(expected.sum())
+            world.recompute()
+            assert world.dirty_chunk_count == 0
     finally:
         world.release()

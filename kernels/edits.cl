@@ -34,3 +34,46 @@ __kernel void fill_sphere(__global uchar *voxels, int4 dims, int4 lo, int4 n,
     if (dot(d, d) <= radius_sq)
         voxels[world_index(lo.x + x, lo.y + y, lo.z + z, dims)] = (uchar)colour;
 }
+
+/* Several box and sphere edits in one launch, in the order given; where two overlap, the later
+ * one wins. Brush i is three int4: (lo.xyz, colour), (n.xyz, first work-item), and its sphere
+ * as float bits (center.xyz, radius^2; radius^2 < 0 for a box). Brush i owns work-items
+ * first_i .. first_{i+1} - 1 over its clipped box lo..lo+n, x fastest; ``total`` is the sum. */
+inline int brush_covers(__global const int4 *brushes, int j, int x, int y, int z)
+{
+    const int4 lo = brushes[3 * j], n = brushes[3 * j + 1];
+    if (x < lo.x || y < lo.y || z < lo.z || x >= lo.x + n.x || y >= lo.y + n.y || z >= lo.z + n.z)
+        return 0;
+    const float4 sphere = as_float4(brushes[3 * j + 2]);
+    if (sphere.w < 0.0f)
+        return 1;
+    const float3 p = (float3)((float)x, (float)y, (float)z);
+    const float3 d = p - sphere.xyz;
+    return dot(d, d) <= sphere.w;
+}
+
+__kernel void fill_brushes(__global uchar *voxels, int4 dims, __global const int4 *brushes, int count, uint total)
+{
+    const uint gid = get_global_id(0);
+    if (gid >= total)
+        return;
+    int a = 0, b = count;  /* first_a <= gid < first_b (first_count = total) */
+    while (b - a > 1) {
+        const int m = (a + b) / 2;
+        if ((uint)brushes[3 * m + 1].w <= gid)
+            a = m;
+        else
+            b = m;
+    }
+    const int4 lo = brushes[3 * a], n = brushes[3 * a + 1];
+    const uint k = gid - (uint)n.w;
+    const int x = lo.x + (int)(k % (uint)n.x);
+    const int y = lo.y + (int)((k / (uint)n.x) % (uint)n.y);
+    const int z = lo.z + (int)(k / ((uint)n.x * (uint)n.y));
+    if (!brush_covers(brushes, a, x, y, z))
+        return;
+    for (int j = a + 1; j < count; ++j)
+        if (brush_covers(brushes, j, x, y, z))
+            return;  /* a later brush writes this voxel */
+    voxels[world_index(x, y, z, dims)] = (uchar)lo.w;
+}

@@ -33,6 +33,9 @@ CHUNK_SIZES = (8, 16, 32, 64, 128)
 MAX_SIDE_VOX = 2048  # exact.cl: at most 128 segments of 16 elements per line
 
 
+BRUSHES_PER_LAUNCH = 256  # each work-item of fill_brushes checks the later brushes of its launch
+WORK_ITEMS_PER_LAUNCH = 1 << 30  # fill_brushes counts its work-items in 32 bits
+
 # Up to this many (chunk, brush) pairs a step's dirty chunks are counted in a set: numpy on the
 # whole chunk mask lets go of the GIL and, with a busy event loop, waits up to a switch interval
 # to get it back, several times a step.
@@ -184,34 +187,79 @@ class World:
 
     def apply_plan(self, plan: "EditPlan") -> int:
         """Write a planned batch on the device and mark its boxes dirty; returns the new version."""
-        if plan.world is not self:
-            raise ValueError("an edit plan applies only to the world that made it")
-        for edit, boxes in zip(plan.edits, plan.boxes):
-            self._enqueue_edit(edit, boxes)
-            self._dirty.extend(boxes)
-        self.version += 1
-        return self.version
+        return self.apply_plans([plan])[0]
+
+    def apply_plans(self, plans: list["EditPlan"]) -> list[int]:
+        """Write planned batches in order; returns their versions. Consecutive box and sphere
+        edits, across batches, go to the device in one launch (later ones win where they
+        overlap), up to BRUSHES_PER_LAUNCH: a launch costs the engine thread more host time than
+        a brush costs the device."""
+        versions, brushes, volume = [], [], 0
+        for plan in plans:
+            if plan.world is not self:
+                raise ValueError("an edit plan applies only to the world that made it")
+            for edit, boxes in zip(plan.edits, plan.boxes):
+                if isinstance(edit, VoxelsEdit):
+                    self._enqueue_brushes(brushes)  # what came before it, first
+                    brushes = []
+                    self._enqueue_voxels(edit)
+                elif boxes:
+                    if len(brushes) == BRUSHES_PER_LAUNCH or volume + boxes[0].volume > WORK_ITEMS_PER_LAUNCH:
+                        self._enqueue_brushes(brushes)
+                        brushes, volume = [], 0
+                    brushes.append((edit, boxes[0]))
+                    volume += boxes[0].volume
+                self._dirty.extend(boxes)
+            self.version += 1
+            versions.append(self.version)
+        self._enqueue_brushes(brushes)
+        return versions
 
     def apply_edits(self, edits: list[Edit]) -> int:
         """Validate and apply one batch atomically; returns the new version."""
         return self.apply_plan(self.plan_edits(edits))
 
-    def _enqueue_edit(self, e: Edit, boxes: list[Box]) -> None:
+    def _enqueue_voxels(self, e: VoxelsEdit) -> None:
+        # Later duplicates win: keep the last occurrence of each position.
+        flat = np.ravel_multi_index(e.voxels[::-1, 2::-1].T, self.config.size[::-1])
+        _, first = np.unique(flat, return_index=True)
+        rows = e.voxels[::-1][first].astype(np.uint16)
+        list_buf = self.gpu.upload(rows)
+        n = len(rows)
+        self.gpu.programs.kernel("edits.cl", "set_voxels")(self.gpu.queue, (-(-n // 64) * 64,), (64,),
+                                                           self.buffers.voxels, self._dims_int4, list_buf,
+                                                           np.int32(n))
+        list_buf.release()  # OpenCL frees it only once the queued kernel has finished
+
+    def _enqueue_brushes(self, brushes: list[tuple[Edit, Box]]) -> None:
+        """Box and sphere edits, each with its clipped box: one alone with its own kernel, several
+        with fill_brushes (their records in one small buffer)."""
+        if len(brushes) == 1:
+            self._enqueue_brush(*brushes[0])
+            return
+        if not brushes:
+            return
+        records = np.empty((len(brushes), 12), dtype=np.int32)
+        spheres = records[:, 8:].view(np.float32)
+        first = 0
+        for i, (edit, box) in enumerate(brushes):
+            records[i, 0:3], records[i, 3] = box.lo, edit.colour
+            records[i, 4:7], records[i, 7] = box.shape_xyz, first
+            if isinstance(edit, SphereEdit):
+                spheres[i, 0:3], spheres[i, 3] = edit.center, edit.radius * edit.radius
+            else:
+                spheres[i] = (0.0, 0.0, 0.0, -1.0)
+            first += box.volume
+        record_buf = self.gpu.upload(records)
+        local = 64
+        self.gpu.programs.kernel("edits.cl", "fill_brushes")(
+            self.gpu.queue, (-(-first // local) * local,), (local,), self.buffers.voxels, self._dims_int4,
+            record_buf, np.int32(len(brushes)), np.uint32(first))
+        record_buf.release()
+
+    def _enqueue_brush(self, e: Edit, box: Box) -> None:
         q, kernels, b = self.gpu.queue, self.gpu.programs, self.buffers
         dims = self._dims_int4
-        if isinstance(e, VoxelsEdit):
-            # Later duplicates win: keep the last occurrence of each position.
-            flat = np.ravel_multi_index(e.voxels[::-1, 2::-1].T, self.config.size[::-1])
-            _, first = np.unique(flat, return_index=True)
-            rows = e.voxels[::-1][first].astype(np.uint16)
-            list_buf = self.gpu.upload(rows)
-            n = len(rows)
-            kernels.kernel("edits.cl", "set_voxels")(q, (-(-n // 64) * 64,), (64,), b.voxels, dims, list_buf, np.int32(n))
-            list_buf.release()  # OpenCL frees it only once the queued kernel has finished
-            return
-        if not boxes:
-            return
-        box = boxes[0]
         gsize, lsize = grid(box.shape_xyz)
         if isinstance(e, BoxEdit):
             kernels.kernel("edits.cl", "fill_box")(q, gsize, lsize, b.voxels, dims, int4(box.lo), int4(box.shape_xyz),

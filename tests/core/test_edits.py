@@ -147,3 +147,36 @@ def test_dirty_chunk_count_is_the_chunks_the_brushes_touch(gpu, rng):
             assert world.dirty_chunk_count == 0
     finally:
         world.release()
+
+
+@pytest.mark.parametrize("brushes", [40, 300])  # 300: more than one fill_brushes launch
+def test_many_overlapping_brushes_in_order(gpu, rng, brushes):
+    """Box and sphere edits across several batches go to the device together (fill_brushes);
+    where they overlap the later one must win, a voxels edit between them must keep its place,
+    and the field must still match the oracle."""
+    world = World(gpu, WorldConfig((40, 24, 32), 8, 12))
+    try:
+        batches, flat = [], []
+        for b in range(4):
+            batch = []
+            for _ in range(brushes // 4):
+                colour = int(rng.choice([0, int(rng.integers(1, 256))], p=[0.3, 0.7]))
+                if rng.random() < 0.5:
+                    lo = rng.integers(-4, 36, 3)
+                    batch.append(BoxEdit(tuple(int(v) for v in lo), tuple(int(v) for v in lo + rng.integers(1, 12, 3)),
+                                         colour))
+                else:
+                    center = tuple(float(v) for v in rng.integers(0, 40, 3))
+                    batch.append(SphereEdit(center, float(rng.integers(1, 8)) + 0.5, colour))
+            if b == 2:  # explicit voxels in the middle of the brushes
+                batch.insert(len(batch) // 2, VoxelsEdit(np.array([[x, 5, 7, 200] for x in range(0, 40, 3)])))
+            batches.append(batch)
+            flat.extend(batch)
+        versions = world.apply_plans([world.plan_edits(batch) for batch in batches])
+        assert versions == [1, 2, 3, 4]
+        world.recompute()
+        voxels = world.read_voxels()
+        np.testing.assert_array_equal(voxels, replay(np.zeros_like(voxels), flat))
+        np.testing.assert_array_equal(world.read_distance(), oracle(voxels, 12))
+    finally:
+        world.release()

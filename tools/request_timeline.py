@@ -23,7 +23,6 @@ import os
 import signal
 import statistics
 import sys
-import threading
 import time
 from pathlib import Path
 

@@ -31,8 +31,6 @@ from sdfserver.gpu import GpuContext
 
 CHUNK_SIZES = (8, 16, 32, 64, 128)
 MAX_SIDE_VOX = 2048  # exact.cl: at most 128 segments of 16 elements per line
-
-
 BRUSHES_PER_LAUNCH = 256  # each work-item of fill_brushes checks the later brushes of its launch
 WORK_ITEMS_PER_LAUNCH = 1 << 30  # fill_brushes counts its work-items in 32 bits
 
@@ -40,6 +38,7 @@ WORK_ITEMS_PER_LAUNCH = 1 << 30  # fill_brushes counts its work-items in 32 bits
 # whole chunk mask lets go of the GIL and, with a busy event loop, waits up to a switch interval
 # to get it back, several times a step.
 SMALL_DIRTY_CHUNKS = 4096
+
 
 @dataclass(frozen=True)
 class Focus:
@@ -324,13 +323,10 @@ class World:
         if sum(r.volume for r in ranges) <= SMALL_DIRTY_CHUNKS:  # a step of brushes: a set, in Python
             return len({(x, y, z) for r in ranges for z in range(r.lo[2], r.hi[2])
                         for y in range(r.lo[1], r.hi[1]) for x in range(r.lo[0], r.hi[0])})
-        return int(self._chunk_mask(self._dirty).sum())
-
-    def _chunk_mask(self, boxes: list[Box]) -> np.ndarray:
         mask = np.zeros(self.config.chunks[::-1], dtype=bool)
-        for box in boxes:  # one loop over boxes, never over voxels
-            mask[box.chunk_range(self.config.chunk_size).slices_zyx()] = True
-        return mask
+        for r in ranges:  # one loop over boxes, never over voxels
+            mask[r.slices_zyx()] = True
+        return int(mask.sum())
 
     # -- recompute ----------------------------------------------------------------------------------
 

@@ -95,6 +95,7 @@ def create_app(settings: Settings, engine: Engine | None = None, *, fast_lane: b
     app.state.gatekeeper = auth.Gatekeeper(auth.parse_keys(settings.api_keys, settings.api_key_file),
                                            settings.rate_limit_per_s, settings.rate_limit_burst)
     app.state.journal = None  # set by `sdfserver serve` when worlds persist (see durability.py)
+    app.state.fronts = None  # the FrontPool under `sdfserver serve --fronts N` (fronts.py)
     registry = engine.metrics.registry if engine is not None else CollectorRegistry()
     app.state.metrics = ApiMetrics(registry)
     errors.install(app)

@@ -119,6 +119,7 @@ class FrontPool:
         for index in range(self.settings.fronts):
             self.fronts.append(await self._spawn(index))
         self._watch = asyncio.get_running_loop().create_task(self._watch_fronts())
+        self.state.fronts = self  # /readyz waits for them
         log.info("listening on http://%s:%d through %d front processes", self.settings.host, self.port,
                  len(self.fronts))
 
@@ -231,7 +232,6 @@ class FrontedServer(uvicorn.Server):
                                               app_state=self.lifespan.state)
 
         await self.pool.start(protocol)
-        self.pool.state.fronts = self.pool
 
     async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
         await self.pool.stop()

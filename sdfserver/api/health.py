@@ -23,7 +23,7 @@ async def readyz(request: Request) -> JSONResponse:
     if engine is None or not engine.ready:
         reason = engine.not_ready_reason() if engine is not None else "the engine is not started"
         return error_response(NotReady(reason))
-    fronts = getattr(request.app.state, "fronts", None)  # a FrontPool under `serve --fronts N`
+    fronts = request.app.state.fronts
     if fronts is not None and fronts.listening < fronts.wanted:
         return error_response(NotReady(f"{fronts.listening} of {fronts.wanted} front processes listen"))
     journal = request.app.state.journal

@@ -81,6 +81,10 @@ class Settings(BaseSettings):
                                     "one is waiting).")
     snapshot_every_batches: int = Field(5000, ge=1, description="Snapshot a world's voxels (and trim its log) "
                                         "after this many logged batches; bounds replay time at start-up.")
+    snapshot_min_interval_s: float = Field(5.0, ge=0, description="Least time between two snapshots of a world, "
+                                           "in seconds: a busy world snapshots at most this often, however many "
+                                           "batches it takes (each snapshot copies, compresses and writes every "
+                                           "voxel); 0: by batches alone.")
     # -- access (sdfserver/api/auth.py) --
     api_keys: str = Field("", description="API keys, comma-separated 'name:token' (16+ character tokens; "
                                           "'name:token:admin' for a key that sees every world). None here or in "

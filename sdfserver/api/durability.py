@@ -15,7 +15,8 @@ def open_journal(settings: Settings) -> StorageJournal | None:
         return None
     storage = Storage(settings.data_dir, sync=settings.sync, commit_window_ms=settings.commit_window_ms,
                       sync_inline=settings.sync_inline)
-    return StorageJournal(storage, snapshot_every_batches=settings.snapshot_every_batches)
+    return StorageJournal(storage, snapshot_every_batches=settings.snapshot_every_batches,
+                          snapshot_min_interval_s=settings.snapshot_min_interval_s)
 
 
 def restore(engine: Engine, journal: StorageJournal) -> RestoreReport:

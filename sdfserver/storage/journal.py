@@ -9,9 +9,11 @@ The engine calls it on its own thread:
 - ``record_config`` rewrites the catalog entry after a reconfiguration;
 - ``record_delete`` removes the world's directory;
 - ``wants_snapshot`` / ``record_snapshot``: after a recompute, a world with
-  ``snapshot_every_batches`` records since its last snapshot hands over a copy of its
-  voxels (still being filled by the device); a background thread waits for it, writes the
-  snapshot and trims the log.
+  ``snapshot_every_batches`` records since its last snapshot, and whose last snapshot started
+  at least ``snapshot_min_interval_s`` ago, hands over a copy of its voxels (still being
+  filled by the device); a background thread waits for it, writes the snapshot and trims
+  the log. The interval keeps a busy world from snapshotting several times a second: each
+  snapshot copies, compresses and writes every voxel of the world.
 
 ``adopt`` registers a world restored at start-up (``sdfserver.engine.restore``).
 """
@@ -19,6 +21,7 @@ The engine calls it on its own thread:
 from __future__ import annotations
 
 import logging
+import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, Callable
 
@@ -31,9 +34,13 @@ log = logging.getLogger("sdfserver.storage")
 
 
 class StorageJournal:
-    def __init__(self, storage: Storage, *, snapshot_every_batches: int = 5000):
+    def __init__(self, storage: Storage, *, snapshot_every_batches: int = 5000,
+                 snapshot_min_interval_s: float = 0.0, clock: Callable[[], float] = time.monotonic):
         self.storage = storage
         self.snapshot_every_batches = snapshot_every_batches
+        self.snapshot_min_interval_s = snapshot_min_interval_s
+        self._clock = clock
+        self._last_snapshot_at: dict[str, float] = {}  # when each world's last snapshot started
         self.stores: dict[str, WorldStore] = {}
         self.owners: dict[str, str | None] = {}
         self._snapshotting: dict[str, Future] = {}
@@ -48,6 +55,7 @@ class StorageJournal:
     def adopt(self, world_id: str, store: WorldStore, owner: str | None) -> None:
         self.stores[world_id] = store
         self.owners[world_id] = owner
+        self._last_snapshot_at[world_id] = self._clock()
 
     # -- the engine's hook ------------------------------------------------------------------------
 
@@ -56,6 +64,7 @@ class StorageJournal:
         self.stores[world_id] = self.storage.create_world(world_id, {"config": config, "owner": owner},
                                                           voxels=voxels, version=version)
         self.owners[world_id] = owner
+        self._last_snapshot_at[world_id] = self._clock()
 
     def record_batches(self, world_id: str, first_version: int, batches: list[list[dict[str, Any]]]) -> Future:
         return self._store(world_id).append_many(first_version, batches, wake=False)  # see start_syncs
@@ -70,19 +79,22 @@ class StorageJournal:
         self._wait_snapshot(world_id)
         store = self.stores.pop(world_id, None)
         self.owners.pop(world_id, None)
+        self._last_snapshot_at.pop(world_id, None)
         self.storage.delete_world(world_id, store)
 
     def wants_snapshot(self, world_id: str) -> bool:
         store = self.stores.get(world_id)
         busy = world_id in self._snapshotting and not self._snapshotting[world_id].done()
         return (store is not None and not busy and self.storage.committer.failure is None
-                and store.records_since_snapshot >= self.snapshot_every_batches)
+                and store.records_since_snapshot >= self.snapshot_every_batches
+                and self._clock() - self._last_snapshot_at.get(world_id, 0.0) >= self.snapshot_min_interval_s)
 
     def record_snapshot(self, world_id: str, version: int, config: dict[str, Any], voxels: np.ndarray,
                         ready: Callable[[], None]) -> Future:
         store = self._store(world_id)
         future = self._snapshots.submit(self._snapshot, store, version, config, voxels, ready)
         self._snapshotting[world_id] = future
+        self._last_snapshot_at[world_id] = self._clock()
         return future
 
     # -- the rest ------------------------------------------------------------------------------------

@@ -9,6 +9,7 @@ import threading
 
 import numpy as np
 import pytest
+from scipy.ndimage import distance_transform_cdt
 
 from sdfserver.edits import parse_edits
 from sdfserver.engine import Engine
@@ -230,5 +231,78 @@ def test_a_steps_batches_share_one_log_write_and_restore_in_order(gpu, tmp_path)
     for w, read in enumerate(reads):
         assert read.result().version == versions[w]
         np.testing.assert_array_equal(read.result().array, expected[w])
+    fresh.stop()
+    fresh_journal.close()
+
+
+def test_a_busy_world_snapshots_at_most_once_an_interval(gpu, tmp_path):
+    now = [100.0]
+    journal = StorageJournal(Storage(tmp_path / "data"), snapshot_every_batches=2, snapshot_min_interval_s=10,
+                             clock=lambda: now[0])
+    engine = Engine(gpu, journal=journal)
+    created = engine.submit(CreateWorld(WorldConfig(size=(8, 8, 8), chunk_size=8, max_distance=4)))
+    engine.step()
+    world_id = created.result()["id"]
+    directory = tmp_path / "data" / "worlds" / world_id
+
+    def edit_at(t: float, version: int) -> None:
+        now[0] = t
+        future = edits(engine, world_id, [{"op": "box", "min": [version % 8, 0, 0], "max": [8, 1, 1],
+                                           "colour": version}])
+        engine.step()
+        assert future.result(timeout=10) == version
+        journal._wait_snapshot(world_id)
+
+    def snapshot_versions() -> list[int]:
+        return sorted(int(p.stem.split("-")[1]) for p in directory.glob("snap-*"))
+
+    for version, t in enumerate([101, 102, 103, 109.9], start=1):  # batches enough, time not
+        edit_at(t, version)
+    assert snapshot_versions() == []
+    edit_at(110.0, 5)  # ten seconds after the world was created
+    assert snapshot_versions() == [5]
+    edit_at(111, 6), edit_at(112, 7), edit_at(119.9, 8)
+    assert snapshot_versions() == [5]
+    edit_at(120.0, 9)
+    assert snapshot_versions() == [9]  # the older one is superseded and trimmed
+    engine.stop()
+    journal.close()
+
+
+def test_restore_replays_a_long_log_in_groups(gpu, tmp_path, monkeypatch):
+    import sdfserver.engine.restore as restore
+
+    journal = StorageJournal(Storage(tmp_path / "data"), snapshot_every_batches=10_000)
+    rng = np.random.default_rng()
+    size = (16, 8, 24)
+    engine = Engine(gpu, journal=journal)
+    created = engine.submit(CreateWorld(WorldConfig(size=size, chunk_size=8, max_distance=9)))
+    engine.step()
+    world_id = created.result()["id"]
+    expected = np.zeros(size[::-1], np.uint8)
+    for _ in range(23):  # one batch a step: the log holds 23 records
+        batch = random_batch(rng, size)
+        future = edits(engine, world_id, batch)
+        engine.step()
+        future.result(timeout=10)
+        apply_reference(expected, batch)
+    engine.stop()
+    journal.close()
+
+    monkeypatch.setattr(restore, "REPLAY_GROUP", 5)  # groups of 5, 5, 5, 5, 3
+    grouped = []
+    real = restore.World.apply_plans
+    monkeypatch.setattr(restore.World, "apply_plans", lambda self, plans: grouped.append(len(plans)) or real(self, plans))
+    fresh_journal = StorageJournal(Storage(tmp_path / "data"))
+    fresh = Engine(gpu, journal=fresh_journal)
+    report = restore.restore_worlds(fresh, fresh_journal.storage, fresh_journal)
+    assert report.batches_replayed == 23 and grouped == [5, 5, 5, 5, 3]
+    voxels, field = fresh.submit(Read(world_id, "voxels")), fresh.submit(Read(world_id, "distance"))
+    fresh.step()
+    assert voxels.result().version == 23
+    np.testing.assert_array_equal(voxels.result().array, expected)
+    assert expected.any()  # 23 random batches leave something solid: the oracle needs it
+    oracle = np.minimum(distance_transform_cdt(expected == 0, metric="taxicab"), 9)
+    np.testing.assert_array_equal(field.result().array, oracle)
     fresh.stop()
     fresh_journal.close()

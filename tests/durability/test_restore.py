@@ -8,7 +8,7 @@ from durable_server import apply_reference, random_batch, read_voxels
 
 def test_worlds_and_fields_survive_restart_and_snapshots(start_server, tmp_path):
     rng = np.random.default_rng()
-    server = start_server("--snapshot-every-batches", "7")
+    server = start_server("--snapshot-every-batches", "7", "--snapshot-min-interval-s", "0")
     sizes = {"a": (16, 16, 32), "b": (24, 16, 16)}
     ids, expected = {}, {}
     for name, size in sizes.items():

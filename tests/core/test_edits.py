@@ -133,8 +133,9 @@ def test_dirty_chunk_count_is_the_chunks_the_brushes_touch(gpu, rng):
     otherwise; both must give the chunks the brushes' boxes touch, overlaps counted once."""
     world = World(gpu, WorldConfig((128, 128, 96), 8, 16), EditLimits(max_brush_radius_vox=64))
     try:
-        for brushes, radius in ((2, 3.0), (7, 5.0), (3, 60.0)):  # the last: over 4,096 (chunk, brush) pairs
-            edits = [SphereEdit(tuple(float(v) for v in rng.uniform(0, 96, 3)), radius, 1) for _ in range(brushes)]
+        # the last: over 4,096 (chunk, brush) pairs, so its centres stay clear of the world's faces
+        for brushes, radius, lo, hi in ((2, 3.0, 0, 96), (7, 5.0, 0, 96), (3, 60.0, 36, 60)):
+            edits = [SphereEdit(tuple(float(v) for v in rng.uniform(lo, hi, 3)), radius, 1) for _ in range(brushes)]
             for edit in edits:
                 world.apply_edits([edit])
             expected = np.zeros(world.config.chunks[::-1], dtype=bool)

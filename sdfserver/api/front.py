@@ -25,7 +25,6 @@ import itertools
 import logging
 import socket
 import sys
-import time
 import urllib.parse
 from typing import Any
 
@@ -40,7 +39,7 @@ from sdfserver.api.coalesce import CoalescingHttpToolsProtocol
 from sdfserver.api.errors import Answered
 from sdfserver.api.fastlane import FastLane, lane_route
 from sdfserver.api.logs import configure_logging
-from sdfserver.engine.commands import ApplyEdits, Query, Read
+from sdfserver.engine.commands import CommandCalls
 from sdfserver.errors import NotReady
 from sdfserver.settings import Settings
 
@@ -57,7 +56,7 @@ async def front_guard(request: Request) -> None:
     CALLER.set((principal.name, principal.admin, auth.client_host(request)))
 
 
-class RemoteEngine:
+class RemoteEngine(CommandCalls):
     """What the lane's handlers call ``request.app.state.engine``: the server's engine, over the link."""
 
     def __init__(self, max_wait_s: float):
@@ -66,25 +65,14 @@ class RemoteEngine:
         self._replies: dict[int, asyncio.Future] = {}
         self._ids = itertools.count()
 
-    def _call(self, command: Any) -> asyncio.Future:
-        future = asyncio.get_running_loop().create_future()
+    async def call(self, command: Any) -> Any:
         if self.link is None or self.link.transport is None:
-            future.set_exception(NotReady("the front has lost its server process"))
-            return future
+            raise NotReady("the front has lost its server process")
+        future = asyncio.get_running_loop().create_future()
         request_id = next(self._ids)
         self._replies[request_id] = future
         self.link.send(("call", request_id, CALLER.get(), command))
-        return future
-
-    async def apply_edits(self, world_id: str, edits: list, wire: list) -> int:
-        return await self._call(ApplyEdits(world_id, edits, wire))
-
-    async def read(self, world_id: str, kind: str, box: Any = None, min_version: int = 0) -> Any:
-        # CLOCK_MONOTONIC is the machine's: the deadline means the same in the server process
-        return await self._call(Read(world_id, kind, box, min_version, time.monotonic() + self.max_wait_s))
-
-    async def query(self, world_id: str, points: Any, min_version: int = 0) -> Any:
-        return await self._call(Query(world_id, points, min_version, time.monotonic() + self.max_wait_s))
+        return await future
 
     def on_reply(self, request_id: int, ok: bool, payload: Any) -> None:
         future = self._replies.pop(request_id, None)

@@ -7,6 +7,7 @@ the step's recompute, so they see every edit applied before them.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Literal
 
@@ -91,6 +92,29 @@ class OnDevice:
 
 
 APPLY = (CreateWorld, DeleteWorld, Reconfigure, ApplyEdits)
+
+
+class CommandCalls:
+    """The hot calls as commands, for the engine and for a front's link to it alike: a
+    subclass supplies ``call`` (run one command, return its result) and ``max_wait_s``."""
+
+    max_wait_s: float
+
+    async def call(self, command: Any) -> Any:
+        raise NotImplementedError
+
+    async def apply_edits(self, world_id: str, edits: list[Edit], wire: list[dict[str, Any]]) -> int:
+        return await self.call(ApplyEdits(world_id, edits, wire))
+
+    async def read(self, world_id: str, kind: ReadKind, box: Box | None = None, min_version: int = 0) -> "ReadResult":
+        return await self.call(Read(world_id, kind, box, min_version, self._deadline()))
+
+    async def query(self, world_id: str, points: np.ndarray, min_version: int = 0) -> Any:
+        return await self.call(Query(world_id, points, min_version, self._deadline()))
+
+    def _deadline(self) -> float:
+        # CLOCK_MONOTONIC is the machine's: a front's deadline means the same in the server process
+        return time.monotonic() + self.max_wait_s
 
 
 @dataclass(frozen=True)

@@ -35,16 +35,16 @@ import numpy as np
 import pyopencl as cl
 
 from sdfserver.algorithms.exact import Exact
-from sdfserver.edits import Edit, parse_edits
+from sdfserver.edits import parse_edits
 from sdfserver.engine.commands import (
-    APPLY, ApplyEdits, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Query, Read,
-    ReadResult, Reconfigure, StepReport, Subscribe,
+    APPLY, ApplyEdits, CommandCalls, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Query,
+    Read, ReadResult, Reconfigure, StepReport, Subscribe,
 )
 from sdfserver.engine.journal import Journal
 from sdfserver.engine.mailbox import Subscription
 from sdfserver.engine.metrics import EngineMetrics
 from sdfserver.engine.publish import check_subscription_region, chunks_of, publish
-from sdfserver.engine.query import QueryResult, query_points
+from sdfserver.engine.query import query_points
 from sdfserver.errors import (
     DeviceMemoryExceeded, InvalidInput, NotFound, NotReady, SdfServerError, StorageError, TooLarge,
     VersionNotReached,
@@ -72,7 +72,7 @@ def new_world_id() -> str:
     return secrets.token_hex(6)
 
 
-class Engine:
+class Engine(CommandCalls):
     def __init__(self, gpu: GpuContext, limits: EngineLimits = EngineLimits(), *,
                  journal: Journal | None = None, metrics: EngineMetrics | None = None):
         self.gpu = gpu
@@ -200,15 +200,6 @@ class Engine:
     async def list_worlds(self) -> list[dict[str, Any]]:
         return await self.call(Describe(None))
 
-    async def apply_edits(self, world_id: str, edits: list[Edit], wire: list[dict[str, Any]]) -> int:
-        return await self.call(ApplyEdits(world_id, edits, wire))
-
-    async def read(self, world_id: str, kind: str, box: Box | None = None, min_version: int = 0) -> ReadResult:
-        return await self.call(Read(world_id, kind, box, min_version, self._deadline()))
-
-    async def query(self, world_id: str, points: np.ndarray, min_version: int = 0) -> QueryResult:
-        return await self.call(Query(world_id, points, min_version, self._deadline()))
-
     async def subscribe(self, subscription: Subscription) -> None:
         await self.call(Subscribe(subscription))
 
@@ -223,8 +214,9 @@ class Engine:
         """Run ``fn()`` on the engine thread between steps (after that step's recompute)."""
         return await self.call(OnDevice(fn))
 
-    def _deadline(self) -> float:
-        return time.monotonic() + self.limits.max_wait_s
+    @property
+    def max_wait_s(self) -> float:
+        return self.limits.max_wait_s
 
     # -- the step (engine thread) -----------------------------------------------------------------
 

@@ -55,6 +55,7 @@ from sdfserver.world import MAX_SIDE_VOX, EditPlan, RecomputeResult, World, Worl
 
 log = logging.getLogger("sdfserver.engine")
 T = TypeVar("T")
+DIRTY_GAUGE_EVERY_S = 0.1  # the dirty-chunks gauge is counted at most this often
 Pending = tuple[Any, Future]
 
 
@@ -92,6 +93,7 @@ class Engine(CommandCalls):
         self._stopping = False
         self._thread: threading.Thread | None = None
         self._warm = threading.Event()
+        self._dirty_gauge_at = -DIRTY_GAUGE_EVERY_S
         self.metrics.queue_depth.set_function(self._commands.qsize)
 
     # -- lifetime -----------------------------------------------------------------------------
@@ -178,7 +180,8 @@ class Engine(CommandCalls):
             future.set_exception(NotReady(self.not_ready_reason()))
             return future
         self._commands.put((command, future))
-        self._wake.set()
+        if not self._wake.is_set():  # set() takes a lock; the engine clears the flag before it drains
+            self._wake.set()
         return future
 
     async def call(self, command: Any) -> Any:
@@ -346,10 +349,10 @@ class Engine(CommandCalls):
             launch = time.perf_counter()
             versions = world.apply_plans([plan for _, _, plan in items])  # the step's brushes in few launches
             launch_ms += (time.perf_counter() - launch) * 1e3
+            self.metrics.edit_batches.inc(len(items))  # each inc takes a lock: once a world a step
+            self.metrics.edit_ops.inc(sum(len(command.edits) for command, _, _ in items))
+            report.applied_batches += len(items)
             for (command, future, _), version in zip(items, versions):
-                self.metrics.edit_batches.inc()
-                self.metrics.edit_ops.inc(len(command.edits))
-                report.applied_batches += 1
                 if durable is None:
                     future.set_result(version)
                 else:
@@ -408,7 +411,10 @@ class Engine(CommandCalls):
     def _recompute(self, touched: set[str]) -> dict[str, RecomputeResult]:
         results = {}
         worlds = {i: self.worlds[i] for i in touched if i in self.worlds}
-        self.metrics.dirty_chunks.set(sum(w.dirty_chunk_count for w in worlds.values()))
+        now = time.monotonic()
+        if now - self._dirty_gauge_at >= DIRTY_GAUGE_EVERY_S:  # counting costs more than the gauge is worth each step
+            self._dirty_gauge_at = now
+            self.metrics.dirty_chunks.set(sum(w.dirty_chunk_count for w in worlds.values()))
         for world_id, world in worlds.items():
             result = world.recompute()
             wall_seconds, device_seconds = self.metrics.recompute_by(world.config.algorithm)

@@ -32,8 +32,8 @@ class EngineMetrics:
             ["algorithm"], registry=registry)
         self.changed_chunks = Counter("sdfserver_changed_chunks", "Chunks rewritten by recomputes.",
                                       registry=registry)
-        self.dirty_chunks = Gauge("sdfserver_dirty_chunks", "Dirty chunks over all worlds, before the last step's "
-                                  "recompute.", registry=registry)
+        self.dirty_chunks = Gauge("sdfserver_dirty_chunks", "Dirty chunks over all worlds before a step's "
+                                  "recompute, counted at most ten times a second.", registry=registry)
         self.queue_depth = Gauge("sdfserver_queue_depth", "Commands waiting for the engine.", registry=registry)
         self.worlds = Gauge("sdfserver_worlds", "Worlds in the server.", registry=registry)
         self.device_bytes = Gauge("sdfserver_device_bytes", "Device memory held by worlds.", registry=registry)

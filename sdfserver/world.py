@@ -238,17 +238,19 @@ class World:
             return
         if not brushes:
             return
-        records = np.empty((len(brushes), 12), dtype=np.int32)
-        spheres = records[:, 8:].view(np.float32)
-        first = 0
-        for i, (edit, box) in enumerate(brushes):
-            records[i, 0:3], records[i, 3] = box.lo, edit.colour
-            records[i, 4:7], records[i, 7] = box.shape_xyz, first
+        # Built as tuples and converted once: element-wise numpy stores cost 4x as much host time.
+        ints, floats, first = [], [], 0
+        for edit, box in brushes:
+            (x0, y0, z0), (x1, y1, z1) = box.lo, box.hi
+            ints.append((x0, y0, z0, edit.colour, x1 - x0, y1 - y0, z1 - z0, first))
             if isinstance(edit, SphereEdit):
-                spheres[i, 0:3], spheres[i, 3] = edit.center, edit.radius * edit.radius
+                floats.append((*edit.center, edit.radius * edit.radius))
             else:
-                spheres[i] = (0.0, 0.0, 0.0, -1.0)
-            first += box.volume
+                floats.append((0.0, 0.0, 0.0, -1.0))  # a negative radius²: a box
+            first += (x1 - x0) * (y1 - y0) * (z1 - z0)
+        records = np.empty((len(brushes), 12), dtype=np.int32)
+        records[:, :8] = ints
+        records[:, 8:].view(np.float32)[:] = floats
         record_buf = self.gpu.upload(records)
         local = 64
         self.gpu.programs.kernel("edits.cl", "fill_brushes")(
@@ -308,10 +310,18 @@ class World:
         """The regions the next recompute will rewrite."""
         if self._dirty_all:
             return [self.world_box]
-        cap, cs, world = self.config.max_distance, self.config.chunk_size, self.world_box
-        # Under a large cap many edits grow to the same region: merge each once.
-        grown = dict.fromkeys(b.grow(cap).snap(cs).intersect(world) for b in self._dirty)
-        return merge_regions(grown)
+        cap, cs, (sx, sy, sz) = self.config.max_distance, self.config.chunk_size, self.config.size
+        # Each box grown by the cap, snapped to chunks and clipped to the world, in plain ints
+        # (b.grow(cap).snap(cs).intersect(world) made three Boxes an edit). Under a large cap
+        # many edits grow to the same region: merge each once.
+        grown = {}
+        for b in self._dirty:
+            (x0, y0, z0), (x1, y1, z1) = b.lo, b.hi
+            lo = (max(0, (x0 - cap) // cs * cs), max(0, (y0 - cap) // cs * cs), max(0, (z0 - cap) // cs * cs))
+            hi = (max(lo[0], min(sx, -(-(x1 + cap) // cs) * cs)), max(lo[1], min(sy, -(-(y1 + cap) // cs) * cs)),
+                  max(lo[2], min(sz, -(-(z1 + cap) // cs) * cs)))
+            grown[lo, hi] = None
+        return merge_regions(Box(lo, hi) for lo, hi in grown)
 
     @property
     def dirty_chunk_count(self) -> int:

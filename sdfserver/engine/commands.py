@@ -56,7 +56,9 @@ class Reconfigure:
 class ApplyEdits:
     world_id: str
     edits: list[Edit]
-    wire: list[dict[str, Any]]  # the batch as it arrived, for the journal
+    # the batch as it arrived, for the journal; or its log record already encoded
+    # (storage.codec.encode_batch), as a front sends it
+    wire: list[dict[str, Any]] | bytes
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,9 @@ The engine calls these on its own thread, in the order things happen:
   the batches that passed validation, BEFORE they are applied and acknowledged;
   ``first_version`` is the version the first batch will produce (the others follow,
   one each), each batch in wire form (a list of op maps as ``sdfserver.edits.parse_edits``
-  accepts; ``voxels`` as an (N, 4) integer NumPy array). If it raises, none of these
+  accepts; ``voxels`` as an (N, 4) integer NumPy array) or as the bytes
+  ``sdfserver.storage.codec.encode_batch`` made of that (a front encodes it before the
+  link). If it raises, none of these
   batches is applied or acknowledged.
   It may return a ``concurrent.futures.Future`` that completes once the batches are
   durable; the engine then acknowledges them only when that future completes (and fails
@@ -43,7 +45,7 @@ class Journal(Protocol):
                       voxels: np.ndarray | None = None, version: int = 0) -> None: ...
 
     def record_batches(self, world_id: str, first_version: int,
-                       batches: list[list[dict[str, Any]]]) -> Future | None: ...
+                       batches: list[list[dict[str, Any]] | bytes]) -> Future | None: ...
 
     def start_syncs(self, wait: bool = True) -> None: ...
 

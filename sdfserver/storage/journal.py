@@ -66,7 +66,8 @@ class StorageJournal:
         self.owners[world_id] = owner
         self._last_snapshot_at[world_id] = self._clock()
 
-    def record_batches(self, world_id: str, first_version: int, batches: list[list[dict[str, Any]]]) -> Future:
+    def record_batches(self, world_id: str, first_version: int,
+                       batches: list[list[dict[str, Any]] | bytes]) -> Future:
         return self._store(world_id).append_many(first_version, batches, wake=False)  # see start_syncs
 
     def start_syncs(self, wait: bool = True) -> None:

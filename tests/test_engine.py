@@ -15,7 +15,9 @@ from scipy.ndimage import distance_transform_cdt
 
 from sdfserver.edits import parse_edits
 from sdfserver.engine import Engine, EngineLimits, Mailbox, Subscription
-from sdfserver.engine.commands import ApplyEdits, CreateWorld, DeleteWorld, OnDevice, Read, Subscribe
+from sdfserver.engine.commands import (
+    ApplyEdits, Completion, CreateWorld, DeleteWorld, OnDevice, Read, Subscribe,
+)
 from sdfserver.errors import InvalidEdit, NotFound, NotReady, TooLarge, VersionNotReached
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
@@ -159,6 +161,32 @@ def test_min_version_waits_then_answers(engine):
     engine.step()
     with pytest.raises(VersionNotReached):
         expired.result()
+
+
+def test_completions_deliver_once_what_futures_would(engine):
+    """A front's commands complete through a Completion instead of a Future: each delivers one
+    result or one error, including a read that waits for its version and one that expires."""
+    world_id = create(engine)
+    delivered = []
+
+    def submit(command):
+        return engine.submit(command, Completion(lambda ok, value: delivered.append(
+            (type(command).__name__, ok, value))))
+
+    batch = [{"op": "box", "min": [2, 2, 2], "max": [4, 4, 4], "colour": 9}]
+    waiting = submit(Read(world_id, "distance", Box((0, 0, 0), (4, 4, 4)), min_version=1, deadline=float("inf")))
+    submit(ApplyEdits("no-such-world", parse_edits(batch), batch))
+    engine.step()
+    assert delivered == [("ApplyEdits", False, delivered[0][2])] and isinstance(delivered[0][2], NotFound)
+    assert not waiting.done()
+    submit(ApplyEdits(world_id, parse_edits(batch), batch))
+    engine.step()
+    assert [(name, ok) for name, ok, _ in delivered[1:]] == [("ApplyEdits", True), ("Read", True)]
+    assert delivered[1][2] == 1 and delivered[2][2].version == 1 and delivered[2][2].array[2, 2, 2] == 0
+    assert waiting.done()
+    submit(Read(world_id, "field", None, min_version=5, deadline=0.0))
+    engine.step()
+    assert len(delivered) == 4 and not delivered[3][1] and isinstance(delivered[3][2], VersionNotReached)
 
 
 def test_limits(engine):

@@ -16,14 +16,13 @@ import socket
 import subprocess
 import sys
 import time
-from concurrent.futures import Future
 from typing import Any, Callable
 
 import uvicorn
 
 from sdfserver.api import auth, link
 from sdfserver.api.errors import Answered
-from sdfserver.engine.commands import ApplyEdits, Query, Read
+from sdfserver.engine.commands import ApplyEdits, Completion, Query, Read
 from sdfserver.settings import Settings
 
 log = logging.getLogger("sdfserver.fronts")
@@ -56,18 +55,15 @@ class FrontDesk:
             name, admin, client = caller
             principal = auth.OPEN if self.gate.open else auth.Principal(name, admin)
             auth.admit(self.gate, self.engine, principal, client, command.world_id)
-            future = self.engine.submit(command)
+            self.engine.submit(command, Completion(functools.partial(self._done, request_id)))
         except Exception as exc:
             self._reply(request_id, exc)
-            return
-        future.add_done_callback(functools.partial(self._done, request_id))
 
-    def _done(self, request_id: int, future: Future) -> None:  # the engine's or the committer's thread
-        exc = future.exception()
-        if exc is None:
-            self.link.send_threadsafe(("reply", request_id, True, future.result()))
+    def _done(self, request_id: int, ok: bool, result: Any) -> None:  # the engine's or the committer's thread
+        if ok:
+            self.link.send_threadsafe(("reply", request_id, True, result))
         else:
-            self._reply(request_id, exc)
+            self._reply(request_id, result)
 
     def _reply(self, request_id: int, exc: BaseException) -> None:
         answer = Answered.of(exc)  # the one mapping to status and body, applied here

@@ -37,7 +37,7 @@ import pyopencl as cl
 from sdfserver.algorithms.exact import Exact
 from sdfserver.edits import parse_edits
 from sdfserver.engine.commands import (
-    APPLY, ApplyEdits, CommandCalls, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Query,
+    APPLY, ApplyEdits, CommandCalls, Completion, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Query,
     Read, ReadResult, Reconfigure, StepReport, Subscribe,
 )
 from sdfserver.engine.journal import Journal
@@ -174,8 +174,9 @@ class Engine(CommandCalls):
 
     # -- submitting (any thread) ----------------------------------------------------------------
 
-    def submit(self, command: Any) -> Future:
-        future: Future = Future()
+    def submit(self, command: Any, completion: Completion | None = None) -> Future | Completion:
+        """Queue a command; its result arrives in the returned Future, or through ``completion``."""
+        future = Future() if completion is None else completion
         if self.device_error is not None or self._stopping:
             future.set_exception(NotReady(self.not_ready_reason()))
             return future

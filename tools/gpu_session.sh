@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
 # One packed measurement session on the lent GPU machine (see docs/benchmarks.md).
 # Usage there: source .whl/activate.sh; bash tools/gpu_session.sh [sections]
-# Sections: tests bench render service (default: all). Results: $OUT/results.tgz.
+# Sections: tests bench render service restart (default: all). Results: $OUT/results.tgz.
 set -uo pipefail
 export PYTHONPATH=$PWD:${PYTHONPATH:-} PYTHONUNBUFFERED=1
 FINAL=${OUT:-/tmp/sdfserver-out}; OUT=$(mktemp -d); mkdir -p "$FINAL"
 trap 'tar czf "$FINAL/results.tgz" -C "$OUT" . ; rm -rf "$OUT"' EXIT
-sections=${1:-tests,bench,render,service}
+sections=${1:-tests,bench,render,service,restart}
 has() { [[ ",$sections," == *",$1,"* ]]; }
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
 
@@ -46,5 +46,27 @@ if has service; then
   curl -s http://127.0.0.1:$port/metrics > "$OUT/metrics.txt"
   kill $server; wait $server 2>/dev/null
 fi
+if has restart; then
+  # Recovery after a crash under load: 64 clients for 8 s on a kept world, SIGKILL, start again;
+  # the restart replays the batches logged since the world's last snapshot.
+  port=8765
+  rm -rf /tmp/sdfserver-data
+  python3 -m sdfserver serve --device nvidia --port $port --data-dir /tmp/sdfserver-data ${SERVE_FLAGS:-} \
+    > "$OUT/server-crash.log" 2>&1 &
+  server=$!
+  for _ in $(seq 120); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.5; done
+  timeout 60 python3 clients/loadtest.py --url http://127.0.0.1:$port --size 256 256 256 --quiet --keep-world \
+    --clients 64 --processes 8 --duration 8 --read-every 0 > "$OUT/load-before-crash.txt" 2>&1
+  kill -9 $server; wait $server 2>/dev/null; sleep 1  # its fronts exit when their link closes
+  started=$(date +%s.%N)
+  python3 -m sdfserver serve --device nvidia --port $port --data-dir /tmp/sdfserver-data ${SERVE_FLAGS:-} \
+    > "$OUT/server-restart.log" 2>&1 &
+  server=$!
+  for _ in $(seq 240); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
+  echo "ready $(python3 -c 'import sys, time; print(round(time.time() - float(sys.argv[1]), 1))' $started) s" \
+    "after the start command" > "$OUT/restart.txt"
+  grep -h "restored" "$OUT/server-restart.log" >> "$OUT/restart.txt"
+  kill $server; wait $server 2>/dev/null
+fi
 for f in bench.txt render.txt load-rtt-1.txt load-rtt-2.txt load-rtt-3.txt load-rtt-4.txt load-64.txt \
-         load-64-rate5000.txt load-64-again.txt ws-frames.txt; do [ -f "$OUT/$f" ] && { echo "== $f"; cat "$OUT/$f"; }; done
+         load-64-rate5000.txt load-64-again.txt ws-frames.txt load-before-crash.txt restart.txt; do [ -f "$OUT/$f" ] && { echo "== $f"; cat "$OUT/$f"; }; done

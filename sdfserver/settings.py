@@ -33,11 +33,12 @@ class Settings(BaseSettings):
                                                                     "(one JSON object per line).")
     log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Lowest level logged.")
     fronts: int = Field(
-        0, ge=0, le=64, description="Front processes that parse HTTP for the hot requests (edits, field reads, point "
+        2, ge=0, le=64, description="Front processes that parse HTTP for the hot requests (edits, field reads, point "
                                     "queries) and pass their commands to this process's engine; every other "
-                                    "connection is handed to this process. 0: this process serves everything. "
-                                    "2 doubled the 64-client throughput on the GPU machine and added ~0.3 ms to a "
-                                    "lone client's round trip (docs/architecture.md, docs/benchmarks.md).")
+                                    "connection is handed to this process. 0: this process serves everything, "
+                                    "with the shortest lone-client round trip (~0.1-0.5 ms less) but under half "
+                                    "the 64-client throughput on the GPU machine (docs/architecture.md, "
+                                    "docs/benchmarks.md).")
     access_log: bool = Field(False, description="Log every HTTP request (costs throughput).")
     switch_interval_ms: float = Field(
         0.5, gt=0, le=100, description="Longest the event loop keeps Python's GIL while the engine thread waits "

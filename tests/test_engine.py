@@ -285,3 +285,19 @@ def test_new_world_ids_are_hex_and_never_look_like_options():
     ids = {new_world_id() for _ in range(2000)}
     assert len(ids) == 2000
     assert all(len(i) == 12 and set(i) <= set("0123456789abcdef") for i in ids)
+
+
+def test_a_slow_step_is_logged_with_its_phases_and_cpu_use(gpu, caplog):
+    engine = Engine(gpu, EngineLimits(slow_step_ms=0.0))  # every step counts as slow
+    try:
+        world_id = create(engine)
+        edits(engine, world_id, [{"op": "sphere", "center": [8, 8, 8], "radius": 3, "colour": 1}])
+        with caplog.at_level("WARNING", logger="sdfserver.engine"):
+            report = engine.step()
+        line = [r.getMessage() for r in caplog.records if "slow engine step" in r.getMessage()][-1]
+        assert report.applied_batches == 1 and line.endswith(", 1 batches")
+        assert "page faults" in line and "preemptions" in line and "of apply" in line
+        assert report.cpu_ms > 0 and report.user_ms + report.system_ms >= 0
+        assert report.page_faults >= 0 and report.preempted >= 0
+    finally:
+        engine.stop()

@@ -170,6 +170,10 @@ class StepReport:
     waiting: int = 0
     phases_ms: dict[str, float] = field(default_factory=dict)  # apply, recompute, publish, serve
     cpu_ms: float = 0.0  # the engine thread's CPU time in the step (the rest: waiting, for the GIL among others)
+    user_ms: float = 0.0  # the kernel's user/system split of the thread's CPU time (sampled at ticks: rough)
+    system_ms: float = 0.0
+    page_faults: int = 0  # the engine thread's page faults in the step, minor and major
+    preempted: int = 0  # times the kernel took the engine thread's CPU away in the step
     # within apply: validating batches (plan), handing them to the log (log), launching their edits
     # (launch), the rest of applying them (acknowledge); logged with a slow step
     apply_ms: dict[str, float] = field(

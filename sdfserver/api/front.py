@@ -67,8 +67,8 @@ class RemoteEngine(CommandCalls):
         self._ids = itertools.count()
 
     async def apply_edits(self, world_id: str, edits: list, wire: list) -> int:
-        # The batch's log record travels encoded: bytes cross the link cheaply, where unpickling
-        # its dicts cost the server process's event loop a fifth of its GIL time under load.
+        # The batch's log record travels encoded: bytes cross the link cheaply, and unpickling
+        # its dicts was a large part of the server event loop's GIL time under load.
         return await self.call(ApplyEdits(world_id, edits, encode_batch(wire)))
 
     async def call(self, command: Any) -> Any:

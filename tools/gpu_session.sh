@@ -10,6 +10,14 @@ sections=${1:-tests,bench,render,service,restart}
 has() { [[ ",$sections," == *",$1,"* ]]; }
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
 
+port=8765
+serve() {  # serve LOG: start the server on the data directory in /tmp, wait until it is ready
+  python3 -m sdfserver serve --device nvidia --port $port --data-dir /tmp/sdfserver-data ${SERVE_FLAGS:-} \
+    > "$OUT/$1" 2>&1 &
+  server=$!
+  for _ in $(seq 240); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
+}
+
 if has tests; then
   timeout 200 python3 -m pytest tests/core tests/durability/test_engine_journal.py -q -p no:cacheprovider > "$OUT/core-tests.txt" 2>&1
   tail -1 "$OUT/core-tests.txt"
@@ -23,12 +31,8 @@ if has render; then
     --duration 4 --width 1280 --height 720 --json "$OUT/render.json" > "$OUT/render.txt" 2>&1
 fi
 if has service; then
-  port=8765
   rm -rf /tmp/sdfserver-data
-  python3 -m sdfserver serve --device nvidia --port $port --data-dir /tmp/sdfserver-data ${SERVE_FLAGS:-} \
-    > "$OUT/server.log" 2>&1 &
-  server=$!
-  for _ in $(seq 120); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.5; done
+  serve server.log
   # The one-client round trip four times: its sync time depends on how long the disk idled
   # between syncs (docs/benchmarks.md), so one run says little about the next.
   rtt="--clients 1 --duration 8 --read-every 1 --read-size 16"
@@ -49,20 +53,13 @@ fi
 if has restart; then
   # Recovery after a crash under load: 64 clients for 8 s on a kept world, SIGKILL, start again;
   # the restart replays the batches logged since the world's last snapshot.
-  port=8765
   rm -rf /tmp/sdfserver-data
-  python3 -m sdfserver serve --device nvidia --port $port --data-dir /tmp/sdfserver-data ${SERVE_FLAGS:-} \
-    > "$OUT/server-crash.log" 2>&1 &
-  server=$!
-  for _ in $(seq 120); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.5; done
+  serve server-crash.log
   timeout 60 python3 clients/loadtest.py --url http://127.0.0.1:$port --size 256 256 256 --quiet --keep-world \
     --clients 64 --processes 8 --duration 8 --read-every 0 > "$OUT/load-before-crash.txt" 2>&1
   kill -9 $server; wait $server 2>/dev/null; sleep 1  # its fronts exit when their link closes
   started=$(date +%s.%N)
-  python3 -m sdfserver serve --device nvidia --port $port --data-dir /tmp/sdfserver-data ${SERVE_FLAGS:-} \
-    > "$OUT/server-restart.log" 2>&1 &
-  server=$!
-  for _ in $(seq 240); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
+  serve server-restart.log
   echo "ready $(python3 -c 'import sys, time; print(round(time.time() - float(sys.argv[1]), 1))' $started) s" \
     "after the start command" > "$OUT/restart.txt"
   grep -h "restored" "$OUT/server-restart.log" >> "$OUT/restart.txt"

@@ -24,7 +24,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import queue
-import resource
 import secrets
 import threading
 import time
@@ -46,6 +45,7 @@ from sdfserver.engine.mailbox import Subscription
 from sdfserver.engine.metrics import EngineMetrics
 from sdfserver.engine.publish import check_subscription_region, chunks_of, publish
 from sdfserver.engine.query import query_points
+from sdfserver.engine.stepclock import StepClock
 from sdfserver.errors import (
     DeviceMemoryExceeded, InvalidInput, NotFound, NotReady, SdfServerError, StorageError, TooLarge,
     VersionNotReached,
@@ -231,46 +231,26 @@ class Engine(CommandCalls):
         serve = self._waiting + [c for c in commands if not isinstance(c[0], APPLY)]
         self._waiting = []
         report = StepReport()
-        clock = [time.perf_counter()]
-        cpu_started, usage_started = time.thread_time(), resource.getrusage(resource.RUSAGE_THREAD)
+        clock = StepClock(report)
         answers: list[tuple[Future, Any]] = []
-
-        def lap(phase: str) -> None:
-            clock.append(time.perf_counter())
-            report.phases_ms[phase] = (clock[-1] - clock[-2]) * 1e3
-
         try:
             touched = self._apply([c for c in commands if isinstance(c[0], APPLY)], report)
-            lap("apply")
+            clock.lap("apply")
             report.recomputed = self._recompute(touched)
-            lap("recompute")
+            clock.lap("recompute")
             self._publish(report.recomputed)
-            lap("publish")
+            clock.lap("publish")
             answers = self._serve(serve, report)
-            lap("serve")
+            clock.lap("serve")
         except cl.Error as exc:
             self._lose_device(exc, commands + serve + self._waiting)
             self._waiting = []
         self._count_pending()
-        report.cpu_ms = (time.thread_time() - cpu_started) * 1e3
-        _count_usage(report, usage_started, resource.getrusage(resource.RUSAGE_THREAD))
-        self._count_step(report, clock[-1] - clock[0])
+        clock.stop(self.metrics, self.limits.slow_step_ms)
         # Answer last: each answer wakes the event loop, which then needs the GIL this thread holds.
         for future, result in answers:
             future.set_result(result)
         return report
-
-    def _count_step(self, report: StepReport, seconds: float) -> None:
-        self.metrics.steps.inc()
-        self.metrics.step_seconds.observe(seconds)
-        for phase, ms in report.phases_ms.items():
-            self.metrics.phase(phase).inc(ms / 1e3)
-        if seconds * 1e3 >= self.limits.slow_step_ms:
-            phases = ", ".join(f"{k} {v:.1f}" for k, v in report.phases_ms.items())
-            phases += " (" + ", ".join(f"{k} {v:.1f}" for k, v in report.apply_ms.items()) + " of apply)"
-            log.warning("slow engine step: %.1f ms, %.1f ms of it on a CPU (%.1f user, %.1f system; %d page "
-                        "faults, %d preemptions) (%s), %d batches", seconds * 1e3, report.cpu_ms, report.user_ms,
-                        report.system_ms, report.page_faults, report.preempted, phases, report.applied_batches)
 
     def _drain(self) -> list[Pending]:
         out = []
@@ -588,16 +568,6 @@ class Engine(CommandCalls):
             subs = [s for group in self._subscribers.values() for s in group]
         self.metrics.pending_chunks.set(sum(s.mailbox.pending_chunks for s in subs))
         self.metrics.pending_bytes.set(sum(s.mailbox.pending_bytes for s in subs))
-
-
-def _count_usage(report: StepReport, before: resource.struct_rusage, after: resource.struct_rusage) -> None:
-    """Where the engine thread's CPU time in a step went (a slow step's log line says). The
-    kernel splits user from system time by sampling at ticks, so over one step the split is
-    rough; ``cpu_ms`` (``time.thread_time``) is the exact total."""
-    report.user_ms = (after.ru_utime - before.ru_utime) * 1e3
-    report.system_ms = (after.ru_stime - before.ru_stime) * 1e3
-    report.page_faults = (after.ru_minflt - before.ru_minflt) + (after.ru_majflt - before.ru_majflt)
-    report.preempted = after.ru_nivcsw - before.ru_nivcsw
 
 
 def _acknowledge_when_durable(future: Future, version: int, durable: Future) -> None:

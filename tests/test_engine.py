@@ -189,6 +189,20 @@ def test_completions_deliver_once_what_futures_would(engine):
     assert len(delivered) == 4 and not delivered[3][1] and isinstance(delivered[3][2], VersionNotReached)
 
 
+def test_a_failing_completion_does_not_stop_the_engine(engine, caplog):
+    world_id = create(engine)
+
+    def broken(ok, value):
+        raise RuntimeError("the link is gone")
+
+    engine.submit(Read(world_id, "distance", Box((0, 0, 0), (2, 2, 2))), Completion(broken))
+    engine.step()
+    assert "delivering an engine result failed" in caplog.text
+    after = engine.submit(Read(world_id, "distance", Box((0, 0, 0), (2, 2, 2))))
+    engine.step()
+    assert after.result().array.shape == (2, 2, 2)
+
+
 def test_limits(engine):
     with pytest.raises(TooLarge):
         big = engine.submit(CreateWorld(WorldConfig(size=(2048, 2048, 2048))))

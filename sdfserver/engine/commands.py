@@ -7,6 +7,7 @@ the step's recompute, so they see every edit applied before them.
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Literal
@@ -20,6 +21,7 @@ from sdfserver.world import WorldConfig
 from sdfserver.engine.mailbox import Subscription
 
 ReadKind = Literal["packed", "distance", "voxels"]
+log = logging.getLogger("sdfserver.engine")
 
 
 @dataclass(frozen=True)
@@ -124,11 +126,17 @@ class Completion:
 
     def set_result(self, result: Any) -> None:
         self._state = 2
-        self.deliver(True, result)
+        self._deliver(True, result)
 
     def set_exception(self, exc: BaseException) -> None:
         self._state = 2
-        self.deliver(False, exc)
+        self._deliver(False, exc)
+
+    def _deliver(self, ok: bool, value: Any) -> None:
+        try:
+            self.deliver(ok, value)
+        except Exception:  # as a Future's callbacks: the engine thread must not die of it
+            log.exception("delivering an engine result failed")
 
 
 class CommandCalls:

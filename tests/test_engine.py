@@ -310,8 +310,9 @@ def test_a_slow_step_is_logged_with_its_phases_and_cpu_use(gpu, caplog):
             report = engine.step()
         line = [r.getMessage() for r in caplog.records if "slow engine step" in r.getMessage()][-1]
         assert report.applied_batches == 1 and line.endswith(", 1 batches")
-        assert "page faults" in line and "preemptions" in line and "of apply" in line
-        assert report.cpu_ms > 0 and report.user_ms + report.system_ms >= 0
-        assert report.page_faults >= 0 and report.preempted >= 0
+        assert report.cpu_ms > 0 and "of apply" in line
+        # the line carries the step's own figures
+        assert f"{report.cpu_ms:.1f} ms of it on a CPU ({report.user_ms:.1f} user, {report.system_ms:.1f} system; " \
+               f"{report.page_faults} page faults, {report.preempted} preemptions)" in line
     finally:
         engine.stop()

@@ -10,6 +10,7 @@ protocol, its keep-alive and shutdown handling), starting with the bytes the fro
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import functools
 import logging
 import socket
@@ -18,9 +19,11 @@ import sys
 import time
 from typing import Any, Callable
 
+import numpy as np
 import uvicorn
 
 from sdfserver.api import auth, link
+from sdfserver.api.desklink import DeskLink
 from sdfserver.api.errors import Answered
 from sdfserver.engine.commands import ApplyEdits, Completion, Query, Read
 from sdfserver.settings import Settings
@@ -29,18 +32,20 @@ log = logging.getLogger("sdfserver.fronts")
 FRONT_COMMANDS = (ApplyEdits, Query, Read)  # what the lane sends; nothing else is taken from a front
 WATCH_EVERY_S = 0.5
 RESTART_DELAY_S = 5.0  # a front that lived less than this is started again only after it
+DIRECT_REPLY_BYTES = 64 << 10  # a reply with more array bytes is pickled by the link's writer thread
 
 
 class FrontDesk:
-    """One front's link: its commands to the engine (after the rate limit and the owner check)
-    and the results back, sent from whichever thread completes them."""
+    """One front's link: its commands to the engine (after the rate limit and the owner check),
+    taken on the link's reader thread, and the results back, sent from whichever thread
+    completes them."""
 
-    def __init__(self, state: Any, on_lost: Callable[[], None]):
+    def __init__(self, state: Any, sock: socket.socket, name: str):
         self.engine, self.gate, self.metrics = state.engine, state.gatekeeper, state.metrics
-        self.link = link.LinkProtocol(self.on_message, on_lost)
+        self.link = DeskLink(sock, self.on_message, name)
         self.listening = False  # the front said it listens on the port
 
-    def on_message(self, message: Any) -> None:
+    def on_message(self, message: Any) -> None:  # the link's reader thread
         if message[0] == "call":
             self._call(*message[1:])
         elif message[0] == "bytes_out":
@@ -61,13 +66,20 @@ class FrontDesk:
 
     def _done(self, request_id: int, ok: bool, result: Any) -> None:  # the engine's or the committer's thread
         if ok:
-            self.link.send_threadsafe(("reply", request_id, True, result))
+            self.link.send(("reply", request_id, True, result), small=_array_bytes(result) <= DIRECT_REPLY_BYTES)
         else:
             self._reply(request_id, result)
 
     def _reply(self, request_id: int, exc: BaseException) -> None:
         answer = Answered.of(exc)  # the one mapping to status and body, applied here
-        self.link.send_threadsafe(("reply", request_id, False, (answer.status, answer.body, answer.headers)))
+        self.link.send(("reply", request_id, False, (answer.status, answer.body, answer.headers)))
+
+
+def _array_bytes(result: Any) -> int:
+    """The bytes of the arrays in a command's result (a read's or a query's); 0 for a version."""
+    if not dataclasses.is_dataclass(result):
+        return 0
+    return sum(v.nbytes for v in vars(result).values() if isinstance(v, np.ndarray))
 
 
 class Front:
@@ -120,12 +132,11 @@ class FrontPool:
                  len(self.fronts))
 
     async def _spawn(self, index: int) -> Front:
-        loop = asyncio.get_running_loop()
         front = Front(index)
-        desk = front.desk = FrontDesk(self.state, on_lost=lambda: None)
-        await loop.connect_accepted_socket(lambda: desk.link, sock=front.link_socket)
+        desk = front.desk = FrontDesk(self.state, front.link_socket, name=f"front-{index}")
+        desk.link.start()
         desk.link.send(("hello", self.settings.model_dump(), self.port))
-        loop.add_reader(front.channel.fileno(), self._take_connections, front)
+        asyncio.get_running_loop().add_reader(front.channel.fileno(), self._take_connections, front)
         return front
 
     def _take_connections(self, front: Front) -> None:
@@ -187,6 +198,9 @@ class FrontPool:
             return
         asyncio.get_running_loop().remove_reader(front.channel.fileno())
         front.channel.close()
+        if front.desk is not None:
+            front.desk.link.close()
+            front.desk.link.join()
 
     async def stop(self) -> None:
         self._stopping = True

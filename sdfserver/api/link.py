@@ -3,9 +3,8 @@ Unix socket pair, and connections handed from the front to the server.
 
 Both ends belong to one ``sdfserver serve``: the pair is made by the server process before it
 starts the front, so nothing else can write to it, and pickle (engine commands, numpy arrays)
-is safe there. Messages are sent at the end of the event-loop iteration, together; the
-server's engine thread queues its replies with ``send_threadsafe``, and one wake-up of the
-loop sends all that are queued.
+is safe there. The front's end is ``LinkProtocol`` on its event loop: its messages leave at
+the end of the loop iteration, together. The server's end is threads (``desklink.py``).
 
 A handed-over connection travels on a second pair (``SOCK_SEQPACKET``): its socket as
 ``SCM_RIGHTS``, with the bytes the front already read from it, in parts of at most
@@ -62,13 +61,6 @@ class LinkProtocol(asyncio.Protocol):
         if not self._flush_scheduled:
             self._flush_scheduled = True
             self._loop.call_soon(self._flush)
-
-    def send_threadsafe(self, message: Any) -> None:
-        """``send`` from any thread: one wake-up of the loop for all that are queued meanwhile."""
-        self._outgoing.append(message)  # before the check: a flush that has begun still finds it
-        if not self._flush_scheduled:
-            self._flush_scheduled = True
-            self._loop.call_soon_threadsafe(self._flush)
 
     def _flush(self) -> None:
         self._flush_scheduled = False

@@ -133,13 +133,29 @@ def validate_batch(edits: list[Edit], dims: Vec3, limits: EditLimits) -> None:
         raise InvalidEdit("empty edit batch")
     if len(edits) > limits.max_ops_per_batch:
         raise TooLarge(f"{len(edits)} operations in one batch; the limit is {limits.max_ops_per_batch}")
-    total_voxels = sum(len(e.voxels) for e in edits if isinstance(e, VoxelsEdit))
-    if total_voxels > limits.max_voxels_per_batch:
-        raise TooLarge(f"{total_voxels} voxels in one batch; the limit is {limits.max_voxels_per_batch}")
-    upper = np.array(dims, dtype=np.int64)
+    # Brushes are checked in plain Python, numpy only for voxel lists: this runs on the engine
+    # thread for every batch, and most batches are one brush.
+    voxel_lists = [e for e in edits if type(e) is VoxelsEdit]
+    if voxel_lists:
+        total_voxels = sum(len(e.voxels) for e in voxel_lists)
+        if total_voxels > limits.max_voxels_per_batch:
+            raise TooLarge(f"{total_voxels} voxels in one batch; the limit is {limits.max_voxels_per_batch}")
+        upper = np.array(dims, dtype=np.int64)
     for i, e in enumerate(edits):
-        where = f"edits[{i}]"
-        if isinstance(e, VoxelsEdit):
+        kind = type(e)
+        if kind is SphereEdit:
+            if not 0 <= e.radius <= limits.max_brush_radius_vox:
+                raise InvalidEdit(
+                    f"edits[{i}]: radius must be 0..{limits.max_brush_radius_vox:g}, got {e.radius:g}"
+                )
+            _check_colour(e.colour, i)
+        elif kind is BoxEdit:
+            (x0, y0, z0), (x1, y1, z1) = e.min, e.max
+            if x0 > x1 or y0 > y1 or z0 > z1:
+                raise InvalidEdit(f"edits[{i}]: box min {list(e.min)} exceeds max {list(e.max)}")
+            _check_colour(e.colour, i)
+        elif kind is VoxelsEdit:
+            where = f"edits[{i}]"
             if len(e.voxels) == 0:
                 raise InvalidEdit(f"{where}: empty voxel list")
             xyz, colour = e.voxels[:, :3], e.voxels[:, 3]
@@ -151,18 +167,13 @@ def validate_batch(edits: list[Edit], dims: Vec3, limits: EditLimits) -> None:
                 )
             if ((colour < 0) | (colour > 255)).any():
                 raise InvalidEdit(f"{where}: colours must be 0..255")
-        elif isinstance(e, BoxEdit):
-            if any(lo > hi for lo, hi in zip(e.min, e.max)):
-                raise InvalidEdit(f"{where}: box min {list(e.min)} exceeds max {list(e.max)}")
-            _colour(e.colour, where)
-        elif isinstance(e, SphereEdit):
-            if not 0 <= e.radius <= limits.max_brush_radius_vox:
-                raise InvalidEdit(
-                    f"{where}: radius must be 0..{limits.max_brush_radius_vox:g}, got {e.radius:g}"
-                )
-            _colour(e.colour, where)
         else:
-            raise InvalidEdit(f"{where}: not an edit: {e!r}")
+            raise InvalidEdit(f"edits[{i}]: not an edit: {e!r}")
+
+
+def _check_colour(value: Any, index: int) -> None:
+    if type(value) is not int or not 0 <= value <= 255:  # the common case without the ABC checks
+        _colour(value, f"edits[{index}]")
 
 
 def edit_bounds(edit: Edit, dims: Vec3, chunk_size_vox: int) -> list[Box]:
@@ -171,15 +182,20 @@ def edit_bounds(edit: Edit, dims: Vec3, chunk_size_vox: int) -> list[Box]:
     Explicit voxels give one tight box per touched chunk, so scattered voxels
     do not turn into one world-sized box.
     """
-    world = Box.of_size(dims)
-    if isinstance(edit, BoxEdit):
-        box = Box(edit.min, edit.max).intersect(world)
-        return [] if box.empty else [box]
-    if isinstance(edit, SphereEdit):
-        lo = tuple(math.ceil(c - edit.radius) for c in edit.center)
-        hi = tuple(math.floor(c + edit.radius) + 1 for c in edit.center)
-        box = Box(lo, hi).intersect(world)
-        return [] if box.empty else [box]
+    sx, sy, sz = dims
+    kind = type(edit)
+    if kind is SphereEdit or kind is BoxEdit:  # clipped in plain ints: one Box made, not three
+        if kind is SphereEdit:
+            (cx, cy, cz), r = edit.center, edit.radius
+            x0, y0, z0 = math.ceil(cx - r), math.ceil(cy - r), math.ceil(cz - r)
+            x1, y1, z1 = math.floor(cx + r) + 1, math.floor(cy + r) + 1, math.floor(cz + r) + 1
+        else:
+            (x0, y0, z0), (x1, y1, z1) = edit.min, edit.max
+        lo = (max(x0, 0), max(y0, 0), max(z0, 0))
+        hi = (min(x1, sx), min(y1, sy), min(z1, sz))
+        if hi[0] <= lo[0] or hi[1] <= lo[1] or hi[2] <= lo[2]:
+            return []
+        return [Box(lo, hi)]
     xyz = edit.voxels[:, :3]
     _, group = np.unique(xyz // chunk_size_vox, axis=0, return_inverse=True)
     group = group.reshape(-1)

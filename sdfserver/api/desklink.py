@@ -21,6 +21,7 @@ import socket
 import threading
 from typing import Any, Callable
 
+from sdfserver import delivery
 from sdfserver.api.link import HEADER
 
 log = logging.getLogger("sdfserver.fronts")
@@ -51,7 +52,18 @@ class DeskLink:
     def send(self, message: Any, small: bool = True) -> None:
         """Send ``message`` from any thread. A small one is pickled here and written now if the
         socket takes it whole; a large one (``small=False``) is pickled by the writer thread."""
-        data: bytes | memoryview | tuple[Any] = frame(message) if small else (message,)
+        if small:
+            held = delivery.held_for(self)
+            if held is not None:  # a round of replies (an engine step's, a sync's): one write at its end
+                held.append(frame(message))
+                return
+        self._send(frame(message) if small else (message,))
+
+    def send_held(self, frames: list[bytes]) -> None:
+        self._send(b"".join(frames))
+
+    def _send(self, data: bytes | memoryview | tuple[Any]) -> None:
+        small = not isinstance(data, tuple)
         with self._cond:
             if self.closed:
                 return

@@ -35,6 +35,7 @@ import numpy as np
 import pyopencl as cl
 
 from sdfserver.algorithms.exact import Exact
+from sdfserver.delivery import delivery_round
 from sdfserver.edits import parse_edits
 from sdfserver.engine.commands import (
     APPLY, ApplyEdits, CommandCalls, Completion, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Query,
@@ -227,6 +228,10 @@ class Engine(CommandCalls):
 
     def step(self) -> StepReport:
         """Apply queued edits, recompute touched worlds once each, publish, serve reads."""
+        with delivery_round():  # what the step answers, a receiver may send together at its end
+            return self._step()
+
+    def _step(self) -> StepReport:
         commands = self._drain()
         serve = self._waiting + [c for c in commands if not isinstance(c[0], APPLY)]
         self._waiting = []
@@ -247,8 +252,7 @@ class Engine(CommandCalls):
             self._waiting = []
         self._count_pending()
         clock.stop(self.metrics, self.limits.slow_step_ms)
-        # Answer last: each answer wakes the event loop, which then needs the GIL this thread holds.
-        for future, result in answers:
+        for future, result in answers:  # last: a receiver may need the GIL this thread holds
             future.set_result(result)
         return report
 
@@ -335,11 +339,12 @@ class Engine(CommandCalls):
             self.metrics.edit_batches.inc(len(items))  # each inc takes a lock: once a world a step
             self.metrics.edit_ops.inc(sum(len(command.edits) for command, _, _ in items))
             report.applied_batches += len(items)
-            for (command, future, _), version in zip(items, versions):
-                if durable is None:
+            answers = [(future, version) for (_, future, _), version in zip(items, versions)]
+            if durable is None:
+                for future, version in answers:
                     future.set_result(version)
-                else:
-                    _acknowledge_when_durable(future, version, durable)
+            else:
+                _acknowledge_when_durable(answers, durable)
             touched.add(world_id)
         report.apply_ms["launch"] += launch_ms
         report.apply_ms["acknowledge"] += (time.perf_counter() - logged) * 1e3 - launch_ms
@@ -570,14 +575,19 @@ class Engine(CommandCalls):
         self.metrics.pending_bytes.set(sum(s.mailbox.pending_bytes for s in subs))
 
 
-def _acknowledge_when_durable(future: Future, version: int, durable: Future) -> None:
-    """Complete ``future`` with ``version`` once ``durable`` completes (or fail it with its error)."""
+def _acknowledge_when_durable(answers: list[tuple[Future, int]], durable: Future) -> None:
+    """Complete each future with its version once ``durable`` completes (or fail them all with
+    its error): one callback for a world's batches of a step, not one each."""
 
     def done(durable: Future) -> None:
         exc = durable.exception()
-        if exc is not None:
-            future.set_exception(exc)
-        else:
-            future.set_result(version)
+        for future, version in answers:
+            try:  # one failing must not keep the others unanswered
+                if exc is not None:
+                    future.set_exception(exc)
+                else:
+                    future.set_result(version)
+            except Exception:
+                log.exception("acknowledging an edit batch failed")
 
     durable.add_done_callback(done)

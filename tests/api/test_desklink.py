@@ -11,7 +11,9 @@ import socket
 import threading
 
 import numpy as np
+import pytest
 
+from sdfserver.delivery import delivery_round
 from sdfserver.api.desklink import DeskLink, frame
 from sdfserver.api.link import HEADER
 
@@ -98,3 +100,21 @@ def test_a_lost_front_is_reported_once_and_later_sends_are_dropped():
     link.close()
     link.join()
     assert calls == [1]
+
+
+def test_replies_in_a_delivery_round_leave_together_at_its_end():
+    link, front = make_link()
+    front.settimeout(0.2)
+    with delivery_round():
+        with delivery_round():  # a nested round sends nothing of its own
+            for i in range(5):
+                link.send(("reply", i, True, i))
+        link.send(("reply", 5, True, np.zeros(100_000, np.uint8)), small=False)  # large: not held
+        assert read_frames(front, 1)[0][1] == 5
+        with pytest.raises(TimeoutError):
+            front.recv(1)
+    front.settimeout(5)
+    assert [m[1] for m in read_frames(front, 5)] == list(range(5))
+    link.close()
+    link.join()
+    front.close()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from sdfserver.edits import BoxEdit, EditLimits, SphereEdit, VoxelsEdit, parse_edits
+from sdfserver.edits import BoxEdit, EditLimits, SphereEdit, VoxelsEdit, edit_bounds, parse_edits
 from sdfserver.errors import InvalidEdit, TooLarge
 from sdfserver.world import SMALL_DIRTY_CHUNKS, World, WorldConfig
 
@@ -181,3 +181,26 @@ def test_many_overlapping_brushes_in_order(gpu, rng, brushes):
         np.testing.assert_array_equal(world.read_distance(), oracle(voxels, 12))
     finally:
         world.release()
+
+
+@settings(max_examples=300, deadline=None)
+@given(dims=st.tuples(*[st.integers(1, 12)] * 3),
+       sphere=st.booleans(),
+       a=st.tuples(*[st.integers(-6, 16)] * 3),
+       b=st.tuples(*[st.integers(-6, 16)] * 3),
+       centre=st.tuples(*[st.floats(-8, 20, allow_nan=False)] * 3),
+       radius=st.floats(0, 9, allow_nan=False))
+def test_edit_bounds_is_the_tight_clipped_box_of_what_a_brush_changes(dims, sphere, a, b, centre, radius):
+    """The engine marks dirty (and launches over) exactly edit_bounds: it must hold every voxel
+    the NumPy model changes, and for a box nothing more; an empty list where nothing changes."""
+    edit = SphereEdit(centre, radius, 1) if sphere else BoxEdit(a, tuple(map(max, a, b)), 1)
+    changed = replay(np.zeros(dims[::-1], np.uint8), [edit]) != 0
+    boxes = edit_bounds(edit, dims, 4)
+    assert len(boxes) <= 1
+    covered = np.zeros_like(changed)
+    for box in boxes:
+        assert all(0 <= lo < hi <= d for lo, hi, d in zip(box.lo, box.hi, dims))
+        covered[box.slices_zyx()] = True
+    assert not (changed & ~covered).any()
+    if not sphere:
+        assert np.array_equal(changed, covered)

@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
 # One packed measurement session on the lent GPU machine (see docs/benchmarks.md).
 # Usage there: source .whl/activate.sh; bash tools/gpu_session.sh [sections]
-# Sections: tests bench render service restart (default: all). Results: $OUT/results.tgz.
+# Sections: host tests bench render service restart (default: all). Results: $OUT/results.tgz.
 set -uo pipefail
 export PYTHONPATH=$PWD:${PYTHONPATH:-} PYTHONUNBUFFERED=1
 FINAL=${OUT:-/tmp/sdfserver-out}; OUT=$(mktemp -d); mkdir -p "$FINAL"
 trap 'tar czf "$FINAL/results.tgz" -C "$OUT" . ; rm -rf "$OUT"' EXIT
-sections=${1:-tests,bench,render,service,restart}
+sections=${1:-host,tests,bench,render,service,restart}
 has() { [[ ",$sections," == *",$1,"* ]]; }
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
 
@@ -18,6 +18,12 @@ serve() {  # serve LOG: start the server on the data directory in /tmp, wait unt
   for _ in $(seq 240); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
 }
 
+if has host; then
+  # Is this host quiet? Stalls of every CPU at once with nothing else running come from below the
+  # guest, and they set the service's tail latency (docs/benchmarks.md, "Noisy hosts").
+  grep -m1 "model name" /proc/cpuinfo > "$OUT/host.txt"
+  python3 tools/stall_probe.py --per-cpu --seconds 8 --threshold-ms 1 >> "$OUT/host.txt" 2>&1
+fi
 if has tests; then
   timeout 200 python3 -m pytest tests/core tests/durability/test_engine_journal.py -q -p no:cacheprovider > "$OUT/core-tests.txt" 2>&1
   tail -1 "$OUT/core-tests.txt"
@@ -65,5 +71,5 @@ if has restart; then
   grep -h "restored" "$OUT/server-restart.log" >> "$OUT/restart.txt"
   kill $server; wait $server 2>/dev/null
 fi
-for f in bench.txt render.txt load-rtt-1.txt load-rtt-2.txt load-rtt-3.txt load-rtt-4.txt load-64.txt \
+for f in host.txt bench.txt render.txt load-rtt-1.txt load-rtt-2.txt load-rtt-3.txt load-rtt-4.txt load-64.txt \
          load-64-rate5000.txt load-64-again.txt ws-frames.txt load-before-crash.txt restart.txt; do [ -f "$OUT/$f" ] && { echo "== $f"; cat "$OUT/$f"; }; done

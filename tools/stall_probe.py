@@ -9,11 +9,21 @@ included, slows down with it. Steal, IRQ and softirq ticks (``/proc/stat``) are 
 second they change. See docs/benchmarks.md, session 7, "Noisy hosts".
 
     python3 tools/stall_probe.py --seconds 13
+
+With ``--per-cpu`` it runs one such probe pinned to each CPU at once (nothing else needs to run)
+and prints, per CPU, how many units were slow, and for each slow unit how many other CPUs had a
+slow unit overlapping it: stalls that hit every CPU together come from below the guest, and a
+host that has them with no server running will have them under the server too.
+
+    python3 tools/stall_probe.py --per-cpu --seconds 8 --threshold-ms 1
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
+import multiprocessing
+import os
 import time
 
 
@@ -52,11 +62,53 @@ def stamp() -> str:
     return f"{time.strftime('%H:%M:%S', time.localtime(now))},{int(now % 1 * 1000):03d}"
 
 
+def pinned_probe(cpu: int, seconds: float, threshold_ms: float, results: multiprocessing.Queue) -> None:
+    """One CPU's probe for --per-cpu: its unit count and its slow units' (start, end) times."""
+    os.sched_setaffinity(0, {cpu})
+    n = calibrate()
+    slow, units, end = [], 0, time.monotonic() + seconds
+    while time.monotonic() < end:
+        started = time.monotonic()
+        work(n)
+        finished = time.monotonic()
+        units += 1
+        if (finished - started) * 1e3 > threshold_ms:
+            slow.append((started, finished))
+        time.sleep(2e-4)
+    results.put((cpu, units, slow))
+
+
+def per_cpu(seconds: float, threshold_ms: float) -> None:
+    cpus = sorted(os.sched_getaffinity(0))
+    results: multiprocessing.Queue = multiprocessing.Queue()
+    probes = [multiprocessing.Process(target=pinned_probe, args=(c, seconds, threshold_ms, results)) for c in cpus]
+    for p in probes:
+        p.start()
+    found = sorted(results.get() for _ in probes)
+    for p in probes:
+        p.join()
+    slow = [(start, end, cpu) for cpu, _, units in found for start, end in units]
+    print(f"per-CPU probe, {seconds:g} s, units of ~0.2 ms, slow = over {threshold_ms:g} ms")
+    print("slow units per CPU:", ", ".join(f"{cpu}: {len(units)}" for cpu, _, units in found),
+          f"(of about {found[0][1]} each)")
+    print("worst units, ms:", [round((e - s) * 1e3, 1) for s, e, _ in sorted(slow, key=lambda u: u[0] - u[1])[:8]])
+    together = collections.Counter(
+        len({c2 for s2, e2, c2 in slow if c2 != cpu and s2 < end and e2 > start}) for start, end, cpu in slow)
+    print("slow units by how many other CPUs were slow at the same time:",
+          ", ".join(f"{k}: {v}" for k, v in sorted(together.items())))
+    everywhere = sum(v for k, v in together.items() if k >= len(cpus) // 2)
+    print(f"with at least half the other CPUs slow too: {everywhere} of {len(slow)}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=10.0, help="how long to probe")
     ap.add_argument("--threshold-ms", type=float, default=3.0, help="report units slower than this")
+    ap.add_argument("--per-cpu", action="store_true", help="one probe pinned to each CPU, all at once")
     args = ap.parse_args()
+    if args.per_cpu:
+        per_cpu(args.seconds, args.threshold_ms)
+        return
     n = calibrate()
     end = time.time() + args.seconds
     units = stalls = 0

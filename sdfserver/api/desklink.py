@@ -7,7 +7,9 @@ waited for the loop to be scheduled and to win the GIL, and under many clients t
 third of the server process's GIL time doing that.
 
 The framing is ``link.py``'s (length-prefixed pickles), so the front's end is the same
-``LinkProtocol``. A small reply goes out at once when the socket takes it whole. Anything else
+``LinkProtocol``. A small reply goes out at once when the socket takes it whole, or, sent in a
+round of deliveries (``sdfserver/delivery.py``: an engine step's answers, a log sync's
+acknowledgements), with the rest of the round in one write at its end. Anything else
 (a large read, a reply behind one still being written, a full socket) goes to a writer thread
 in order, so frames never interleave and the completing thread never waits for the front.
 """
@@ -16,21 +18,15 @@ from __future__ import annotations
 
 import collections
 import logging
-import pickle
 import socket
 import threading
 from typing import Any, Callable
 
 from sdfserver import delivery
-from sdfserver.api.link import HEADER
+from sdfserver.api.link import frame, take_frames
 
 log = logging.getLogger("sdfserver.fronts")
 READ_BYTES = 256 << 10
-
-
-def frame(message: Any) -> bytes:
-    payload = pickle.dumps(message, protocol=5)
-    return HEADER.pack(len(payload)) + payload
 
 
 class DeskLink:
@@ -103,16 +99,7 @@ class DeskLink:
                 if not data:
                     break
                 buffer += data
-                start = 0
-                while len(buffer) - start >= HEADER.size:
-                    (size,) = HEADER.unpack_from(buffer, start)
-                    end = start + HEADER.size + size
-                    if end > len(buffer):
-                        break
-                    message = pickle.loads(memoryview(buffer)[start + HEADER.size:end])
-                    start = end
-                    self.on_message(message)
-                del buffer[:start]
+                take_frames(buffer, self.on_message)
         except OSError:
             pass
         except Exception:

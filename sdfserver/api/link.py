@@ -42,18 +42,8 @@ class LinkProtocol(asyncio.Protocol):
         self.on_lost()
 
     def data_received(self, data: bytes) -> None:
-        buffer = self._buffer
-        buffer += data
-        start = 0
-        while len(buffer) - start >= HEADER.size:
-            (size,) = HEADER.unpack_from(buffer, start)
-            end = start + HEADER.size + size
-            if end > len(buffer):
-                break
-            message = pickle.loads(memoryview(buffer)[start + HEADER.size:end])
-            start = end
-            self.on_message(message)
-        del buffer[:start]
+        self._buffer += data
+        take_frames(self._buffer, self.on_message)
 
     def send(self, message: Any) -> None:
         """Queue ``message``; it leaves with the others of this loop iteration (loop thread)."""
@@ -66,10 +56,28 @@ class LinkProtocol(asyncio.Protocol):
         self._flush_scheduled = False
         frames = []
         while self._outgoing:
-            payload = pickle.dumps(self._outgoing.popleft(), protocol=5)
-            frames += (HEADER.pack(len(payload)), payload)
+            frames.append(frame(self._outgoing.popleft()))
         if frames and self.transport is not None and not self.transport.is_closing():
             self.transport.write(b"".join(frames))
+
+
+def frame(message: Any) -> bytes:
+    payload = pickle.dumps(message, protocol=5)
+    return HEADER.pack(len(payload)) + payload
+
+
+def take_frames(buffer: bytearray, on_message: Callable[[Any], None]) -> None:
+    """Hand on each whole frame at the start of ``buffer``, unpickled; leave a partial one there."""
+    start = 0
+    while len(buffer) - start >= HEADER.size:
+        (size,) = HEADER.unpack_from(buffer, start)
+        end = start + HEADER.size + size
+        if end > len(buffer):
+            break
+        message = pickle.loads(memoryview(buffer)[start + HEADER.size:end])
+        start = end
+        on_message(message)
+    del buffer[:start]
 
 
 def handoff_pair() -> tuple[socket.socket, socket.socket]:

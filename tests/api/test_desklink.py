@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from sdfserver.delivery import delivery_round
-from sdfserver.api.desklink import DeskLink, frame
-from sdfserver.api.link import HEADER
+from sdfserver.api.desklink import DeskLink
+from sdfserver.api.link import HEADER, frame
 
 
 def read_frames(sock: socket.socket, count: int) -> list:

@@ -9,7 +9,7 @@ third of the server process's GIL time doing that.
 The framing is ``link.py``'s (length-prefixed pickles), so the front's end is the same
 ``LinkProtocol``. A small reply goes out at once when the socket takes it whole, or, sent in a
 round of deliveries (``sdfserver/delivery.py``: an engine step's answers, a log sync's
-acknowledgements), with the rest of the round in one write at its end. Anything else
+acknowledgements), with the rest of the round in one frame at its end. Anything else
 (a large read, a reply behind one still being written, a full socket) goes to a writer thread
 in order, so frames never interleave and the completing thread never waits for the front.
 """
@@ -50,13 +50,13 @@ class DeskLink:
         socket takes it whole; a large one (``small=False``) is pickled by the writer thread."""
         if small:
             held = delivery.held_for(self)
-            if held is not None:  # a round of replies (an engine step's, a sync's): one write at its end
-                held.append(frame(message))
+            if held is not None:  # a round of replies (an engine step's, a sync's): one frame at its end
+                held.append(message)
                 return
-        self._send(frame(message) if small else (message,))
+        self._send(frame([message]) if small else (message,))
 
-    def send_held(self, frames: list[bytes]) -> None:
-        self._send(b"".join(frames))
+    def send_held(self, messages: list[Any]) -> None:
+        self._send(frame(messages))
 
     def _send(self, data: bytes | memoryview | tuple[Any]) -> None:
         small = not isinstance(data, tuple)
@@ -87,7 +87,7 @@ class DeskLink:
                 item = self._backlog.popleft()
                 self._writing = True  # until the backlog is empty: later frames queue behind
             try:
-                self.sock.sendall(frame(item[0]) if isinstance(item, tuple) else item)
+                self.sock.sendall(frame([item[0]]) if isinstance(item, tuple) else item)
             except OSError:
                 return
 

@@ -3,7 +3,7 @@ Unix socket pair, and connections handed from the front to the server.
 
 Both ends belong to one ``sdfserver serve``: the pair is made by the server process before it
 starts the front, so nothing else can write to it, and pickle (engine commands, numpy arrays)
-is safe there. The front's end is ``LinkProtocol`` on its event loop: its messages leave at
+is safe there. A frame is a length-prefixed pickle of a list of messages. The front's end is ``LinkProtocol`` on its event loop: its messages leave at
 the end of the loop iteration, together. The server's end is threads (``desklink.py``).
 
 A handed-over connection travels on a second pair (``SOCK_SEQPACKET``): its socket as
@@ -54,29 +54,32 @@ class LinkProtocol(asyncio.Protocol):
 
     def _flush(self) -> None:
         self._flush_scheduled = False
-        frames = []
-        while self._outgoing:
-            frames.append(frame(self._outgoing.popleft()))
-        if frames and self.transport is not None and not self.transport.is_closing():
-            self.transport.write(b"".join(frames))
+        if not self._outgoing:
+            return
+        messages, self._outgoing = list(self._outgoing), collections.deque()
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.write(frame(messages))
 
 
-def frame(message: Any) -> bytes:
-    payload = pickle.dumps(message, protocol=5)
+def frame(messages: list[Any]) -> bytes:
+    """One frame for several messages: one pickle looks each class up once for all of them
+    (unpickling eight edit commands together costs a third of unpickling them one by one)."""
+    payload = pickle.dumps(messages, protocol=5)
     return HEADER.pack(len(payload)) + payload
 
 
 def take_frames(buffer: bytearray, on_message: Callable[[Any], None]) -> None:
-    """Hand on each whole frame at the start of ``buffer``, unpickled; leave a partial one there."""
+    """Hand on the messages of each whole frame at the start of ``buffer``; leave a partial one there."""
     start = 0
     while len(buffer) - start >= HEADER.size:
         (size,) = HEADER.unpack_from(buffer, start)
         end = start + HEADER.size + size
         if end > len(buffer):
             break
-        message = pickle.loads(memoryview(buffer)[start + HEADER.size:end])
+        messages = pickle.loads(memoryview(buffer)[start + HEADER.size:end])
         start = end
-        on_message(message)
+        for message in messages:
+            on_message(message)
     del buffer[:start]
 
 

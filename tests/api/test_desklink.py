@@ -29,7 +29,7 @@ def read_frames(sock: socket.socket, count: int) -> list:
             (size,) = HEADER.unpack_from(buffer)
             if len(buffer) < HEADER.size + size:
                 break
-            messages.append(pickle.loads(bytes(buffer[HEADER.size:HEADER.size + size])))
+            messages += pickle.loads(bytes(buffer[HEADER.size:HEADER.size + size]))
             del buffer[:HEADER.size + size]
     return messages
 
@@ -44,8 +44,10 @@ def make_link(on_message=lambda message: None, on_lost=lambda: None):
 def test_messages_in_arrive_in_order_on_the_reader_thread():
     received: queue.Queue = queue.Queue()
     link, front = make_link(lambda m: received.put((m, threading.current_thread().name)))
-    big = np.arange(300_000, dtype=np.uint16)  # several reads' worth: a frame split across recv calls
-    front.sendall(b"".join(frame(("call", i, big if i == 3 else i)) for i in range(6)))
+    big = np.arange(300_000, dtype=np.uint16)
+    # two frames of several messages and one of one, the large one split across recv calls
+    front.sendall(frame([("call", 0, 0), ("call", 1, 1)]) + frame([("call", 2, 2), ("call", 3, big)])
+                  + frame([("call", i, i) for i in (4, 5)]))
     got = [received.get(timeout=5) for _ in range(6)]
     assert [m[1] for m, _ in got] == list(range(6))
     assert np.array_equal(got[3][0][2], big)
@@ -114,7 +116,9 @@ def test_replies_in_a_delivery_round_leave_together_at_its_end():
         with pytest.raises(TimeoutError):
             front.recv(1)
     front.settimeout(5)
-    assert [m[1] for m in read_frames(front, 5)] == list(range(5))
+    (size,) = HEADER.unpack(front.recv(HEADER.size, socket.MSG_WAITALL))
+    one_frame = pickle.loads(front.recv(size, socket.MSG_WAITALL))  # the round's five, together
+    assert [m[1] for m in one_frame] == list(range(5))
     link.close()
     link.join()
     front.close()

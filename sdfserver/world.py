@@ -251,12 +251,11 @@ class World:
         records = np.empty((len(brushes), 12), dtype=np.int32)
         records[:, :8] = ints
         records[:, 8:].view(np.float32)[:] = floats
-        record_buf = self.gpu.upload(records)
         local = 64
-        self.gpu.programs.kernel("edits.cl", "fill_brushes")(
-            self.gpu.queue, (-(-first // local) * local,), (local,), self.buffers.voxels, self._dims_int4,
-            record_buf, np.int32(len(brushes)), np.uint32(first))
-        record_buf.release()
+        with self.gpu.uploads.staged(records) as record_buf:
+            self.gpu.programs.kernel("edits.cl", "fill_brushes")(
+                self.gpu.queue, (-(-first // local) * local,), (local,), self.buffers.voxels, self._dims_int4,
+                record_buf, np.int32(len(brushes)), np.uint32(first))
 
     def _enqueue_brush(self, e: Edit, box: Box) -> None:
         q, kernels, b = self.gpu.queue, self.gpu.programs, self.buffers

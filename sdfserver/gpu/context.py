@@ -19,6 +19,7 @@ import pyopencl as cl
 from sdfserver.errors import DeviceMemoryExceeded
 from sdfserver.gpu.device import choose_device
 from sdfserver.gpu.programs import ProgramCache, device_defines
+from sdfserver.gpu.uploads import UploadRing
 
 # Leave room for the driver, programs and transient transfers.
 DEFAULT_BUDGET_FRACTION = 0.85
@@ -33,6 +34,7 @@ class GpuContext:
         )
         # Device-to-host transfers that must not hold up the work queue (download_later).
         self.transfer_queue = cl.CommandQueue(self.context)
+        self.uploads = UploadRing(self.context, self.queue)  # a step's brush records (engine thread)
         self.programs = ProgramCache(self.context, device_defines(device))
         device_bytes = int(device.global_mem_size)
         if memory_budget_bytes is None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from fractions import Fraction
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
@@ -183,24 +185,37 @@ def test_many_overlapping_brushes_in_order(gpu, rng, brushes):
         world.release()
 
 
-@settings(max_examples=300, deadline=None)
-@given(dims=st.tuples(*[st.integers(1, 12)] * 3),
+def exact_sphere(dims, centre, radius) -> np.ndarray:
+    """Voxels with |p - centre| <= radius in exact arithmetic on the given floats, (z, y, x)."""
+    c, r2 = [Fraction(v) for v in centre], Fraction(radius) ** 2
+    inside = np.zeros(dims[::-1], bool)
+    for z, y, x in np.ndindex(*inside.shape):
+        inside[z, y, x] = (x - c[0]) ** 2 + (y - c[1]) ** 2 + (z - c[2]) ** 2 <= r2
+    return inside
+
+
+@settings(max_examples=200, deadline=None)
+@given(dims=st.tuples(*[st.integers(1, 10)] * 3),
        sphere=st.booleans(),
        a=st.tuples(*[st.integers(-6, 16)] * 3),
        b=st.tuples(*[st.integers(-6, 16)] * 3),
        centre=st.tuples(*[st.floats(-8, 20, allow_nan=False)] * 3),
        radius=st.floats(0, 9, allow_nan=False))
-def test_edit_bounds_is_the_tight_clipped_box_of_what_a_brush_changes(dims, sphere, a, b, centre, radius):
-    """The engine marks dirty (and launches over) exactly edit_bounds: it must hold every voxel
-    the NumPy model changes, and for a box nothing more; an empty list where nothing changes."""
-    edit = SphereEdit(centre, radius, 1) if sphere else BoxEdit(a, tuple(map(max, a, b)), 1)
-    changed = replay(np.zeros(dims[::-1], np.uint8), [edit]) != 0
+def test_edit_bounds_hold_every_voxel_a_brush_covers(dims, sphere, a, b, centre, radius):
+    """The engine launches a brush over edit_bounds and marks only it dirty: it must hold every
+    voxel the brush covers (a sphere's in exact arithmetic), inside the world, and for a box
+    nothing more."""
+    if sphere:
+        edit, covers = SphereEdit(centre, radius, 1), exact_sphere(dims, centre, radius)
+    else:
+        edit = BoxEdit(a, tuple(map(max, a, b)), 1)
+        covers = replay(np.zeros(dims[::-1], np.uint8), [edit]) != 0
     boxes = edit_bounds(edit, dims, 4)
     assert len(boxes) <= 1
-    covered = np.zeros_like(changed)
+    bounded = np.zeros_like(covers)
     for box in boxes:
         assert all(0 <= lo < hi <= d for lo, hi, d in zip(box.lo, box.hi, dims))
-        covered[box.slices_zyx()] = True
-    assert not (changed & ~covered).any()
+        bounded[box.slices_zyx()] = True
+    assert not (covers & ~bounded).any()
     if not sphere:
-        assert np.array_equal(changed, covered)
+        assert np.array_equal(covers, bounded)

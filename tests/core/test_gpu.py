@@ -11,6 +11,7 @@ from sdfserver.algorithms.exact import Exact
 from sdfserver.errors import DeviceMemoryExceeded, InvalidInput, KernelBuildError, NoOpenCLDevice
 from sdfserver.gpu import GpuContext, choose_device, describe_devices
 from sdfserver.gpu import programs
+from sdfserver.gpu.uploads import UploadRing
 from sdfserver.world import World, WorldConfig
 
 
@@ -95,3 +96,19 @@ def test_bad_world_config(gpu, config, message):
     with pytest.raises(InvalidInput, match=message):
         World(gpu, WorldConfig(**config))
     assert gpu.allocated_bytes == before
+
+
+def test_staged_uploads_keep_every_array_intact_while_slots_are_reused(gpu, rng):
+    """Many more uploads than slots, none waited for: each array's device copy, read back right
+    after it on the in-order queue, is that array; oversized ones get a buffer of their own."""
+    ring = UploadRing(gpu.context, gpu.queue, slot_bytes=4096, slots=3)
+    arrays = [rng.integers(0, 1 << 30, size=int(rng.integers(1, 1025)), dtype=np.int32) for _ in range(40)]
+    arrays[7] = rng.integers(0, 1 << 30, size=5000, dtype=np.int32)  # over the slot size
+    copies = [np.zeros_like(a) for a in arrays]
+    for array, copy in zip(arrays, copies):
+        with ring.staged(array) as buffer:
+            cl.enqueue_copy(gpu.queue, copy, buffer, is_blocking=False)
+    gpu.queue.finish()
+    for i, (array, copy) in enumerate(zip(arrays, copies)):
+        assert np.array_equal(copy, array), f"upload {i}"
+    assert ring.fallbacks >= 1  # the oversized one

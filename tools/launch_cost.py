@@ -4,7 +4,7 @@
 
 Applies random radius-5 sphere brushes to a world (cap 255) and recomputes after each, as the
 server does for one client, and prints the medians of plan + apply (host), recompute wall time
-and recompute device time; then what one launch of the exact transform's first pass costs on
+and recompute device time; then the same for steps of 16 batches (as under many clients); then what one launch of the exact transform's first pass costs on
 the host: the kernel call with its arguments, an enqueue with the arguments already set, and
 the same on a queue without profiling.
 """
@@ -70,6 +70,20 @@ def main() -> None:
     print(f"  plan + apply (host)  {statistics.median(apply_us):7.1f} us")
     print(f"  recompute wall       {statistics.median(wall_us):7.1f} us")
     print(f"  recompute device     {statistics.median(device_us):7.1f} us")
+
+    # A step under load applies many batches at once: their brushes go in one fill_brushes launch.
+    step_apply_us, step_us = [], []
+    for _ in range(args.reps):
+        plans = [world.plan_edits(brush()) for _ in range(16)]
+        t0 = time.perf_counter()
+        world.apply_plans(plans)
+        t1 = time.perf_counter()
+        world.recompute()
+        step_apply_us.append((t1 - t0) * 1e6)
+        step_us.append((time.perf_counter() - t0) * 1e6)
+    print(f"a step of 16 one-brush batches, medians of {args.reps}:")
+    print(f"  apply (host)         {statistics.median(step_apply_us):7.1f} us")
+    print(f"  apply + recompute    {statistics.median(step_us):7.1f} us")
 
     exact = Exact()
     job = RegionJob.seeded_region(world.buffers, result.regions[0], 255)

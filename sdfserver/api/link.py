@@ -3,8 +3,9 @@ Unix socket pair, and connections handed from the front to the server.
 
 Both ends belong to one ``sdfserver serve``: the pair is made by the server process before it
 starts the front, so nothing else can write to it, and pickle (engine commands, numpy arrays)
-is safe there. A frame is a length-prefixed pickle of a list of messages. The front's end is ``LinkProtocol`` on its event loop: its messages leave at
-the end of the loop iteration, together. The server's end is threads (``desklink.py``).
+is safe there. A frame is a length-prefixed pickle of a list of messages. The front's end is
+``LinkProtocol`` on its event loop: its messages of one loop iteration leave in one frame. The
+server's end is threads (``desklink.py``).
 
 A handed-over connection travels on a second pair (``SOCK_SEQPACKET``): its socket as
 ``SCM_RIGHTS``, with the bytes the front already read from it, in parts of at most

@@ -19,7 +19,7 @@ import pyopencl as cl
 from sdfserver.errors import DeviceMemoryExceeded
 from sdfserver.gpu.device import choose_device
 from sdfserver.gpu.programs import ProgramCache, device_defines
-from sdfserver.gpu.uploads import UploadRing
+from sdfserver.gpu.uploads import UploadRing, read_only_copy
 
 # Leave room for the driver, programs and transient transfers.
 DEFAULT_BUDGET_FRACTION = 0.85
@@ -112,5 +112,4 @@ class GpuContext:
 
     def upload(self, array: np.ndarray) -> cl.Buffer:
         """A short-lived read-only buffer (edit lists); not counted against the budget."""
-        flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
-        return cl.Buffer(self.context, flags, hostbuf=np.ascontiguousarray(array))
+        return read_only_copy(self.context, array)

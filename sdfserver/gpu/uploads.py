@@ -1,9 +1,10 @@
 """Small read-only uploads (a step's brush records) through a few device buffers that are kept.
 
-A buffer made with its data (``GpuContext.upload``) costs little to make, but NVIDIA's driver
-allocates and fills it inside the first kernel launch that uses it: that launch was the largest
-host cost of an engine step under load (12% of the server process's GIL samples) and a kept
-buffer filled by a non-blocking write halves the host time of a 16-brush launch. A slot is
+A buffer made with its data (``read_only_copy``, ``GpuContext.upload``) costs little to make,
+but NVIDIA's driver allocates and fills it inside the first kernel launch that uses it: that
+launch was the largest host cost of an engine step under load (12% of the server process's GIL
+samples), and a kept buffer filled by a non-blocking write cut the host time of applying a
+16-brush step by 18-55% (docs/benchmarks.md, session 8). A slot is
 written again only once its last write has completed; the queue is in order, so the kernels
 that read the old contents have run by the time the new write does. When every slot is still
 in flight, or the array is too large, it falls back to a buffer of its own.
@@ -18,6 +19,11 @@ import numpy as np
 import pyopencl as cl
 
 COMPLETE = cl.command_execution_status.COMPLETE
+
+
+def read_only_copy(context: cl.Context, array: np.ndarray) -> cl.Buffer:
+    """A buffer of its own made with ``array``'s data; the caller releases it."""
+    return cl.Buffer(context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(array))
 
 
 class UploadRing:
@@ -36,7 +42,7 @@ class UploadRing:
         slot = self._free_slot() if array.nbytes <= self.slot_bytes else None
         if slot is None:
             self.fallbacks += 1
-            own = cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=array)
+            own = read_only_copy(self.context, array)
             try:
                 yield own
             finally:

@@ -16,6 +16,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from sdfserver.edits import EditLimits
 from sdfserver.wire import WireLimits
+from sdfserver.world_config import MAX_WORLD_VOXELS
 
 
 class Settings(BaseSettings):
@@ -46,14 +47,20 @@ class Settings(BaseSettings):
                                        "blocks on the device or the disk it waits up to this long to go on; "
                                        "Python's default is 5.")
     max_request_bytes: int = Field(
-        16 << 20, ge=1024, description="Largest request body or WebSocket frame, in bytes (413 above it).")
+        16 << 20, ge=1024, description="Largest request body or WebSocket frame, in bytes (413 above it); an "
+                                       "import (POST /v1/worlds/import) may carry this many voxels plus its "
+                                       "file format's framing, so every export within it imports back.")
     max_ops_per_batch: int = Field(1024, ge=1, description="Most operations in one edit batch (413 above it).")
     max_voxels_per_batch: int = Field(
         1 << 20, ge=1, description="Most explicit voxels in one edit batch (413 above it).")
     max_brush_radius_vox: float = Field(
         256.0, gt=0, description="Largest sphere radius an edit may use, in voxels (422 above it).")
     max_world_voxels: int = Field(
-        1 << 30, ge=512, description="Largest world, in voxels (sx*sy*sz); larger worlds get 413.")
+        1 << 30, ge=512, le=MAX_WORLD_VOXELS,
+        description="Largest world, in voxels (sx*sy*sz); larger worlds get 413. At most 2048^3 (2048 voxels a "
+                    "side); whatever it allows, a world whose buffers (5 bytes a voxel) do not fit the device's "
+                    "free memory budget or its largest single buffer is refused with 507 before anything is "
+                    "allocated.")
     max_worlds: int = Field(64, ge=1, description="Most worlds that may live in the server at once (413 above it).")
     max_read_voxels: int = Field(
         1 << 27, ge=1, description="Largest box one field or voxel read may cover, in voxels (413 above it).")

@@ -23,7 +23,7 @@ from sdfclient.models import Block, Camera, Exported, Focus, Frame, Pick, QueryR
 BoxArg = tuple[Sequence[int], Sequence[int]] | None
 OCTET = "application/octet-stream"
 EXPORT_FORMATS = ("snapshot", "npy", "vox")
-SUFFIX_FORMATS = {".sdfsnap": "snapshot", ".npy": "npy", ".vox": "vox"}
+FILE_MAGICS = {"snapshot": b"SDFSNAP1", "npy": b"\x93NUMPY", "vox": b"VOX "}  # as the server tells them
 FRAME_TYPES = {"png": "image/png", "jpeg": "image/jpeg", "rgba": OCTET}
 RENDER_OPTIONS = ("ambient_occlusion", "shadows", "sky_rgb", "light", "highlight", "highlight_radius", "cursor")
 _KEEP = object()  # update_world: leave this setting as it is
@@ -301,10 +301,12 @@ def export_world(world_id: str, format: str) -> Call:  # noqa: A002
 Source = bytes | bytearray | memoryview | str | os.PathLike | np.ndarray
 
 
-def import_source(source: Source, format: str | None) -> tuple[bytes, str]:  # noqa: A002
-    """The file's bytes and its format: from bytes (``format`` needed), a path (format from the
-    suffix unless given: .sdfsnap, .npy, .vox) or a NumPy (z, y, x) array (sent as .npy). Reads
-    the file: call it off an event loop."""
+def import_source(source: Source, format: str | None) -> tuple[bytes, str | None]:  # noqa: A002
+    """The file's bytes and the format asked for: from bytes or a path (the server tells the
+    format by the file's first bytes; ``format``, if given, must agree) or a NumPy (z, y, x)
+    array (sent as .npy). Reads the file: call it off an event loop."""
+    if format is not None and format not in EXPORT_FORMATS:
+        raise ValueError(f"format is one of {', '.join(EXPORT_FORMATS)}, got {format!r}")
     if isinstance(source, np.ndarray):
         if format not in (None, "npy"):
             raise ValueError(f"an array is uploaded as npy, not {format!r}")
@@ -314,31 +316,21 @@ def import_source(source: Source, format: str | None) -> tuple[bytes, str]:  # n
         np.save(stream, np.ascontiguousarray(source), allow_pickle=False)
         return stream.getvalue(), "npy"
     if isinstance(source, (bytes, bytearray, memoryview)):
-        if format is None:
-            raise ValueError("uploading bytes needs format= ('snapshot', 'npy' or 'vox')")
-        data = bytes(source)
-    elif isinstance(source, (str, os.PathLike)):
-        path = Path(source)
-        format = format or SUFFIX_FORMATS.get(path.suffix.lower())  # noqa: A001
-        if format is None:
-            raise ValueError(f"cannot tell the format of {path.name}; pass format= "
-                             f"(suffixes: {', '.join(SUFFIX_FORMATS)})")
-        data = path.read_bytes()
-    else:
-        raise TypeError(f"import from bytes, a path or a NumPy array, got {type(source).__name__}")
-    if format not in EXPORT_FORMATS:
-        raise ValueError(f"format is one of {', '.join(EXPORT_FORMATS)}, got {format!r}")
-    return data, format
+        return bytes(source), format
+    if isinstance(source, (str, os.PathLike)):
+        return Path(source).read_bytes(), format
+    raise TypeError(f"import from bytes, a path or a NumPy array, got {type(source).__name__}")
 
 
-def import_world(data: bytes, format: str, chunk_size: int | None, max_distance: int | None,  # noqa: A002
+def import_world(data: bytes, format: str | None, chunk_size: int | None, max_distance: int | None,  # noqa: A002
                  algorithm: str | None, model: int | None) -> Call:
-    params = {"format": format}
+    params = {} if format is None else {"format": format}
+    kind = format or next((name for name, magic in FILE_MAGICS.items() if data.startswith(magic)), None)
     given = {"chunk_size": chunk_size, "max_distance": max_distance, "algorithm": algorithm, "model": model}
     given = {k: v for k, v in given.items() if v is not None}
-    if format == "snapshot" and given:
+    if kind == "snapshot" and given:
         raise ValueError(f"a snapshot brings its own configuration; drop {', '.join(sorted(given))}")
-    if "model" in given and format != "vox":
+    if "model" in given and kind != "vox":
         raise ValueError("model= picks a model of a .vox file")
     params.update({k: str(v) for k, v in given.items()})
     return Call("POST", "/v1/worlds/import", _world, params=params, content=data)

@@ -129,8 +129,8 @@ class Client:
     def import_world(self, source: p.Source, format: str | None = None, *,  # noqa: A002
                      chunk_size: int | None = None, max_distance: int | None = None,
                      algorithm: str | None = None, model: int | None = None) -> WorldInfo:
-        """A new world (at version 1) from a file: bytes, a path (format from its suffix) or a
-        (z, y, x) uint8 array. ``npy``/``vox`` take the world's settings (server defaults
+        """A new world (at version 1) from a file: bytes, a path or a (z, y, x) uint8 array. The
+        server tells snapshot, ``.npy`` and ``.vox`` apart by content; ``format``, if given, must agree. ``npy``/``vox`` take the world's settings (server defaults
         otherwise; the size is the file's, grown to whole chunks); a snapshot brings its own."""
         data, fmt = p.import_source(source, format)
         return self._send(p.import_world(data, fmt, chunk_size, max_distance, algorithm, model))

@@ -3,14 +3,17 @@
 - ``GET /v1/worlds/{id}/export?format=snapshot|npy|vox`` -> the world's voxels as a file
   (``X-Sdf-Version`` says which version). A snapshot also carries the configuration, so it
   uploads back as the same world.
-- ``POST /v1/worlds/import?format=snapshot|npy|vox`` with the file as the raw body (any
-  content type) -> 201 and a new world holding those voxels at version 1. For ``npy`` and
+- ``POST /v1/worlds/import`` with the file as the raw body (any content type) -> 201 and a new
+  world holding those voxels at version 1. The format is told by the file's first bytes
+  (storage/uploads.py); ``format=snapshot|npy|vox``, if given, must agree. For ``npy`` and
   ``vox`` the size is the array's (``.vox``: y-up, see storage/voxfile.py), grown with air
   to whole chunks; ``chunk_size``, ``max_distance``, ``algorithm`` and (``vox``) ``model`` are
   query parameters. A snapshot brings its own configuration.
 
-Files are parsed and encoded off the event loop; bodies are bounded by ``max_request_bytes``
-and decoded sizes by ``max_world_voxels`` before anything is allocated.
+Files are parsed and encoded off the event loop. An upload may carry ``max_request_bytes``
+voxels in its format's encoding plus that format's framing, so every export of a world within
+the limit imports back; decoded sizes are bounded by ``max_world_voxels`` before anything is
+allocated.
 """
 
 from __future__ import annotations
@@ -20,14 +23,16 @@ from typing import Any
 
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import Response
+from starlette.requests import ClientDisconnect
 
 from sdfserver.api.auth import check_world_quota
-from sdfserver.api.bodies import OCTET, read_body, respond
+from sdfserver.api.bodies import OCTET, header, respond
 from sdfserver.engine.restore import config_from_dict
-from sdfserver.errors import InvalidInput
+from sdfserver.errors import InvalidInput, TooLarge
 from sdfserver.storage import (
     decode_upload, dump_npy, dump_vox, encode_snapshot, load_npy, load_vox, pad_to_chunks,
 )
+from sdfserver.storage.uploads import SNIFF_BYTES, upload_format, upload_limit_bytes
 from sdfserver.world import WorldConfig
 
 router = APIRouter(prefix="/v1")
@@ -58,14 +63,15 @@ async def export_world(request: Request, world_id: str,
              openapi_extra={"requestBody": {"required": True, "content": {OCTET: {"schema": {
                  "type": "string", "format": "binary"}}}}})
 async def import_world(request: Request,
-                       format: str = Query(..., pattern=FORMATS, description="snapshot, npy or vox"),
+                       format: str | None = Query(None, pattern=FORMATS, description=(
+                           "snapshot, npy or vox: told by the file's first bytes; if given, must agree")),
                        chunk_size: int = Query(16, description="npy/vox: chunk side, 8..128"),
                        max_distance: int = Query(255, description="npy/vox: distance cap, 1..255"),
                        algorithm: str = Query("exact", description="npy/vox: the field's algorithm"),
                        model: int = Query(0, ge=0, description="vox: which model of the file")) -> Response:
     settings = request.app.state.settings
     principal = check_world_quota(request)
-    data = await read_body(request, settings.max_request_bytes)
+    format, data = await read_upload(request, settings.max_request_bytes, format)  # noqa: A001
     limit = settings.max_world_voxels
 
     def parse() -> tuple[WorldConfig, Any]:
@@ -89,6 +95,29 @@ async def import_world(request: Request,
     response = respond(request, described, status_code=201)
     response.headers["Location"] = f"/v1/worlds/{described['id']}"
     return response
+
+
+async def read_upload(request: Request, max_voxels: int, given: str | None) -> tuple[str, bytes]:
+    """The upload's format and bytes. The format, read from the first bytes, sets the body's
+    limit (storage/uploads.py); a body over it is refused before it is read in full."""
+    length = header(request, b"content-length")
+    declared = int(length) if length is not None and length.isdigit() else 0
+    chunks: list[bytes] = []
+    size, fmt, limit, more = 0, None, 0, True
+    while more:
+        message = await request.receive()
+        if message["type"] == "http.disconnect":
+            raise ClientDisconnect()
+        chunks.append(message.get("body", b""))
+        size += len(chunks[-1])
+        more = message.get("more_body", False)
+        if fmt is None and (size >= SNIFF_BYTES or not more):
+            fmt = upload_format(b"".join(chunks)[:SNIFF_BYTES], given)
+            limit = upload_limit_bytes(fmt, max_voxels)
+        if fmt is not None and max(size, declared) > limit:
+            raise TooLarge(f"a {fmt} upload of {max(size, declared)} bytes exceeds the limit of {limit} bytes "
+                           f"({max_voxels} voxels, max_request_bytes, in the {fmt} format)")
+    return fmt, b"".join(chunks)
 
 
 __all__ = ["router"]

@@ -9,6 +9,7 @@ worlds, and import / export formats. Knows files and bytes, never the device or 
     codec.py      edit batches as msgpack record payloads
     npyfile.py    .npy import / export
     voxfile.py    MagicaVoxel .vox import / export
+    uploads.py    an upload's format told by its first bytes; each format's largest body
     fsutil.py     fsync of directories, atomic replacement
 """
 

@@ -40,7 +40,7 @@ def test_export_import_round_trips(server_url, world, tmp_path):
             snapshot = client.export_world(info.id, "snapshot", path=tmp_path / "w.sdfsnap")
             assert snapshot.version == version and snapshot.filename == f"{info.id}.sdfsnap"
             assert (tmp_path / "w.sdfsnap").read_bytes() == snapshot.data
-            copy = client.import_world(tmp_path / "w.sdfsnap")  # format from the suffix
+            copy = client.import_world(tmp_path / "w.sdfsnap")  # the server tells the format
             made.append(copy.id)
             assert (copy.size, copy.chunk_size, copy.max_distance, copy.algorithm, copy.version) == \
                 (info.size, info.chunk_size, info.max_distance, info.algorithm, 1)
@@ -59,7 +59,7 @@ def test_export_import_round_trips(server_url, world, tmp_path):
 
             vox = client.export_world(info.id, "vox")
             assert vox.data[:4] == b"VOX " and vox.version == version
-            from_vox = client.import_world(vox.data, "vox")
+            from_vox = client.import_world(vox.data)
             made.append(from_vox.id)
             np.testing.assert_array_equal(client.read_voxels(from_vox.id).data, voxels)
 
@@ -84,12 +84,16 @@ def test_import_refusals(server_url, world, tmp_path):
             client.import_world(b"not a snapshot at all", "snapshot")
         with pytest.raises(InvalidInput):
             client.import_world(b"\x93NUMPY garbage", "npy")
+        with pytest.raises(InvalidInput, match="npy"):
+            client.import_world(b"...")  # no format's magic
+        snapshot = client.export_world(info.id).data
+        (tmp_path / "w.bin").write_bytes(snapshot)
+        with pytest.raises(InvalidInput, match="format=npy"):
+            client.import_world(tmp_path / "w.bin", "npy")  # the content is a snapshot
         with pytest.raises(ValueError):
-            client.import_world(b"...")  # bytes need a format
+            client.import_world(snapshot, chunk_size=8)
         with pytest.raises(ValueError):
-            client.import_world(tmp_path / "w.bin")  # an unknown suffix
-        with pytest.raises(ValueError):
-            client.import_world(client.export_world(info.id).data, "snapshot", chunk_size=8)
+            client.import_world(snapshot, "tar")
         assert {w.id for w in client.list_worlds()} == before
 
 

@@ -248,7 +248,7 @@ def test_export_import_and_render_requests(tmp_path):
         sdfclient.Exported("vox", 1, b"").array
     assert info.id == "n" and info.size == (6, 5, 4)
     vox_request, npy_request, render_request = handler.requests[1:4]
-    assert dict(vox_request.url.params) == {"format": "vox", "chunk_size": "8", "model": "2"}
+    assert dict(vox_request.url.params) == {"chunk_size": "8", "model": "2"}  # the server tells the format
     assert vox_request.content == b"VOX fake" and vox_request.headers["content-type"] == "application/octet-stream"
     assert dict(npy_request.url.params) == {"format": "npy", "max_distance": "9"}
     np.testing.assert_array_equal(np.load(io.BytesIO(npy_request.content), allow_pickle=False), voxels)

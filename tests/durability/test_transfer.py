@@ -96,3 +96,61 @@ def test_export_import_round_trips(start_server, tmp_path):
     version, again = read_voxels(server.http, imported)
     assert version == 1
     np.testing.assert_array_equal(again, expected)
+
+
+def test_the_largest_world_the_limit_admits_round_trips_in_every_format(start_server):
+    """max_request_bytes counts an upload's voxels: each format's framing (the .npy header, the
+    snapshot header and zlib's blocks, the .vox chunks and 4 bytes a voxel) comes on top."""
+    server = start_server()
+    http = server.http
+    limit = 1 << 20  # the durability servers' --max-request-bytes
+    size = (128, 64, 128)
+    assert size[0] * size[1] * size[2] == limit
+    voxels = np.random.default_rng().integers(1, 256, size=size[::-1], dtype=np.uint8)  # no air:
+    stream = io.BytesIO()  # the largest .vox and an incompressible snapshot
+    np.save(stream, voxels)
+    assert len(stream.getvalue()) > limit
+    r = http.post("/v1/worlds/import", params={"chunk_size": 32}, content=stream.getvalue(), headers=OCTET)
+    assert r.status_code == 201, r.text
+    world = r.json()["id"]
+    for fmt in ("npy", "snapshot", "vox"):
+        exported = http.get(f"/v1/worlds/{world}/export", params={"format": fmt})
+        assert exported.status_code == 200 and len(exported.content) > limit
+        r = http.post("/v1/worlds/import", params={"chunk_size": 32}, content=exported.content, headers=OCTET)
+        assert r.status_code == 201, (fmt, r.text)
+        assert r.json()["size"] == list(size)
+        np.testing.assert_array_equal(read_voxels(http, r.json()["id"])[1], voxels)
+        assert http.delete(f"/v1/worlds/{r.json()['id']}").status_code == 204
+
+    stream = io.BytesIO()  # one voxel over, in a shape whose header is no larger
+    np.save(stream, np.ones((1, 1, limit + 10_020), np.uint8))
+    r = http.post("/v1/worlds/import", content=stream.getvalue(), headers=OCTET)
+    assert r.status_code == 413, r.text
+
+
+def test_import_tells_the_format_by_content(start_server):
+    http = start_server().http
+    array = np.random.default_rng().integers(1, 256, size=(8, 8, 8), dtype=np.uint8)
+    stream = io.BytesIO()
+    np.save(stream, array)
+    npy = stream.getvalue()
+    model = vox_bytes((2, 2, 2), [(0, 0, 0, 1)])
+    for body in (npy, model):
+        r = http.post("/v1/worlds/import", params={"chunk_size": 8}, content=body, headers=OCTET)
+        assert r.status_code == 201, r.text
+        world = r.json()["id"]
+    snapshot = http.get(f"/v1/worlds/{world}/export").content
+    r = http.post("/v1/worlds/import", content=snapshot, headers=OCTET)
+    assert r.status_code == 201, r.text
+    before = http.get("/v1/worlds").json()
+
+    for given, body in (("npy", snapshot), ("snapshot", model), ("vox", npy)):
+        r = http.post("/v1/worlds/import", params={"format": given}, content=body, headers=OCTET)
+        assert r.status_code == 422, r.text
+        assert f"format={given}" in r.json()["error"]["message"]
+    for body in (b"PK\x03\x04 a zip file", b"", b"VOX"):
+        r = http.post("/v1/worlds/import", content=body, headers=OCTET)
+        assert r.status_code == 422, r.text
+        message = r.json()["error"]["message"]
+        assert all(name in message for name in ("snapshot", "npy", "vox")), message
+    assert http.get("/v1/worlds").json() == before

@@ -3,6 +3,8 @@
 A world owns four device buffers for its lifetime: voxels (uchar), the packed
 field (ushort), and two uchar scratch boxes the algorithms work in — 5 bytes
 per voxel, checked against the memory budget before anything is allocated.
+They reach 2^33 elements, so fills, copies and transfers of them go through
+``sdfserver.bulk`` (the project's own 64-bit kernels, transfers in pieces).
 
 The life of an edit: ``apply_edits`` validates a whole batch on the host,
 writes it on the device and records the boxes it may have changed (the dirty
@@ -22,15 +24,15 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pyopencl as cl
 
+from sdfserver import bulk
 from sdfserver.algorithms import ALGORITHMS, RegionJob, WorldBuffers, get_algorithm
 from sdfserver.algorithms.base import WORK_PLANE_PAD, float4, grid, int4
 from sdfserver.edits import BoxEdit, Edit, EditLimits, SphereEdit, VoxelsEdit, edit_bounds, validate_batch
 from sdfserver.errors import InvalidInput
-from sdfserver.geometry import Box, Vec3, merge_regions
+from sdfserver.geometry import Box, merge_regions
 from sdfserver.gpu import GpuContext
+from sdfserver.world_config import CHUNK_SIZES, MAX_SIDE_VOX, MAX_WORLD_VOXELS, Focus, WorldConfig
 
-CHUNK_SIZES = (8, 16, 32, 64, 128)
-MAX_SIDE_VOX = 2048  # exact.cl: at most 128 segments of 16 elements per line
 BRUSHES_PER_LAUNCH = 256  # each work-item of fill_brushes checks the later brushes of its launch
 WORK_ITEMS_PER_LAUNCH = 1 << 30  # fill_brushes counts its work-items in 32 bits
 
@@ -38,59 +40,6 @@ WORK_ITEMS_PER_LAUNCH = 1 << 30  # fill_brushes counts its work-items in 32 bits
 # whole chunk mask lets go of the GIL and, with a busy event loop, waits up to a switch interval
 # to get it back, several times a step.
 SMALL_DIRTY_CHUNKS = 4096
-
-
-@dataclass(frozen=True)
-class Focus:
-    """A box of chunks: ``center - size // 2 <= c < center - size // 2 + size``."""
-
-    center: Vec3
-    size: Vec3
-
-    def chunk_box(self) -> Box:
-        lo = tuple(c - s // 2 for c, s in zip(self.center, self.size))
-        return Box(lo, tuple(l + s for l, s in zip(lo, self.size)))
-
-
-@dataclass(frozen=True)
-class WorldConfig:
-    size: Vec3  # (sx, sy, sz) voxels
-    chunk_size: int = 16
-    max_distance: int = 255
-    algorithm: str = "exact"
-    focus: Focus | None = None
-    lod_algorithm: str = "jfa"
-
-    def validated(self) -> "WorldConfig":
-        size = self.size
-        if (not isinstance(size, (tuple, list)) or len(size) != 3
-                or any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) for v in size)):
-            raise InvalidInput(f"size must be three integers [sx, sy, sz], got {size!r}")
-        if self.chunk_size not in CHUNK_SIZES:
-            raise InvalidInput(f"chunk_size must be one of {CHUNK_SIZES}, got {self.chunk_size!r}")
-        for v in size:
-            if v <= 0 or v % self.chunk_size:
-                raise InvalidInput(
-                    f"size {list(size)} must be positive whole multiples of chunk_size {self.chunk_size}"
-                )
-            if v > MAX_SIDE_VOX:
-                raise InvalidInput(f"each side must be at most {MAX_SIDE_VOX} voxels, got {list(size)}")
-        if (isinstance(self.max_distance, bool) or not isinstance(self.max_distance, (int, np.integer))
-                or not 1 <= self.max_distance <= 255):
-            raise InvalidInput(f"max_distance must be an integer 1..255, got {self.max_distance!r}")
-        get_algorithm(self.algorithm)
-        get_algorithm(self.lod_algorithm)
-        if self.focus is not None:
-            for name, v in (("center", self.focus.center), ("size", self.focus.size)):
-                if len(v) != 3 or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) for c in v):
-                    raise InvalidInput(f"focus {name} must be three integers (chunks), got {v!r}")
-            if any(s <= 0 for s in self.focus.size):
-                raise InvalidInput(f"focus size must be positive, got {list(self.focus.size)}")
-        return replace(self, size=tuple(int(v) for v in size))
-
-    @property
-    def chunks(self) -> Vec3:
-        return tuple(v // self.chunk_size for v in self.size)
 
 
 @dataclass(frozen=True)
@@ -138,8 +87,7 @@ class World:
         self.limits = limits
         sx, sy, sz = config.size
         self.voxel_count = sx * sy * sz
-        # voxels, field, work (a pad per z-plane), work2: 5 bytes per voxel
-        sizes = [self.voxel_count, 2 * self.voxel_count, self.voxel_count + sz * WORK_PLANE_PAD, self.voxel_count]
+        sizes = self.buffer_bytes(config)
         gpu.check_fits(sizes, f"a {sx}x{sy}x{sz} world")
         self._sizes = sizes
         allocated = []
@@ -151,16 +99,23 @@ class World:
                 gpu.release(buf, n)
             raise
         self.buffers = WorldBuffers(config.size, *allocated)
-        cl.enqueue_fill_buffer(gpu.queue, self.buffers.voxels, np.uint8(0), 0, self.voxel_count)
-        # An empty world: every voxel at the cap.
-        cl.enqueue_fill_buffer(gpu.queue, self.buffers.field, np.uint16(config.max_distance << 8),
-                               0, 2 * self.voxel_count)
+        # An empty world: every voxel air, every distance at the cap.
+        bulk.fill(gpu, self.buffers.voxels, np.uint8, 0, self.voxel_count)
+        bulk.fill(gpu, self.buffers.field, np.uint16, config.max_distance << 8, self.voxel_count)
         gpu.queue.finish()
         self._dims_int4 = int4(config.size)
         self._dirty: list[Box] = []  # what edits may have changed, world-clipped
         self._dirty_all = False
         self.version = 0  # edit batches applied
         self.field_version = 0  # the version the field reflects
+
+    @staticmethod
+    def buffer_bytes(config: WorldConfig) -> list[int]:
+        """The device buffers a world of ``config`` holds, in bytes: voxels, field, work (a pad
+        per z-plane) and work2, 5 bytes per voxel. Nothing else lives as long as the world."""
+        sx, sy, sz = config.size
+        n = sx * sy * sz
+        return [n, 2 * n, n + sz * WORK_PLANE_PAD, n]
 
     # -- lifetime -----------------------------------------------------------------------------
 
@@ -275,7 +230,7 @@ class World:
         if voxels.shape != expected or voxels.dtype != np.uint8:
             raise InvalidInput(f"voxels must be uint8 with shape {expected} (z, y, x), "
                                f"got {voxels.dtype} {voxels.shape}")
-        cl.enqueue_copy(self.gpu.queue, self.buffers.voxels, np.ascontiguousarray(voxels))
+        bulk.write(self.gpu, self.buffers.voxels, voxels)
         self._dirty_all = True
         self.version += 1
         return self.version
@@ -380,39 +335,30 @@ class World:
 
     # -- reads ------------------------------------------------------------------------------------
 
-    def _read(self, buffer: cl.Buffer, itemsize: int, dtype, box: Box | None) -> np.ndarray:
+    def _read(self, buffer: cl.Buffer, dtype, box: Box | None) -> np.ndarray:
         box = self.world_box if box is None else box
         if box.empty or not self.world_box.contains(box):
             raise InvalidInput(f"box {list(box.lo)}..{list(box.hi)} is empty or outside the world "
                                f"{list(self.config.size)}")
-        out = np.empty(box.shape_zyx, dtype=dtype)
-        sx, sy, _ = self.config.size
-        (x0, y0, z0), (nx, ny, nz) = box.lo, box.shape_xyz
-        cl.enqueue_copy(
-            self.gpu.queue, out, buffer,
-            buffer_origin=(x0 * itemsize, y0, z0), host_origin=(0, 0, 0),
-            region=(nx * itemsize, ny, nz),
-            buffer_pitches=(sx * itemsize, sx * sy * itemsize),
-            host_pitches=(nx * itemsize, nx * ny * itemsize),
-        )
-        return out
+        return bulk.read_box(self.gpu, buffer, dtype, self.config.size, box)
 
     def read_field(self, box: Box | None = None) -> np.ndarray:
         """Packed field, uint16 ``(distance << 8) | colour``, shape (z, y, x)."""
-        return self._read(self.buffers.field, 2, np.uint16, box)
+        return self._read(self.buffers.field, np.uint16, box)
 
     def read_distance(self, box: Box | None = None) -> np.ndarray:
         return (self.read_field(box) >> 8).astype(np.uint8)
 
     def read_voxels(self, box: Box | None = None) -> np.ndarray:
-        return self._read(self.buffers.voxels, 1, np.uint8, box)
+        return self._read(self.buffers.voxels, np.uint8, box)
 
     def copy_voxels_out(self) -> tuple[np.ndarray, Callable[[], None]]:
         """All voxels, (z, y, x), as they are now, without waiting for them: read the array
         only after calling the returned ``wait`` (any thread may; see
-        ``GpuContext.download_later``)."""
+        ``bulk.download_later``)."""
         out = np.empty(self.world_box.shape_zyx, dtype=np.uint8)
-        return out, self.gpu.download_later(self.buffers.voxels, out)
+        return out, bulk.download_later(self.gpu, self.buffers.voxels, out)
 
 
-__all__ = ["ALGORITHMS", "EditPlan", "Focus", "RecomputeResult", "World", "WorldConfig"]
+__all__ = ["ALGORITHMS", "CHUNK_SIZES", "MAX_SIDE_VOX", "MAX_WORLD_VOXELS", "EditPlan", "Focus", "RecomputeResult",
+           "World", "WorldConfig"]

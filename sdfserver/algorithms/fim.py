@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
+from sdfserver import bulk
 from sdfserver.algorithms.base import AlgorithmRun, RegionJob, grid, init_work, int4, pack_region
 from sdfserver.gpu import GpuContext
 
@@ -34,7 +35,7 @@ def relax_to_convergence(gpu: GpuContext, job: RegionJob, run: AlgorithmRun) -> 
     try:
         batch = 1
         while True:
-            cl.enqueue_fill_buffer(gpu.queue, flag_buf, np.int32(0), 0, flags.nbytes)
+            bulk.fill(gpu, flag_buf, np.int32, 0, MAX_BATCH)
             for i in range(batch):
                 run.events.append(fim_pass(
                     gpu.queue, gsize, lsize, job.buffers.work, int4(w_n), flag_buf, np.int32(i)

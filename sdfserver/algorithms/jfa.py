@@ -18,8 +18,8 @@ is faster still.)
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 
+from sdfserver import bulk
 from sdfserver.algorithms.base import AlgorithmRun, RegionJob, grid, init_work, int4, pack_region
 from sdfserver.gpu import GpuContext
 
@@ -44,7 +44,7 @@ def flood(gpu: GpuContext, job: RegionJob, run: AlgorithmRun) -> None:
         run.iterations += 1
         step //= 2
     if src is not job.buffers.work:  # an odd number of passes: bring the result home
-        run.events.append(cl.enqueue_copy(gpu.queue, job.buffers.work, src, byte_count=job.work_box.volume))
+        run.events.append(bulk.copy(gpu, job.buffers.work, src, np.uint8, job.work_box.volume))
 
 
 class Jfa:

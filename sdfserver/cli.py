@@ -20,13 +20,19 @@ def main(argv: list[str] | None = None) -> int:
         print("usage: sdfserver {serve,bench,devices} [options]\n"
               "  serve    run the HTTP/WebSocket server\n"
               "  bench    run the benchmark tables\n"
-              "  devices  list the OpenCL devices sdfserver can use", file=sys.stderr)
+              "  devices  list the OpenCL devices, each usable or not and why", file=sys.stderr)
         return 0 if argv and argv[0] in ("-h", "--help") else 2
     if argv[0] == "devices":
+        from sdfserver.errors import NoOpenCLDevice
         from sdfserver.gpu import describe_devices
 
-        print("\n".join(describe_devices()))
-        return 0
+        try:
+            listing = describe_devices()
+        except NoOpenCLDevice as exc:
+            print(exc, file=sys.stderr)
+            return 1
+        print("\n".join(listing))
+        return 0 if any(line.endswith("(usable)") for line in listing) else 1
     import importlib
 
     module = importlib.import_module(commands[argv[0]])

@@ -1,30 +1,13 @@
-"""Device fixtures: core tests run on every OpenCL device present (PoCL's CPU device in CI)."""
+"""Core test helpers: a seeded random generator and the distance oracle (the `gpu` fixture is
+tests/conftest.py's)."""
 
 from __future__ import annotations
 
 import secrets
 
 import numpy as np
-import pyopencl as cl
 import pytest
 from scipy.ndimage import distance_transform_cdt
-
-from sdfserver.gpu import GpuContext
-
-
-def _devices():
-    try:
-        return [d for p in cl.get_platforms() for d in p.get_devices()]
-    except cl.Error:
-        return []
-
-
-DEVICES = _devices()
-
-
-@pytest.fixture(scope="session", params=DEVICES, ids=lambda d: d.name.strip().replace(" ", "_"))
-def gpu(request) -> GpuContext:
-    return GpuContext(request.param)
 
 
 @pytest.fixture

@@ -8,14 +8,16 @@ Sections, each on any OpenCL device:
   accuracy  each algorithm against `exact`: share of exact voxels, max/mean error, underestimates
   anchors   scipy's distance_transform_cdt (CPU) and cupyx's distance_transform_edt (GPU), if installed
 `sdfserver bench render ...` runs the rendering scenario instead (Tables 4.1 and 4.3; see --help there).
-Device times come from OpenCL profiling events (sum of kernel durations). A
-progress line runs on stderr; the tables go to stdout, everything to --json.
+Device times come from OpenCL profiling events (sum of kernel durations). A line
+on stderr for each step and each measurement; the tables go to stdout, everything to
+--json, which is rewritten after each measurement. Ctrl-C or SIGTERM stops the run and
+prints the tables of what was measured (exit status 130). On a CPU device the full run
+takes hours: --quick is the smoke run.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import platform
 import sys
@@ -26,19 +28,17 @@ import numpy as np
 from scipy import stats
 
 from sdfserver.algorithms import ALGORITHMS
+from sdfserver.benchrun import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts
 from sdfserver.edits import EditLimits, SphereEdit
 from sdfserver.errors import DeviceMemoryExceeded
 from sdfserver.gpu import GpuContext
 from sdfserver.world import World, WorldConfig
 
 ALL_ALGORITHMS = ["exact", "jfa", "jfa_fim", "fim", "brute"]
+SECTIONS = ["chunks", "worlds", "update", "anchors"]
 # Brute force is O(n^6) on one chunk: beyond these sizes a single run takes minutes.
 BRUTE_MAX_CHUNK = 64
 BRUTE_MAX_WORLD = 64
-
-
-def progress(message: str) -> None:
-    print(f"\r\033[K[bench] {message}", end="", file=sys.stderr, flush=True)
 
 
 def summarize(samples_ms: list[float]) -> dict:
@@ -84,8 +84,7 @@ def time_full(world: World, reps: int, rng: np.random.Generator | None = None):
     return times, iterations, launches
 
 
-def bench_chunks(gpu, args, rng) -> list[dict]:
-    rows = []
+def bench_chunks(gpu, args, rng, results: Results) -> None:
     for algorithm in args.algorithms:
         for cs in args.chunk_sizes:
             if algorithm == "brute" and cs > args.brute_max_chunk:
@@ -98,13 +97,13 @@ def bench_chunks(gpu, args, rng) -> list[dict]:
                 times, iters, _ = time_full(world, reps, rng)
             finally:
                 world.release()
-            rows.append({"algorithm": algorithm, "chunk_size": cs, **summarize(times),
-                         "iterations_mean": float(np.mean(iters))})
-    return rows
+            row = {"algorithm": algorithm, "chunk_size": cs, **summarize(times),
+                   "iterations_mean": float(np.mean(iters))}
+            results.add("chunks", row, f"{algorithm} {cs}^3: mean {row['mean_ms']:.4f} ms over {row['n']}")
 
 
-def bench_worlds(gpu, args, rng) -> tuple[list[dict], list[dict]]:
-    rows, accuracy = [], []
+def bench_worlds(gpu, args, rng, results: Results) -> None:
+    results.rows("accuracy")
     for n in args.world_sizes:
         reference = None
         for algorithm in args.algorithms:
@@ -115,7 +114,8 @@ def bench_worlds(gpu, args, rng) -> tuple[list[dict], list[dict]]:
                 world = World(gpu, WorldConfig((n, n, n), args.chunk_size, args.max_distance, algorithm),
                               args.limits)
             except DeviceMemoryExceeded as exc:
-                rows.append({"algorithm": algorithm, "world_size": n, "skipped": str(exc)})
+                results.add("worlds", {"algorithm": algorithm, "world_size": n, "skipped": str(exc)},
+                            f"{algorithm} {n}^3: skipped: {exc}")
                 continue
             try:
                 populate(world, np.random.default_rng(args.seed + n))  # same scene for every algorithm
@@ -126,16 +126,17 @@ def bench_worlds(gpu, args, rng) -> tuple[list[dict], list[dict]]:
                        "voxels_per_s": n ** 3 / (np.median(times) * 1e-3)}
                 if len(launches) <= 8:
                     row["launches_ms"] = launches
-                rows.append(row)
+                results.add("worlds", row, f"{algorithm} {n}^3: median {row['median_ms']:.4f} ms over {row['n']}")
                 if n <= args.accuracy_max_world:
                     field = world.read_distance()
                     if algorithm == "exact":
                         reference = field
                     if reference is not None:
-                        accuracy.append(compare(algorithm, n, field, reference))
+                        match = compare(algorithm, n, field, reference)
+                        results.add("accuracy", match, f"{algorithm} {n}^3: "
+                                    f"{100 * match['exact_share']:.2f}% exact, max error {match['max_error']}")
             finally:
                 world.release()
-    return rows, accuracy
 
 
 def compare(algorithm: str, n: int, field: np.ndarray, reference: np.ndarray) -> dict:
@@ -145,37 +146,37 @@ def compare(algorithm: str, n: int, field: np.ndarray, reference: np.ndarray) ->
             "underestimates": int((error < 0).sum())}
 
 
-def bench_update(gpu, args, rng) -> list[dict]:
+def bench_update(gpu, args, rng, results: Results) -> None:
     n = args.update_world
-    rows = []
+    progress(f"update: building the {n}^3 world")
     try:
         world = World(gpu, WorldConfig((n, n, n), args.chunk_size, 255, "exact"), args.limits)
     except DeviceMemoryExceeded as exc:
-        return [{"world_size": n, "skipped": str(exc)}]
+        results.add("update", {"world_size": n, "skipped": str(exc)}, f"{n}^3 skipped: {exc}")
+        return
     try:
         populate(world, np.random.default_rng(args.seed))
         for cap in args.update_caps:
             world.reconfigure(max_distance=cap)
             world.recompute()
             times, volumes = [], []
+            progress(f"update: {n}^3 cap {cap}, {args.reps} edits")
             for i in range(args.reps):
-                progress(f"update: {n}^3 cap {cap} edit {i + 1}/{args.reps}")
                 center = tuple(float(v) for v in rng.uniform(16, n - 16, 3))
                 world.apply_edits([SphereEdit(center, 8.0, int(rng.integers(1, 256)) if i % 2 == 0 else 0)])
                 result = world.recompute()
                 times.append(result.device_ms)
                 volumes.append(sum(r.volume for r in result.regions))
-            rows.append({"world_size": n, "max_distance": cap, "radius": 8, **summarize(times),
-                         "region_voxels_mean": float(np.mean(volumes))})
+            row = {"world_size": n, "max_distance": cap, "radius": 8, **summarize(times),
+                   "region_voxels_mean": float(np.mean(volumes))}
+            results.add("update", row, f"{n}^3 cap {cap}: median {row['median_ms']:.4f} ms over {row['n']}")
     finally:
         world.release()
-    return rows
 
 
-def bench_anchors(args) -> list[dict]:
+def bench_anchors(args, results: Results) -> None:
     from scipy.ndimage import distance_transform_cdt
 
-    rows = []
     rng = np.random.default_rng(args.seed)
     for n in args.world_sizes:
         mask = rng.random((n, n, n)) > 0.001
@@ -183,8 +184,9 @@ def bench_anchors(args) -> list[dict]:
             progress(f"anchors: scipy cdt {n}^3")
             t = time.perf_counter()
             distance_transform_cdt(mask, metric="taxicab")
-            rows.append({"anchor": "scipy.distance_transform_cdt (CPU, taxicab)", "world_size": n,
-                         "mean_ms": (time.perf_counter() - t) * 1e3, "n": 1})
+            elapsed_ms = (time.perf_counter() - t) * 1e3
+            results.add("anchors", {"anchor": "scipy.distance_transform_cdt (CPU, taxicab)", "world_size": n,
+                                    "mean_ms": elapsed_ms, "n": 1}, f"scipy cdt {n}^3: {elapsed_ms:.3f} ms")
         try:
             import cupy
             from cupyx.scipy.ndimage import distance_transform_edt
@@ -201,14 +203,15 @@ def bench_anchors(args) -> list[dict]:
             end.record()
             end.synchronize()
             times.append(cupy.cuda.get_elapsed_time(start, end))
-        rows.append({"anchor": "cupyx.distance_transform_edt (GPU, Euclidean)", "world_size": n,
-                     **summarize(times)})
+        row = {"anchor": "cupyx.distance_transform_edt (GPU, Euclidean)", "world_size": n, **summarize(times)}
+        results.add("anchors", row, f"cupyx edt {n}^3: mean {row['mean_ms']:.3f} ms")
         del gmask
-    return rows
 
 
 def format_tables(results: dict) -> str:
     lines = [f"device: {results['device']}", ""]
+    if results.get("interrupted"):
+        lines[1:1] = ["interrupted: the tables hold the measurements taken before the stop"]
     if results.get("chunks"):
         lines.append("Single chunk, full regeneration (Tables 4.2, 4.4, 4.5, 4.6)")
         lines.append(f"{'algorithm':<9} {'chunk':>6} {'mean ms':>10} {'std ms':>9} {'95% CI ms':>23} {'iters':>6}")
@@ -255,8 +258,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="sdfserver bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--device", default=None, help="OpenCL device: index or name substring (default: prefer a GPU)")
-    p.add_argument("--sections", default="chunks,worlds,update,anchors",
-                   help="comma list of: chunks, worlds, update, anchors (accuracy comes with worlds)")
+    p.add_argument("--sections", default=",".join(SECTIONS),
+                   help=f"comma list of: {', '.join(SECTIONS)} (accuracy comes with worlds)")
     p.add_argument("--algorithms", default=",".join(ALL_ALGORITHMS))
     p.add_argument("--chunk-sizes", default="8,16,32,64,128")
     p.add_argument("--world-sizes", default="64,128,256,512,1024")
@@ -281,7 +284,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     unknown = set(args.algorithms) - set(ALGORITHMS)
     if unknown:
         p.error(f"unknown algorithms {sorted(unknown)}; choose from {sorted(ALGORITHMS)}")
-    args.sections = set(args.sections.split(","))
+    args.sections = {v for v in args.sections.split(",") if v}
+    unknown = sorted(args.sections - set(SECTIONS))
+    if unknown or not args.sections:
+        p.error(f"unknown sections {unknown}; choose from {', '.join(SECTIONS)} (accuracy comes with worlds)")
     args.chunk_sizes = [int(v) for v in args.chunk_sizes.split(",")]
     args.world_sizes = [int(v) for v in args.world_sizes.split(",")]
     args.update_caps = [int(v) for v in args.update_caps.split(",")]
@@ -296,21 +302,34 @@ def main(argv: list[str] | None = None) -> int:
 
         return render_main(argv[1:])
     args = parse_args(argv)
-    gpu = GpuContext.create(args.device)
+    results = Results({"date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                       "host": platform.node(), "argv": sys.argv, "seed": args.seed}, args.json)
+    status = 0
+    with sigterm_interrupts():
+        try:
+            progress("opening the OpenCL device")
+            gpu = GpuContext.create(args.device)
+            results.data["device"] = gpu.device_name
+            progress(f"device: {gpu.device_name}" + ("" if args.quick else "; --quick is the short run"))
+            run_sections(gpu, args, results)
+            progress("done")
+        except KeyboardInterrupt:
+            results.data["interrupted"] = True
+            progress("interrupted: the tables and --json hold what was measured")
+            status = INTERRUPTED_EXIT
+    results.data.setdefault("device", "(not opened)")
+    print(format_tables(results.data))
+    results.save()
+    return status
+
+
+def run_sections(gpu: GpuContext, args: argparse.Namespace, results: Results) -> None:
     rng = np.random.default_rng(args.seed)
-    results = {"device": gpu.device_name, "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-               "host": platform.node(), "argv": sys.argv, "seed": args.seed}
     if "chunks" in args.sections:
-        results["chunks"] = bench_chunks(gpu, args, rng)
+        bench_chunks(gpu, args, rng, results)
     if "worlds" in args.sections:
-        results["worlds"], results["accuracy"] = bench_worlds(gpu, args, rng)
+        bench_worlds(gpu, args, rng, results)
     if "update" in args.sections:
-        results["update"] = bench_update(gpu, args, rng)
+        bench_update(gpu, args, rng, results)
     if "anchors" in args.sections:
-        results["anchors"] = bench_anchors(args)
-    progress("done\n")
-    print(format_tables(results))
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(results, f, indent=1)
-    return 0
+        bench_anchors(args, results)

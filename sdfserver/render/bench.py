@@ -7,7 +7,9 @@ as a client would receive it) while a brush edit lands every
 random radius, all from ``seed`` — and the field is recomputed before the
 next frame. Frame time is the wall time from one frame to the next, the
 recompute included when an edit landed (FPS = 1000 / dt_ms, equation 3.1);
-device times come from OpenCL profiling events.
+device times come from OpenCL profiling events. A line on stderr as each run
+goes and ends; Ctrl-C or SIGTERM stops the benchmark with the table (and the
+--json file, rewritten after each run) of the runs that finished.
 """
 
 from __future__ import annotations
@@ -15,12 +17,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import time
 from typing import Any
 
 import numpy as np
 
+from sdfserver.benchrun import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts
 from sdfserver.edits import parse_edits
 from sdfserver.gpu import GpuContext
 from sdfserver.render.camera import Camera
@@ -102,29 +104,37 @@ def run_one(gpu: GpuContext, renderer: Renderer, size: int, algorithm: str, *, e
 
 def run_render_benchmark(gpu: GpuContext, *, world_sizes: list[int], algorithms: list[str],
                          edit_interval_ms: float = 200.0, duration_s: float = 10.0, seed: int = 0,
-                         width: int = 1280, height: int = 720, progress=None) -> dict[str, Any]:
-    """Every (algorithm, world size) pair; results side by side."""
-    renderer = Renderer(gpu)
-    try:
-        runs = [run_one(gpu, renderer, size, algorithm, edit_interval_ms=edit_interval_ms,
-                        duration_s=duration_s, seed=seed, width=width, height=height, progress=progress)
-                for algorithm in algorithms for size in world_sizes]
-    finally:
-        renderer.release()
-    return {
+                         width: int = 1280, height: int = 720, progress=None,
+                         results: Results | None = None) -> dict[str, Any]:
+    """Every (algorithm, world size) pair; results side by side. Each finished run is added to
+    ``results`` (if given) as it ends, so a stop keeps the runs before it."""
+    results = results or Results({}, None)
+    results.data.update({
         "scenario": "render",
         "device": gpu.device_name,
         "edit_interval_ms": edit_interval_ms, "duration_s": duration_s, "seed": seed,
         "width": width, "height": height,
-        "runs": runs,
-    }
+    })
+    results.rows("runs")
+    renderer = Renderer(gpu)
+    try:
+        for algorithm in algorithms:
+            for size in world_sizes:
+                run = run_one(gpu, renderer, size, algorithm, edit_interval_ms=edit_interval_ms,
+                              duration_s=duration_s, seed=seed, width=width, height=height, progress=progress)
+                results.add("runs", run, f"{algorithm} {size}^3: {run['fps_overall']:.1f} FPS over "
+                            f"{run['frames']} frames, {run['edits']} edits")
+    finally:
+        renderer.release()
+    return results.data
 
 
 def format_table(report: dict[str, Any]) -> str:
     """Tables 4.1 / 4.3 side by side: one row per algorithm, one column per world size."""
     sizes = sorted({r["world_size"] for r in report["runs"]})
     lines = [f"device: {report['device']}; {report['width']}x{report['height']}, an edit every "
-             f"{report['edit_interval_ms']:g} ms, {report['duration_s']:g} s per run",
+             f"{report['edit_interval_ms']:g} ms, {report['duration_s']:g} s per run"
+             + ("; interrupted, the runs that finished" if report.get("interrupted") else ""),
              "algorithm  metric                  " + "".join(f"{s:>18}^3" for s in sizes)]
     for algorithm in dict.fromkeys(r["algorithm"] for r in report["runs"]):
         by_size = {r["world_size"]: r for r in report["runs"] if r["algorithm"] == algorithm}
@@ -151,26 +161,30 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", default=None, help="write the JSON report here ('-': stdout)")
     args = parser.parse_args(argv)
 
-    tty = sys.stderr.isatty()
-
-    def progress(line: str) -> None:
-        print(f"\r{line}\x1b[K" if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
-
-    gpu = GpuContext.create(args.device)
-    report = run_render_benchmark(
-        gpu, world_sizes=[int(s) for s in args.sizes.split(",")],
-        algorithms=[a.strip() for a in args.algorithms.split(",")],
-        edit_interval_ms=args.edit_interval_ms, duration_s=args.duration, seed=args.seed,
-        width=args.width, height=args.height, progress=progress)
-    print(file=sys.stderr)
+    results = Results({"scenario": "render", "device": "(not opened)", "edit_interval_ms": args.edit_interval_ms,
+                       "duration_s": args.duration, "width": args.width, "height": args.height, "runs": []},
+                      None if args.json in (None, "-") else args.json)
+    status = 0
+    with sigterm_interrupts():
+        try:
+            progress("opening the OpenCL device")
+            gpu = GpuContext.create(args.device)
+            run_render_benchmark(
+                gpu, world_sizes=[int(s) for s in args.sizes.split(",")],
+                algorithms=[a.strip() for a in args.algorithms.split(",")],
+                edit_interval_ms=args.edit_interval_ms, duration_s=args.duration, seed=args.seed,
+                width=args.width, height=args.height, progress=progress, results=results)
+            progress("done")
+        except KeyboardInterrupt:
+            results.data["interrupted"] = True
+            progress("interrupted: the table and --json hold the runs that finished")
+            status = INTERRUPTED_EXIT
     if args.json == "-":
-        print(json.dumps(report, indent=2))
+        print(json.dumps(results.data, indent=2))
     else:
-        print(format_table(report))
-        if args.json:
-            with open(args.json, "w") as f:
-                json.dump(report, f, indent=2)
-    return 0
+        print(format_table(results.data))
+        results.save()
+    return status
 
 
 if __name__ == "__main__":

@@ -7,9 +7,13 @@
  * with G the launch's global size, so one launch of a fixed size covers any
  * count and consecutive work-items touch consecutive elements.
  *
- * Build option: ELEMENT, the element type (uchar, ushort or int).
+ * Build option: ELEMENT, the element type (uchar, ushort or int; uchar if unset).
  */
 #include "sdf_common.h"
+
+#ifndef ELEMENT
+#define ELEMENT uchar
+#endif
 
 __kernel void fill(__global ELEMENT *dst, ulong count, ELEMENT value)
 {

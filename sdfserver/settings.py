@@ -3,13 +3,18 @@
 Read from ``SDFSERVER_*`` environment variables, overridden by ``sdfserver
 serve --flags``, built once in ``main()`` and passed down — never at import
 time. Every field carries a description; ``docs/configuration.md`` lists them
-all and a test keeps the two in step.
+all and a test keeps the two in step. pydantic-settings ignores an ``SDFSERVER_*``
+variable that names no setting, so ``sdfserver serve`` logs a warning for each
+(``log_unknown_environment``), with the setting it probably meant.
 """
 
 from __future__ import annotations
 
+import difflib
 import functools
-from typing import Literal
+import logging
+import os
+from typing import Literal, Mapping
 
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -119,4 +124,32 @@ class Settings(BaseSettings):
                           max_map_len=1 << 12, max_buffer_size=n)
 
 
-__all__ = ["Settings"]
+ENV_PREFIX = "SDFSERVER_"
+# Variables of the project that are not server settings: the clients' key and the crash test.
+OTHER_VARIABLES = frozenset({"SDFSERVER_API_KEY", "SDFSERVER_CRASH_TRIALS"})
+
+
+def unknown_environment(environ: Mapping[str, str]) -> list[str]:
+    """A line for each ``SDFSERVER_*`` variable that names no setting (names match in any case,
+    as pydantic-settings matches them), with the closest setting's variable where one is close."""
+    known = [ENV_PREFIX + name.upper() for name in Settings.model_fields]
+    lines = []
+    for name in sorted(environ):
+        upper = name.upper()
+        if not upper.startswith(ENV_PREFIX) or upper in known or upper in OTHER_VARIABLES:
+            continue
+        # compared without the prefix, which every name shares and which would make all look alike
+        guess = difflib.get_close_matches(upper[len(ENV_PREFIX):], [k[len(ENV_PREFIX):] for k in known],
+                                          n=1, cutoff=0.75)
+        hint = f"; did you mean {ENV_PREFIX}{guess[0]}?" if guess else "; docs/configuration.md lists the settings"
+        lines.append(f"{name} is set but names no setting, so it is ignored{hint}")
+    return lines
+
+
+def log_unknown_environment(environ: Mapping[str, str] = os.environ) -> None:
+    log = logging.getLogger("sdfserver")
+    for line in unknown_environment(environ):
+        log.warning(line)
+
+
+__all__ = ["Settings", "log_unknown_environment", "unknown_environment"]

@@ -8,7 +8,7 @@ import pytest
 from pydantic import ValidationError
 
 from sdfserver.api.server import parser, settings_from
-from sdfserver.settings import Settings
+from sdfserver.settings import Settings, unknown_environment
 
 DOC = (Path(__file__).resolve().parents[1] / "docs" / "configuration.md").read_text()
 
@@ -42,3 +42,28 @@ def test_environment_then_flags(monkeypatch):
         settings_from(["--port", "70000"])
     with pytest.raises(SystemExit):
         settings_from(["--log-format", "xml"])
+
+
+def test_unknown_environment_variables_are_named_with_the_likely_setting():
+    environ = {"SDFSERVER_MAX_REQEUST_BYTES": "1", "sdfserver_data_dir": "x", "SDFSERVER_PORT": "1",
+               "SDFSERVER_COLOUR": "red", "SDFSERVER_API_KEY": "k" * 16, "HOME": "/", "PYTEST_SDFSERVER_X": "1"}
+    lines = unknown_environment(environ)
+    assert len(lines) == 2, lines
+    colour, request = lines
+    assert colour.startswith("SDFSERVER_COLOUR ") and "docs/configuration.md" in colour
+    assert request.startswith("SDFSERVER_MAX_REQEUST_BYTES ") and "SDFSERVER_MAX_REQUEST_BYTES?" in request
+    assert unknown_environment({f"SDFSERVER_{name.upper()}": "" for name in Settings.model_fields}) == []
+
+
+def test_serve_warns_of_an_unknown_variable_at_start(tmp_path):
+    from server_process import ServerProcess
+
+    server = ServerProcess(tmp_path / "data", "--no-warm-up", "--fronts", "0",
+                           env={"SDFSERVER_MAX_WORLD_VOXEL": "512"})
+    try:
+        server.wait_ready()
+    finally:
+        server.stop()
+    warnings = [line for line in server.output().splitlines() if "SDFSERVER_MAX_WORLD_VOXEL " in line]
+    assert len(warnings) == 1 and "WARNING" in warnings[0], server.output()
+    assert "did you mean SDFSERVER_MAX_WORLD_VOXELS?" in warnings[0]

@@ -17,7 +17,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from sdfserver.errors import SdfServerError
-from sdfserver.settings import Settings
+from sdfserver.settings import Settings, log_unknown_environment
 
 
 def _flag_type(annotation: Any) -> tuple[Any, list[str] | None]:
@@ -68,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sdfserver serve: invalid settings:\n{exc}", file=sys.stderr)
         return 2
     log_config = configure_logging(settings)
+    log_unknown_environment()
     # The event loop and the engine thread share the GIL: under load, every time the engine
     # blocks (queue.finish, a read, a log write) it waits up to this long to get it back.
     sys.setswitchinterval(settings.switch_interval_ms / 1e3)

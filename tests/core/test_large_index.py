@@ -143,3 +143,39 @@ def test_max_world_voxels_is_bounded_by_the_largest_world():
     assert Settings(max_world_voxels=MAX_WORLD_VOXELS).max_world_voxels == 2048 ** 3
     with pytest.raises(ValidationError):
         Settings(max_world_voxels=MAX_WORLD_VOXELS + 1)
+
+
+def test_brush_launches_keep_their_work_items_within_32_bits(gpu, rng, monkeypatch):
+    """fill_brushes counts work-items in 32 bits: a launch of several brushes covers at most
+    WORK_ITEMS_PER_LAUNCH voxels, and a brush larger than that goes alone, through its own
+    3-D kernel (at 2048^3 one box can cover 2^33 voxels). Shown with a small limit."""
+    from sdfserver import world as world_module
+
+    limit = 700
+    monkeypatch.setattr(world_module, "WORK_ITEMS_PER_LAUNCH", limit)
+    launches = []
+    enqueue = World._enqueue_brushes
+
+    def spy(self, brushes):
+        launches.append([box.volume for _, box in brushes])
+        enqueue(self, brushes)
+
+    monkeypatch.setattr(World, "_enqueue_brushes", spy)
+    world = World(gpu, WorldConfig(size=(32, 32, 32), chunk_size=16, max_distance=12))
+    expected = np.zeros((32, 32, 32), dtype=np.uint8)
+    edits = []
+    for _ in range(40):
+        lo = rng.integers(0, 28, 3)
+        hi = np.minimum(32, lo + rng.integers(1, 16, 3))
+        colour = int(rng.integers(0, 256))
+        edits.append(BoxEdit(min=tuple(lo.tolist()), max=tuple(hi.tolist()), colour=colour))
+        expected[lo[2]:hi[2], lo[1]:hi[1], lo[0]:hi[0]] = colour
+    world.apply_edits(edits)
+    assert np.array_equal(world.read_voxels(), expected)
+    launched = [volumes for volumes in launches if volumes]
+    assert sum(map(len, launched)) == len(edits)
+    assert any(v > limit for volumes in launched for v in volumes), "no brush above the limit: widen the boxes"
+    for volumes in launched:
+        assert len(volumes) == 1 or sum(volumes) <= limit, volumes
+    world.recompute()
+    assert np.array_equal(world.read_distance(), oracle(expected, 12))

@@ -16,9 +16,9 @@ from scipy.ndimage import distance_transform_cdt
 from sdfserver.edits import parse_edits
 from sdfserver.engine import Engine, EngineLimits, Mailbox, Subscription
 from sdfserver.engine.commands import (
-    ApplyEdits, Completion, CreateWorld, DeleteWorld, OnDevice, Read, Subscribe,
+    ApplyEdits, Completion, CreateWorld, DeleteWorld, Describe, OnDevice, Read, Subscribe,
 )
-from sdfserver.errors import InvalidEdit, NotFound, NotReady, TooLarge, VersionNotReached
+from sdfserver.errors import InvalidEdit, NotFound, NotReady, SdfServerError, TooLarge, VersionNotReached
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
 from sdfserver.world import WorldConfig
@@ -272,15 +272,81 @@ def test_thread_run_on_device_and_device_loss(gpu):
         def lose_device():
             raise cl.RuntimeError("device lost")
 
-        with pytest.raises(NotReady):
+        waiting = engine.submit(Read(world["id"], "distance", min_version=99, deadline=float("inf")))
+        with pytest.raises(NotReady, match="device lost"):
             await engine.run_on_device(lose_device)
-        return name, field
+        return name, field, waiting
 
-    name, field = asyncio.run(scenario())
+    name, field, waiting = asyncio.run(scenario())
     assert name == "sdfserver-engine" and field.array[0, 0, 0] == 0 and field.array[8, 8, 8] == 4
     assert not engine.ready and "device lost" in engine.not_ready_reason()
-    with pytest.raises(NotReady):
-        engine.submit(OnDevice(lambda: None)).result()
+    with pytest.raises(NotReady, match="device lost"):  # the read waiting for a version too
+        waiting.result(timeout=10)
+    with pytest.raises(NotReady, match="device lost"):  # and what comes later, at once
+        engine.submit(OnDevice(lambda: None)).result(timeout=10)
+    engine.stop()
+
+
+def test_a_step_that_raises_fails_its_commands_and_the_engine_goes_on(engine, monkeypatch, caplog):
+    """Not a command's error: the step's (a bug, a kernel that fails to build on first use)."""
+    world_id = create(engine)
+    world = engine.worlds[world_id]
+    recompute = world.recompute
+    monkeypatch.setattr(world, "recompute", lambda: (_ for _ in ()).throw(RuntimeError("a bug\nin detail")))
+    batch = edits(engine, world_id, [{"op": "box", "min": [0, 0, 0], "max": [2, 2, 2], "colour": 1}])
+    read, describe = engine.submit(Read(world_id, "distance")), engine.submit(Describe(world_id))
+    engine.step()
+    assert batch.result(timeout=10) == 1  # applied and acknowledged before the recompute raised
+    for future in (read, describe):
+        with pytest.raises(SdfServerError, match="internal error in an engine step: RuntimeError: a bug$") as caught:
+            future.result(timeout=10)
+        assert type(caught.value) is SdfServerError and caught.value.code == "internal_error"  # a 500
+    assert caplog.text.count("Traceback") == 1
+    monkeypatch.setattr(world, "recompute", recompute)
+    later = edits(engine, world_id, [{"op": "voxels", "voxels": [[9, 9, 9, 3]]}])
+    read = engine.submit(Read(world_id, "distance"))
+    engine.step()
+    assert later.result(timeout=10) == 2 and read.result(timeout=10).array[9, 9, 9] == 0
+
+
+def test_a_failed_warm_up_is_why_the_engine_cannot_serve(gpu, monkeypatch):
+    engine = Engine(gpu)
+
+    def fail():
+        raise RuntimeError("kernel build failed\nthe whole build log")
+
+    monkeypatch.setattr(engine, "_warm_up", fail)
+    engine.start(warm_up=True)
+    try:
+        reason = engine.wait_started(timeout_s=60)
+        assert reason == f"the engine could not start on {gpu.device_name}: RuntimeError: kernel build failed"
+        assert not engine.ready and engine.not_ready_reason() == reason
+        with pytest.raises(NotReady, match="kernel build failed"):
+            engine.submit(Describe(None)).result(timeout=10)
+    finally:
+        engine.stop()
+
+
+def test_a_dead_engine_thread_fails_everything_and_says_so(gpu, monkeypatch):
+    """A bug outside any step: whoever started the engine hears of it (the server exits)."""
+    engine = Engine(gpu)
+    died = []
+    gate = threading.Event()
+
+    def broken_wait_timeout():
+        gate.wait(30)
+        raise RuntimeError("a bug in the loop")
+
+    monkeypatch.setattr(engine, "_wait_timeout", broken_wait_timeout)
+    engine.start(warm_up=False, on_death=died.append)
+    assert engine.wait_started(timeout_s=60) is None
+    queued = engine.submit(Describe(None))
+    gate.set()
+    with pytest.raises(NotReady, match="the engine thread died: RuntimeError: a bug in the loop"):
+        queued.result(timeout=30)
+    assert died == ["the engine thread died: RuntimeError: a bug in the loop"] and not engine.ready
+    with pytest.raises(NotReady, match="the engine thread died"):
+        engine.submit(Describe(None)).result(timeout=10)
     engine.stop()
 
 
@@ -301,18 +367,35 @@ def test_new_world_ids_are_hex_and_never_look_like_options():
     assert all(len(i) == 12 and set(i) <= set("0123456789abcdef") for i in ids)
 
 
-def test_a_slow_step_is_logged_with_its_phases_and_cpu_use(gpu, caplog):
+def test_a_slow_step_is_logged_with_its_phases_and_cpu_use(gpu, caplog, monkeypatch):
+    from sdfserver.engine import stepclock
+
+    now = [0.0]
+    monkeypatch.setattr(stepclock, "slow_steps", stepclock.SlowStepLog(interval_s=10, clock=lambda: now[0]))
     engine = Engine(gpu, EngineLimits(slow_step_ms=0.0))  # every step counts as slow
     try:
         world_id = create(engine)
         edits(engine, world_id, [{"op": "sphere", "center": [8, 8, 8], "radius": 3, "colour": 1}])
         with caplog.at_level("WARNING", logger="sdfserver.engine"):
             report = engine.step()
-        line = [r.getMessage() for r in caplog.records if "slow engine step" in r.getMessage()][-1]
-        assert report.applied_batches == 1 and line.endswith(", 1 batches")
-        assert report.cpu_ms > 0 and "of apply" in line
-        # the line carries the step's own figures
-        assert f"{report.cpu_ms:.1f} ms of it on a CPU ({report.user_ms:.1f} user, {report.system_ms:.1f} system; " \
-               f"{report.page_faults} page faults, {report.preempted} preemptions)" in line
+            lines = [r.getMessage() for r in caplog.records if "slow engine step" in r.getMessage()]
+            assert len(lines) == 1
+            line = lines[0]
+            assert report.applied_batches == 1 and line.endswith(", 1 batches")
+            assert report.cpu_ms > 0 and "of apply" in line
+            # the line carries the step's own figures
+            assert f"{report.cpu_ms:.1f} ms of it on a CPU ({report.user_ms:.1f} user, {report.system_ms:.1f} " \
+                   f"system; {report.page_faults} page faults, {report.preempted} preemptions)" in line
+
+            # at most a line every interval: the steps left out are counted on the next line
+            slower = []
+            for _ in range(3):
+                edits(engine, world_id, [{"op": "sphere", "center": [8, 8, 8], "radius": 2, "colour": 0}])
+                slower.append(engine.step().phases_ms)
+                now[0] += 4
+            lines = [r.getMessage() for r in caplog.records if "slow engine step" in r.getMessage()]
+            assert len(lines) == 2 and lines[1].startswith("slow engine step: ")
+            assert lines[1].endswith(", 1 batches; 2 more slow steps (the slowest "
+                                     + lines[1].rsplit("the slowest ", 1)[1])
     finally:
         engine.stop()

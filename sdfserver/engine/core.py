@@ -15,8 +15,11 @@ whenever commands are queued:
    therefore see every edit applied before them. A read whose ``min_version``
    the field has not reached waits for later steps until its deadline.
 
-An OpenCL error from the device fails the step's commands with NotReady and
-marks the engine not ready for good (``/readyz`` answers 503).
+A command's own error fails that command alone. An error the step raises outside
+any one command fails the step's commands with 500, and the engine goes on; an
+OpenCL error from the device fails them with NotReady and marks the engine not
+ready for good (``/readyz`` answers 503 with the cause). The thread itself, its
+warm-up and its failures: ``lifetime.py``.
 """
 
 from __future__ import annotations
@@ -34,14 +37,13 @@ from typing import Any, Callable, TypeVar
 import numpy as np
 import pyopencl as cl
 
-from sdfserver.algorithms.exact import Exact
 from sdfserver.delivery import delivery_round
-from sdfserver.edits import parse_edits
 from sdfserver.engine.commands import (
     APPLY, ApplyEdits, CommandCalls, Completion, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Query,
     Read, ReadResult, Reconfigure, StepReport, Subscribe,
 )
 from sdfserver.engine.journal import Journal
+from sdfserver.engine.lifetime import EngineLifetime, Pending
 from sdfserver.engine.mailbox import Subscription
 from sdfserver.engine.metrics import EngineMetrics
 from sdfserver.engine.publish import check_subscription_region, chunks_of, publish
@@ -51,14 +53,12 @@ from sdfserver.errors import (
     DeviceMemoryExceeded, InvalidInput, NotFound, NotReady, SdfServerError, StorageError, TooLarge,
     VersionNotReached,
 )
-from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
-from sdfserver.world import MAX_SIDE_VOX, EditPlan, RecomputeResult, World, WorldConfig
+from sdfserver.world import EditPlan, RecomputeResult, World, WorldConfig
 
 log = logging.getLogger("sdfserver.engine")
 T = TypeVar("T")
 DIRTY_GAUGE_EVERY_S = 0.1  # the dirty-chunks gauge is counted at most this often
-Pending = tuple[Any, Future]
 
 
 def world_config_dict(config: WorldConfig) -> dict[str, Any]:
@@ -75,9 +75,10 @@ def new_world_id() -> str:
     return secrets.token_hex(6)
 
 
-class Engine(CommandCalls):
+class Engine(EngineLifetime, CommandCalls):
     def __init__(self, gpu: GpuContext, limits: EngineLimits = EngineLimits(), *,
                  journal: Journal | None = None, metrics: EngineMetrics | None = None):
+        super().__init__()
         self.gpu = gpu
         self.limits = limits
         self.journal = journal
@@ -86,88 +87,12 @@ class Engine(CommandCalls):
         self.owners: dict[str, str | None] = {}  # written by the engine thread, read by any
         self.refused: dict[str, str] = {}  # worlds on disk that could not be restored, and why
         self.last_recompute_ms: dict[str, float] = {}
-        self.device_error: str | None = None
-        self._commands: queue.SimpleQueue[Pending] = queue.SimpleQueue()
-        self._waiting: list[Pending] = []
         self._subscribers: dict[str, set[Subscription]] = {}
         self._subscribers_lock = threading.Lock()
-        self._wake = threading.Event()
-        self._stopping = False
-        self._thread: threading.Thread | None = None
-        self._warm = threading.Event()
         self._dirty_gauge_at = -DIRTY_GAUGE_EVERY_S
         self.metrics.queue_depth.set_function(self._commands.qsize)
 
     # -- lifetime -----------------------------------------------------------------------------
-
-    def start(self, warm_up: bool = True) -> None:
-        """Start the engine thread; from then on only it touches the device."""
-        self._thread = threading.Thread(target=self._run, args=(warm_up,), name="sdfserver-engine", daemon=True)
-        self._thread.start()
-
-    def stop(self, timeout_s: float = 30.0) -> None:
-        self._stopping = True
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join(timeout_s)
-        else:
-            self._release_all()
-
-    @property
-    def started(self) -> bool:
-        return self._thread is not None
-
-    @property
-    def ready(self) -> bool:
-        alive = self._thread is not None and self._thread.is_alive() and not self._stopping
-        return alive and self._warm.is_set() and self.device_error is None
-
-    def not_ready_reason(self) -> str:
-        if self.device_error is not None:
-            return f"device error: {self.device_error}"
-        if self._thread is None or not self._thread.is_alive() or self._stopping:
-            return "the engine is not running"
-        return "the engine is warming up"
-
-    def _run(self, warm_up: bool) -> None:
-        try:
-            if warm_up:
-                self._warm_up()
-        except cl.Error as exc:
-            self._lose_device(exc, [])
-        self._warm.set()
-        while not self._stopping:
-            self._wake.wait(self._wait_timeout())
-            self._wake.clear()
-            if self._stopping:
-                break
-            self.step()
-        self._fail_all(NotReady("the server is shutting down"), self._drain())
-        self._release_all()
-
-    def _wait_timeout(self) -> float | None:
-        if not self._waiting:
-            return None
-        return max(0.0, min(c.deadline for c, _ in self._waiting) - time.monotonic()) + 1e-3
-
-    def _warm_up(self) -> None:
-        """Build the common kernels on a tiny world so the first request does not pay for it,
-        and every variant of the exact transform's passes (the default algorithm), whatever
-        region shapes edits bring."""
-        started = time.perf_counter()
-        variants = Exact().prebuild(self.gpu, MAX_SIDE_VOX)
-        log.info("built %d exact kernel variants in %.1f s", variants, time.perf_counter() - started)
-        world = World(self.gpu, WorldConfig(size=(16, 16, 16), chunk_size=8, max_distance=8))
-        try:
-            world.apply_edits(parse_edits([
-                {"op": "voxels", "voxels": np.array([[1, 2, 3, 9]])},
-                {"op": "box", "min": [4, 4, 4], "max": [6, 6, 6], "colour": 1},
-                {"op": "sphere", "center": [10, 10, 10], "radius": 2, "colour": 2}]))
-            world.recompute()
-            world.read_field(Box((0, 0, 0), (8, 8, 8)))
-            query_points(world, np.array([[1.0, 2.0, 3.0]]))
-        finally:
-            world.release()
 
     def _release_all(self) -> None:
         for world in self.worlds.values():
@@ -179,12 +104,13 @@ class Engine(CommandCalls):
     def submit(self, command: Any, completion: Completion | None = None) -> Future | Completion:
         """Queue a command; its result arrives in the returned Future, or through ``completion``."""
         future = Future() if completion is None else completion
-        if self.device_error is not None or self._stopping:
-            future.set_exception(NotReady(self.not_ready_reason()))
+        if self._refuse_if_failed(future):
             return future
         self._commands.put((command, future))
         if not self._wake.is_set():  # set() takes a lock; the engine clears the flag before it drains
             self._wake.set()
+        if self.failure is not None or self._stopping:  # it failed or stopped meanwhile: drained here
+            self._fail_all(NotReady(self.not_ready_reason()), self._drain())
         return future
 
     async def call(self, command: Any) -> Any:
@@ -250,6 +176,9 @@ class Engine(CommandCalls):
         except cl.Error as exc:
             self._lose_device(exc, commands + serve + self._waiting)
             self._waiting = []
+        except Exception as exc:
+            self._fail_step(exc, commands + serve + self._waiting)
+            self._waiting, answers = [], []
         self._count_pending()
         clock.stop(self.metrics, self.limits.slow_step_ms)
         for future, result in answers:  # last: a receiver may need the GIL this thread holds
@@ -549,16 +478,6 @@ class Engine(CommandCalls):
             log.exception("engine command failed unexpectedly", exc_info=exc)
         if not future.done():
             future.set_exception(exc)
-
-    def _fail_all(self, exc: BaseException, pending: list[Pending]) -> None:
-        for _, future in pending:
-            if not future.done() and (future.running() or future.set_running_or_notify_cancel()):
-                future.set_exception(exc)
-
-    def _lose_device(self, exc: cl.Error, pending: list[Pending]) -> None:
-        log.error("OpenCL device error; the engine stops serving: %s", exc)
-        self.device_error = str(exc)
-        self._fail_all(NotReady(f"device error: {exc}"), pending)
 
     def _count_worlds(self) -> None:
         self.metrics.worlds.set(len(self.worlds))

@@ -1,16 +1,48 @@
 """How long an engine step took, phase by phase, and what the engine thread did meanwhile:
-counted in the engine's metrics, and logged with its phases when the step was slow."""
+counted in the engine's metrics, and logged with its phases when the step was slow — at most
+one line every ``SLOW_STEP_LOG_INTERVAL_S``, which counts the slow steps left out since the
+line before: on a slow device nearly every step is slow, and a line each would bury the log."""
 
 from __future__ import annotations
 
 import logging
+import math
 import resource
+import threading
 import time
+from typing import Callable
 
 from sdfserver.engine.commands import StepReport
 from sdfserver.engine.metrics import EngineMetrics
 
 log = logging.getLogger("sdfserver.engine")
+SLOW_STEP_LOG_INTERVAL_S = 10.0
+
+
+class SlowStepLog:
+    """Lets one slow step's line through every ``interval_s``; counts the others."""
+
+    def __init__(self, interval_s: float = SLOW_STEP_LOG_INTERVAL_S, clock: Callable[[], float] = time.monotonic):
+        self.interval_s, self.clock = interval_s, clock
+        self._lock = threading.Lock()  # engines of one process (tests) share it
+        self._last = -math.inf
+        self._left_out, self._slowest_ms = 0, 0.0
+
+    def admit(self, step_ms: float) -> tuple[int, float] | None:
+        """None if this step's line is left out; else (slow steps left out since the last line,
+        the slowest of them in ms)."""
+        with self._lock:
+            now = self.clock()
+            if now - self._last < self.interval_s:
+                self._left_out += 1
+                self._slowest_ms = max(self._slowest_ms, step_ms)
+                return None
+            admitted = (self._left_out, self._slowest_ms)
+            self._last, self._left_out, self._slowest_ms = now, 0, 0.0
+            return admitted
+
+
+slow_steps = SlowStepLog()
 
 
 class StepClock:
@@ -42,9 +74,14 @@ class StepClock:
         metrics.step_seconds.observe(seconds)
         for phase, ms in report.phases_ms.items():
             metrics.phase(phase).inc(ms / 1e3)
-        if seconds * 1e3 >= slow_step_ms:
-            phases = ", ".join(f"{k} {v:.1f}" for k, v in report.phases_ms.items())
-            phases += " (" + ", ".join(f"{k} {v:.1f}" for k, v in report.apply_ms.items()) + " of apply)"
-            log.warning("slow engine step: %.1f ms, %.1f ms of it on a CPU (%.1f user, %.1f system; %d page "
-                        "faults, %d preemptions) (%s), %d batches", seconds * 1e3, report.cpu_ms, report.user_ms,
-                        report.system_ms, report.page_faults, report.preempted, phases, report.applied_batches)
+        admitted = slow_steps.admit(seconds * 1e3) if seconds * 1e3 >= slow_step_ms else None
+        if admitted is None:
+            return
+        left_out, slowest_ms = admitted
+        phases = ", ".join(f"{k} {v:.1f}" for k, v in report.phases_ms.items())
+        phases += " (" + ", ".join(f"{k} {v:.1f}" for k, v in report.apply_ms.items()) + " of apply)"
+        since = (f"; {left_out} more slow steps (the slowest {slowest_ms:.1f} ms) since the last such line"
+                 if left_out else "")
+        log.warning("slow engine step: %.1f ms, %.1f ms of it on a CPU (%.1f user, %.1f system; %d page "
+                    "faults, %d preemptions) (%s), %d batches%s", seconds * 1e3, report.cpu_ms, report.user_ms,
+                    report.system_ms, report.page_faults, report.preempted, phases, report.applied_batches, since)

@@ -96,6 +96,11 @@ def register_cpu_runtimes() -> str | None:
         log.warning("Intel's CPU OpenCL runtime is installed but cannot be loaded (%s); "
                     "reinstall with `pip install -e '.[cpu]'`", exc)
         return None
+    # pyopencl keeps binaries of runtimes that cache no builds of their own, like Intel's, but a
+    # program Intel's runtime creates from a binary has no kernel argument info, and without it
+    # every launch sets its arguments the slow way (sdfserver/gpu/programs.py). pyopencl reads
+    # this when it is imported, which sdfserver.gpu does after this call.
+    os.environ.setdefault("PYOPENCL_NO_CACHE", "1")
     if os.environ.get("OCL_ICD_VENDORS"):
         _registered = os.environ["OCL_ICD_VENDORS"]
         return _registered

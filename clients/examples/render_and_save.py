@@ -1,7 +1,7 @@
 """Paint a small scene, save a rendered PNG and a MagicaVoxel .vox of it, and load the .vox back
 as a second world.
 
-    python clients/examples/render_and_save.py http://127.0.0.1:8000 [output directory]
+    python clients/examples/render_and_save.py http://127.0.0.1:8000 [output directory, made if missing]
 
 Against a server with API keys, set SDFSERVER_API_KEY.
 """
@@ -16,6 +16,7 @@ from sdfclient import Camera, Client, edits
 
 url = sys.argv[1] if len(sys.argv) > 1 else "http://127.0.0.1:8000"
 out = Path(sys.argv[2] if len(sys.argv) > 2 else ".")
+out.mkdir(parents=True, exist_ok=True)
 with Client(url, api_key=os.environ.get("SDFSERVER_API_KEY")) as client:
     world = client.create_world((64, 32, 64), chunk_size=16, max_distance=32)
     copy = None

@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 from clients_support import CLIENTS, ROOT, env_with_paths
 
 from sdfclient import Client
@@ -62,6 +63,7 @@ def test_render_and_save(server_url, tmp_path):
     from PIL import Image
 
     before = _worlds(server_url)
+    tmp_path = tmp_path / "made" / "by the example"  # a folder that does not exist yet
     out = _run("render_and_save.py", server_url, str(tmp_path))
     assert re.search(r"scene.png: 320x200, field version 1, \d+ bytes", out)
     assert re.search(r"scene.vox: version 1, \d+ bytes", out)
@@ -71,3 +73,18 @@ def test_render_and_save(server_url, tmp_path):
     assert pixels.shape == (200, 320, 3) and len(np.unique(pixels.reshape(-1, 3), axis=0)) > 8
     assert (tmp_path / "scene.vox").read_bytes()[:4] == b"VOX "
     assert _worlds(server_url) == before
+
+
+DOC_BLOCKS = re.findall(r"^```python\n(.*?)^```", (ROOT / "docs" / "clients.md").read_text(), flags=re.S | re.M)
+
+
+@pytest.mark.parametrize("block", DOC_BLOCKS, ids=[f"block{i}" for i in range(len(DOC_BLOCKS))])
+def test_docs_clients_blocks_run_as_written(block, server_url, tmp_path):
+    """Each Python block of docs/clients.md, fed to a fresh interpreter in an empty folder; only
+    the documented server address is swapped for the test server's."""
+    assert "http://127.0.0.1:8000" in block
+    before = _worlds(server_url)
+    proc = subprocess.run([sys.executable, "-"], input=block.replace("http://127.0.0.1:8000", server_url),
+                          cwd=tmp_path, env=env_with_paths(), capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert _worlds(server_url) == before  # it cleans up

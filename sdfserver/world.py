@@ -25,8 +25,9 @@ import numpy as np
 import pyopencl as cl
 
 from sdfserver import bulk
-from sdfserver.algorithms import ALGORITHMS, RegionJob, WorldBuffers, get_algorithm
+from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, RegionJob, WorldBuffers, get_algorithm
 from sdfserver.algorithms.base import WORK_PLANE_PAD, float4, grid, int4
+from sdfserver.algorithms.stats import AlgorithmStats, summarize
 from sdfserver.edits import BoxEdit, Edit, EditLimits, SphereEdit, VoxelsEdit, edit_bounds, validate_batch
 from sdfserver.errors import InvalidInput
 from sdfserver.geometry import Box, merge_regions
@@ -62,6 +63,18 @@ class RecomputeResult:
     wall_ms: float = 0.0
     iterations: int = 0
     kernel_ms: list[float] = field(default_factory=list)  # each launch, in order
+    algorithms: dict[str, AlgorithmStats] = field(default_factory=dict)  # per algorithm run
+
+    def iterations_of(self, algorithm: str) -> int:
+        stats = self.algorithms.get(algorithm)
+        return 0 if stats is None else stats.iterations
+
+    @property
+    def bandwidth_gbps(self) -> float | None:
+        """The exact transform's achieved bandwidth in this recompute (GB/s; exact.bytes_moved
+        says what is counted), or None where exact did not run."""
+        stats = self.algorithms.get("exact")
+        return None if stats is None else stats.bandwidth_gbps
 
     @property
     def changed_chunk_count(self) -> int:
@@ -108,6 +121,7 @@ class World:
         self._dirty_all = False
         self.version = 0  # edit batches applied
         self.field_version = 0  # the version the field reflects
+        self.last_recompute: RecomputeResult | None = None  # what the last recompute did
 
     @staticmethod
     def buffer_bytes(config: WorldConfig) -> list[int]:
@@ -298,19 +312,18 @@ class World:
         """Bring the field up to date with the voxels; returns the chunks rewritten."""
         start = time.perf_counter()
         regions = self.dirty_regions() if (self._dirty or self._dirty_all) else []
-        events: list[cl.Event] = []
-        iterations = 0
+        runs: list[tuple[str, AlgorithmRun]] = []
         for region in regions:
-            for run in self._compute_region(region):
-                events.extend(run.events)
-                iterations += run.iterations
+            runs.extend(self._compute_region(region))
         self.gpu.queue.finish()
         self._dirty.clear()
         self._dirty_all = False
         self.field_version = self.version
-        each = [(e.profile.end - e.profile.start) * 1e-6 for e in events]
-        return RecomputeResult(regions, self.config.chunk_size, sum(each),
-                               (time.perf_counter() - start) * 1e3, iterations, each)
+        each, by_algorithm = summarize(runs)
+        self.last_recompute = RecomputeResult(regions, self.config.chunk_size, sum(each),
+                                              (time.perf_counter() - start) * 1e3,
+                                              sum(run.iterations for _, run in runs), each, by_algorithm)
+        return self.last_recompute
 
     def _compute_region(self, region: Box):
         cfg, b = self.config, self.buffers
@@ -322,16 +335,16 @@ class World:
                 focus = None
         algorithm = get_algorithm(cfg.algorithm)
         if focus is None:
-            yield algorithm.run(self.gpu, RegionJob.seeded_region(b, region, cfg.max_distance))
+            yield algorithm.name, algorithm.run(self.gpu, RegionJob.seeded_region(b, region, cfg.max_distance))
             return
         # Level of detail (the dissertation's Algorithm 7): the cheap algorithm everywhere,
         # then the world's algorithm inside the focus, from voxels alone so that the
         # approximate field around it cannot leak in.
-        yield get_algorithm(cfg.lod_algorithm).run(
-            self.gpu, RegionJob.seeded_region(b, region, cfg.max_distance))
+        lod = get_algorithm(cfg.lod_algorithm)
+        yield lod.name, lod.run(self.gpu, RegionJob.seeded_region(b, region, cfg.max_distance))
         inner = region.intersect(focus)
         if not inner.empty:
-            yield algorithm.run(self.gpu, RegionJob.halo_region(b, inner, cfg.max_distance))
+            yield algorithm.name, algorithm.run(self.gpu, RegionJob.halo_region(b, inner, cfg.max_distance))
 
     # -- reads ------------------------------------------------------------------------------------
 

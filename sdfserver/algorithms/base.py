@@ -97,6 +97,7 @@ class RegionJob:
 class AlgorithmRun:
     events: list[cl.Event] = field(default_factory=list)
     iterations: int = 0  # FIM passes that changed something; JFA passes
+    bytes_moved: int = 0  # device memory traffic the algorithm counts (exact only; see exact.py)
 
 
 class Algorithm(Protocol):

@@ -80,6 +80,14 @@ def work_plane(job: RegionJob) -> int:
     return nx * ny + WORK_PLANE_PAD
 
 
+def bytes_moved(job: RegionJob) -> int:
+    """The bytes the three passes must move, for achieved bandwidth: over the work box W the
+    first reads voxels and writes work, the second reads and writes work, the last reads work;
+    the last writes the 2-byte field over R. The seed shell's field reads and the last pass's
+    colour reads (only where solids are) are not counted."""
+    return 5 * job.work_box.volume + 2 * job.region.volume
+
+
 class Exact:
     name = "exact"
     exact = True
@@ -157,7 +165,7 @@ class Exact:
         return found
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
-        run = AlgorithmRun()
+        run = AlgorithmRun(bytes_moved=bytes_moved(job))
         for kernel, _, global_, local in self.passes(gpu, job.work_box.shape_xyz):
             run.events.append(self.enqueue(gpu, job, kernel, global_, local))
         return run

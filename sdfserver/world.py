@@ -2,7 +2,9 @@
 
 A world owns four device buffers for its lifetime: voxels (uchar), the packed
 field (ushort), and two uchar scratch boxes the algorithms work in — 5 bytes
-per voxel, checked against the memory budget before anything is allocated.
+per voxel, checked against the memory budget before anything is allocated —
+and, only while an algorithm it runs floods (jfa, jfa+1, jfa+2, jfa_fim), two
+uint nearest-seed buffers, 8 bytes per voxel more.
 They reach 2^33 elements, so fills, copies and transfers of them go through
 ``sdfserver.bulk`` (the project's own 64-bit kernels, transfers in pieces).
 
@@ -12,7 +14,8 @@ set); ``recompute`` consumes the dirty set — each box grown by the cap and
 snapped to chunks, touching boxes merged — runs the world's algorithm over
 each region, seeded from the unchanged field around it, and returns exactly
 the chunks it rewrote. A voxel farther than the cap from every change keeps
-its capped distance, so the result equals a full recompute.
+its capped distance, so the result equals a full recompute. With padded
+borders each chunk is computed alone, so a region is the touched chunks only.
 """
 
 from __future__ import annotations
@@ -103,15 +106,7 @@ class World:
         sizes = self.buffer_bytes(config)
         gpu.check_fits(sizes, f"a {sx}x{sy}x{sz} world")
         self._sizes = sizes
-        allocated = []
-        try:
-            for n in sizes:
-                allocated.append(gpu.allocate(n))
-        except BaseException:
-            for buf, n in zip(allocated, sizes):
-                gpu.release(buf, n)
-            raise
-        self.buffers = WorldBuffers(config.size, *allocated)
+        self.buffers = WorldBuffers(config.size, *self._allocate(sizes))
         # An empty world: every voxel air, every distance at the cap.
         bulk.fill(gpu, self.buffers.voxels, np.uint8, 0, self.voxel_count)
         bulk.fill(gpu, self.buffers.field, np.uint16, config.max_distance << 8, self.voxel_count)
@@ -126,18 +121,31 @@ class World:
     @staticmethod
     def buffer_bytes(config: WorldConfig) -> list[int]:
         """The device buffers a world of ``config`` holds, in bytes: voxels, field, work (a pad
-        per z-plane) and work2, 5 bytes per voxel. Nothing else lives as long as the world."""
+        per z-plane) and work2, 5 bytes per voxel; then, if an algorithm it runs floods
+        (``config.floods``), seeds and seeds2, 4 bytes per voxel each. Nothing else lives as
+        long as the world."""
         sx, sy, sz = config.size
         n = sx * sy * sz
-        return [n, 2 * n, n + sz * WORK_PLANE_PAD, n]
+        return [n, 2 * n, n + sz * WORK_PLANE_PAD, n] + ([4 * n, 4 * n] if config.floods else [])
 
     # -- lifetime -----------------------------------------------------------------------------
+
+    def _allocate(self, sizes: list[int]) -> list[cl.Buffer]:
+        allocated = []
+        try:
+            for n in sizes:
+                allocated.append(self.gpu.allocate(n))
+        except BaseException:
+            for buf, n in zip(allocated, sizes):
+                self.gpu.release(buf, n)
+            raise
+        return allocated
 
     def release(self) -> None:
         b = self.buffers
         if b is None:
             return
-        for buf, n in zip((b.voxels, b.field, b.work, b.work2), self._sizes):
+        for buf, n in zip((b.voxels, b.field, b.work, b.work2, b.seeds, b.seeds2), self._sizes):
             self.gpu.release(buf, n)
         self.buffers = None
 
@@ -250,8 +258,11 @@ class World:
         return self.version
 
     def reconfigure(self, *, algorithm: str | None = None, focus: Focus | None | str = "keep",
-                    max_distance: int | None = None, lod_algorithm: str | None = None) -> None:
-        """Change how the field is computed; the next recompute rebuilds all of it."""
+                    max_distance: int | None = None, lod_algorithm: str | None = None,
+                    borders: str | None = None) -> None:
+        """Change how the field is computed; the next recompute rebuilds all of it. Seed
+        buffers come or go with flooding algorithms; when they do not fit, nothing changes
+        (DeviceMemoryExceeded)."""
         changes = {}
         if algorithm is not None:
             changes["algorithm"] = algorithm
@@ -261,8 +272,26 @@ class World:
             changes["max_distance"] = max_distance
         if lod_algorithm is not None:
             changes["lod_algorithm"] = lod_algorithm
-        self.config = replace(self.config, **changes).validated()
+        if borders is not None:
+            changes["borders"] = borders
+        config = replace(self.config, **changes).validated()
+        self._resize_seeds(config)
+        self.config = config
         self._dirty_all = True
+
+    def _resize_seeds(self, config: WorldConfig) -> None:
+        """Allocate or release the seed buffers as ``config`` needs them (raises before changing
+        anything when they do not fit)."""
+        b, sizes = self.buffers, self.buffer_bytes(config)
+        if config.floods and b.seeds is None:
+            self.gpu.check_fits(sizes[4:], "jump flooding's seed buffers")
+            b.seeds, b.seeds2 = self._allocate(sizes[4:])
+        elif not config.floods and b.seeds is not None:
+            self.gpu.queue.finish()  # floods already queued may still read them
+            for buf, n in zip((b.seeds, b.seeds2), self._sizes[4:]):
+                self.gpu.release(buf, n)
+            b.seeds = b.seeds2 = None
+        self._sizes = sizes
 
     def mark_all_dirty(self) -> None:
         """Make the next recompute rebuild the whole field (benchmarks, restores)."""
@@ -279,6 +308,8 @@ class World:
         if self._dirty_all:
             return [self.world_box]
         cap, cs, (sx, sy, sz) = self.config.max_distance, self.config.chunk_size, self.config.size
+        if self.config.borders == "padded":
+            cap = 0  # each chunk is computed alone: an edit changes only the chunks it touches
         # Each box grown by the cap, snapped to chunks and clipped to the world, in plain ints
         # (b.grow(cap).snap(cs).intersect(world) made three Boxes an edit). Under a large cap
         # many edits grow to the same region: merge each once.
@@ -333,18 +364,24 @@ class World:
                           (cfg.focus.chunk_box().lo, cfg.focus.chunk_box().hi))).intersect(self.world_box)
             if focus.contains(self.world_box):
                 focus = None
-        algorithm = get_algorithm(cfg.algorithm)
+        algorithm, cap = get_algorithm(cfg.algorithm), cfg.max_distance
+        if cfg.borders == "padded":  # chunks alone: no shell, no halo; the focus only picks the algorithm
+            seeded = halo = lambda r: RegionJob.padded_region(b, r, cap, cfg.chunk_size)  # noqa: E731
+        else:
+            seeded = lambda r: RegionJob.seeded_region(b, r, cap)  # noqa: E731
+            halo = lambda r: RegionJob.halo_region(b, r, cap)  # noqa: E731
         if focus is None:
-            yield algorithm.name, algorithm.run(self.gpu, RegionJob.seeded_region(b, region, cfg.max_distance))
+            yield algorithm.name, algorithm.run(self.gpu, seeded(region))
             return
         # Level of detail (the dissertation's Algorithm 7): the cheap algorithm everywhere,
         # then the world's algorithm inside the focus, from voxels alone so that the
-        # approximate field around it cannot leak in.
+        # approximate field around it cannot leak in. Outside the focus the field is the
+        # cheap algorithm's: with jump flooding an overestimate, which a ray can step past.
         lod = get_algorithm(cfg.lod_algorithm)
-        yield lod.name, lod.run(self.gpu, RegionJob.seeded_region(b, region, cfg.max_distance))
+        yield lod.name, lod.run(self.gpu, seeded(region))
         inner = region.intersect(focus)
         if not inner.empty:
-            yield algorithm.name, algorithm.run(self.gpu, RegionJob.halo_region(b, inner, cfg.max_distance))
+            yield algorithm.name, algorithm.run(self.gpu, halo(inner))
 
     # -- reads ------------------------------------------------------------------------------------
 

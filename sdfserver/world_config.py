@@ -15,6 +15,7 @@ from sdfserver.geometry import Box, Vec3
 
 CHUNK_SIZES = (8, 16, 32, 64, 128)
 MAX_SIDE_VOX = 2048  # exact.cl: at most 128 segments of 16 elements per line
+BORDERS = ("exact", "padded")
 # The most voxels a world can have: past 2^31, so every world-sized number is 64-bit,
 # on the host and in the kernels (kernels/include/sdf_common.h).
 MAX_WORLD_VOXELS = MAX_SIDE_VOX ** 3
@@ -44,6 +45,10 @@ class WorldConfig:
     algorithm: str = "exact"
     focus: Focus | None = None
     lod_algorithm: str = "jfa"
+    # "exact": chunk borders are exact (chunks are units of dirtiness, not of computation).
+    # "padded": the dissertation's §4.2.1 — each chunk computed alone, everything outside it
+    # solid; an edit recomputes only the chunks it touches. Not for algorithm "exact".
+    borders: str = "exact"
 
     def validated(self) -> "WorldConfig":
         # The registry imports the kernels' host side; only validation needs it.
@@ -63,8 +68,15 @@ class WorldConfig:
                 raise InvalidInput(f"each side must be at most {MAX_SIDE_VOX} voxels, got {list(size)}")
         if not _is_int(self.max_distance) or not 1 <= self.max_distance <= 255:
             raise InvalidInput(f"max_distance must be an integer 1..255, got {self.max_distance!r}")
-        get_algorithm(self.algorithm)
-        get_algorithm(self.lod_algorithm)
+        algorithm, lod_algorithm = get_algorithm(self.algorithm), get_algorithm(self.lod_algorithm)
+        if self.borders not in BORDERS:
+            raise InvalidInput(f"borders must be one of {list(BORDERS)}, got {self.borders!r}")
+        if self.borders == "padded":
+            used = [algorithm] + ([lod_algorithm] if self.focus is not None else [])
+            for a in used:
+                if not getattr(a, "supports_padding", False):
+                    raise InvalidInput(f"borders 'padded' is not available for algorithm {a.name!r}; "
+                                       f"use borders 'exact' or one of {padded_algorithms()}")
         if self.focus is not None:
             for name, v in (("center", self.focus.center), ("size", self.focus.size)):
                 if len(v) != 3 or not all(_is_int(c) for c in v):
@@ -77,5 +89,19 @@ class WorldConfig:
     def chunks(self) -> Vec3:
         return tuple(v // self.chunk_size for v in self.size)
 
+    @property
+    def floods(self) -> bool:
+        """Whether an algorithm this world runs needs jump flooding's seed buffers."""
+        from sdfserver.algorithms import get_algorithm
 
-__all__ = ["CHUNK_SIZES", "MAX_SIDE_VOX", "MAX_WORLD_VOXELS", "Focus", "WorldConfig"]
+        used = [self.algorithm] + ([self.lod_algorithm] if self.focus is not None else [])
+        return any(getattr(get_algorithm(a), "seed_scratch", False) for a in used)
+
+
+def padded_algorithms() -> list[str]:
+    from sdfserver.algorithms import ALGORITHMS
+
+    return sorted(n for n, a in ALGORITHMS.items() if getattr(a, "supports_padding", False))
+
+
+__all__ = ["BORDERS", "CHUNK_SIZES", "MAX_SIDE_VOX", "MAX_WORLD_VOXELS", "Focus", "WorldConfig"]

@@ -6,7 +6,9 @@ packed field there. It reads a work box W around R: either R plus a one-voxel
 exact because any shortest path from R to a solid outside W crosses the
 shell), or R plus a *halo* of ``cap`` voxels computed from voxels alone (not
 seeded; needed where the surrounding field is approximate). Outside the world
-is air.
+is air. With the world's borders "padded" (the dissertation's §4.2.1), W is R
+itself and each chunk is computed alone, everything outside it solid
+(``chunk``; kernels/include/chunk_padding.h).
 """
 
 from __future__ import annotations
@@ -52,6 +54,10 @@ class WorldBuffers:
     field: cl.Buffer  # ushort, world-sized
     work: cl.Buffer  # uchar, world-sized scratch plus WORK_PLANE_PAD bytes per z-plane
     work2: cl.Buffer  # uchar, world-sized scratch (ping-pong, brute output)
+    # uint, world-sized: jump flooding's nearest-seed ping-pong pair, allocated only for
+    # worlds whose algorithms flood (World.buffer_bytes); None otherwise.
+    seeds: cl.Buffer | None = None
+    seeds2: cl.Buffer | None = None
 
 
 X_ALIGN_VOX = 8
@@ -79,6 +85,7 @@ class RegionJob:
     work_box: Box  # W: read, contains R
     seeded: bool
     cap: int
+    chunk: int = 0  # padded: the chunk side, each chunk computed alone; 0: chunk borders exact
 
     @classmethod
     def seeded_region(cls, buffers: WorldBuffers, region: Box, cap: int) -> "RegionJob":
@@ -87,6 +94,13 @@ class RegionJob:
     @classmethod
     def halo_region(cls, buffers: WorldBuffers, region: Box, cap: int) -> "RegionJob":
         return cls(buffers, region, _work_box(buffers, region.grow(cap)), False, cap)
+
+    @classmethod
+    def padded_region(cls, buffers: WorldBuffers, region: Box, cap: int, chunk: int) -> "RegionJob":
+        """W = R, chunk-aligned: the kernels find each voxel's chunk from box coordinates."""
+        if any(v % chunk for v in (*region.lo, *region.hi)):
+            raise ValueError(f"a padded region must be whole chunks of {chunk}, got {region}")
+        return cls(buffers, region, region, False, cap, chunk)
 
     @property
     def region_offset(self) -> tuple[int, int, int]:
@@ -103,6 +117,8 @@ class AlgorithmRun:
 class Algorithm(Protocol):
     name: str
     exact: bool
+    # Optional (read with getattr, default False): supports_padding — runs padded jobs
+    # (RegionJob.chunk > 0); seed_scratch — needs WorldBuffers.seeds/seeds2.
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun: ...
 
@@ -115,6 +131,7 @@ def init_work(gpu: GpuContext, job: RegionJob, target: cl.Buffer) -> cl.Event:
         job.buffers.voxels, job.buffers.field, target,
         int4(job.buffers.dims), int4(w.lo), int4(w.shape_xyz),
         int4(job.region.lo), int4(job.region.hi), np.int32(job.seeded), np.int32(job.cap),
+        np.int32(job.chunk),
     )
 
 

@@ -8,7 +8,9 @@ Kernel: kernels/fim.cl (+ region.cl). Convergence is read back from the
 device in growing batches of passes (1, 2, 4, … 64), each pass flagging
 changes in its own slot, so the count is exact while host round trips stay
 few.
-Units: voxels. Halo: seed shell or ``cap`` voxels. Exact: yes.
+Units: voxels. Halo: seed shell or ``cap`` voxels; none with padded borders
+(each chunk alone, its outside solid: §4.2.1). Exact: yes (padded: exactly the
+per-chunk field).
 Failure modes: passes grow with the distance information must travel (up to
 ``cap`` + the box diagonal), so large empty boxes are slow.
 """
@@ -25,8 +27,10 @@ from sdfserver.gpu import GpuContext
 MAX_BATCH = 64
 
 
-def relax_to_convergence(gpu: GpuContext, job: RegionJob, run: AlgorithmRun) -> None:
-    """Run fim passes on job.buffers.work until one changes nothing."""
+def relax_to_convergence(gpu: GpuContext, job: RegionJob, run: AlgorithmRun,
+                         work: cl.Buffer | None = None) -> None:
+    """Run fim passes on ``work`` (default job.buffers.work) until one changes nothing."""
+    work = job.buffers.work if work is None else work
     fim_pass = gpu.programs.kernel("fim.cl", "fim_pass")
     w_n = job.work_box.shape_xyz
     gsize, lsize = grid(w_n)
@@ -38,7 +42,7 @@ def relax_to_convergence(gpu: GpuContext, job: RegionJob, run: AlgorithmRun) -> 
             bulk.fill(gpu, flag_buf, np.int32, 0, MAX_BATCH)
             for i in range(batch):
                 run.events.append(fim_pass(
-                    gpu.queue, gsize, lsize, job.buffers.work, int4(w_n), flag_buf, np.int32(i)
+                    gpu.queue, gsize, lsize, work, int4(w_n), flag_buf, np.int32(i), np.int32(job.chunk)
                 ))
             cl.enqueue_copy(gpu.queue, flags, flag_buf)
             changed = flags[:batch]
@@ -54,6 +58,7 @@ def relax_to_convergence(gpu: GpuContext, job: RegionJob, run: AlgorithmRun) -> 
 class Fim:
     name = "fim"
     exact = True
+    supports_padding = True
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         run = AlgorithmRun([init_work(gpu, job, job.buffers.work)])

@@ -1,27 +1,38 @@
-"""jfa — Jump Flooding (the dissertation's Algorithm 6, §4.4).
+"""jfa, jfa+1, jfa+2 — Jump Flooding (Rong & Tan 2006; the dissertation's Algorithm 6, §4.4).
 
-Computes: initial distances, then passes with step sizes halving from half
-the box's longest side (rounded up to a power of two) down to 1; each pass
-takes the six face neighbours ``step`` away plus ``step``, ping-ponging
-between two buffers.
-Source: Fedor 2025 §4.4; Rong & Tan 2006.
-Kernel: kernels/jfa.cl (+ region.cl).
-Units: voxels. Halo: seed shell or ``cap`` voxels.
-Exact: no. Every candidate is a real path length, so it never underestimates
-(a ray never marches through a wall); it overestimates where the shortest
-path needs moves along two axes at one step size. The error is measured by
-the tests and the benchmark, not assumed. (Taking all 26 neighbours, each
-plus its own Manhattan length, would make it exact at 4x the reads; ``exact``
-is faster still.)
+Computes: every voxel's nearest seed, found by passes with step sizes halving
+from half the box's longest side (rounded up to a power of two; no larger than
+the cap needs) down to 1. Each pass offers a voxel the nearest seeds of its 26
+neighbours ``step`` away (all of {-step, 0, step}^3) and keeps the cheapest,
+reading one buffer and writing the other (ping-pong). The distance is the
+Manhattan distance to the seed found, plus the seed's weight, capped. Seeds
+are solids (weight 0) and, in a seeded job, the seed shell (weight: its
+distance in the current field). ``jfa+1`` adds a pass of step 1 at the end,
+``jfa+2`` passes of step 2 and 1 (Rong & Tan's JFA+1 and JFA+2).
+Source: Rong & Tan, "Jump flooding in GPU with applications to Voronoi diagram
+and distance transform", I3D 2006; Fedor 2025 §4.4.
+Kernel: kernels/jfa.cl (+ region.cl). Scratch: two uint nearest-seed buffers
+(WorldBuffers.seeds/seeds2, 8 bytes per voxel), held only by worlds that flood.
+Units: voxels. Halo: seed shell or ``cap`` voxels; none with padded borders
+(each chunk floods alone, its outside solid: §4.2.1).
+Exact: no. Every candidate is the length of a real path, so the field is never
+below the truth: jump flooding can only overestimate, where a voxel's nearest
+seed did not reach it through the jumps. A ray that steps by such a field can
+step past a solid (a sphere tracer is safe only with distances at or below the
+truth). The error is measured by the tests and the benchmark, not assumed.
+Cost: 26 neighbour seeds and their weights read per voxel per pass,
+log2(min(side, cap)) + extra passes.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 
-from sdfserver import bulk
 from sdfserver.algorithms.base import AlgorithmRun, RegionJob, grid, init_work, int4, pack_region
 from sdfserver.gpu import GpuContext
+
+EXTRA_STEPS = {0: (), 1: (1,), 2: (2, 1)}  # Rong & Tan's JFA, JFA+1, JFA+2
 
 
 def first_step(longest_side_vox: int) -> int:
@@ -31,28 +42,48 @@ def first_step(longest_side_vox: int) -> int:
     return 1 << ((longest_side_vox - 1).bit_length() - 1)
 
 
-def flood(gpu: GpuContext, job: RegionJob, run: AlgorithmRun) -> None:
-    """JFA passes from job.buffers.work; the result ends in job.buffers.work."""
-    jfa_pass = gpu.programs.kernel("jfa.cl", "jfa_pass")
-    w_n = job.work_box.shape_xyz
-    gsize, lsize = grid(w_n)
-    src, dst = job.buffers.work, job.buffers.work2
-    step = first_step(max(w_n))
+def step_sizes(job: RegionJob, extra_passes: int = 0) -> list[int]:
+    """N/2 .. 1, then the extra passes. N is the longest side a seed can be worth crossing:
+    the box's (the chunk's, when padded), and no more than the cap, since only seeds worth
+    less than the cap are kept."""
+    reach = job.chunk or max(job.work_box.shape_xyz)
+    step, steps = first_step(min(reach, job.cap)), []
     while step >= 1:
-        run.events.append(jfa_pass(gpu.queue, gsize, lsize, src, dst, int4(w_n), np.int32(step)))
+        steps.append(step)
+        step //= 2
+    return steps + list(EXTRA_STEPS[extra_passes])
+
+
+def flood(gpu: GpuContext, job: RegionJob, run: AlgorithmRun, out: cl.Buffer, extra_passes: int = 0) -> None:
+    """Jump flooding from the initial distances in job.buffers.work (left as they are);
+    the distances found go to ``out``, a uchar box like work."""
+    b = job.buffers
+    if b.seeds is None or b.seeds2 is None:
+        raise RuntimeError("jump flooding needs the world's seed buffers (World.buffer_bytes allocates them)")
+    kernel = gpu.programs.kernel
+    w_n, cap, chunk = int4(job.work_box.shape_xyz), np.int32(job.cap), np.int32(job.chunk)
+    gsize, lsize = grid(job.work_box.shape_xyz)
+    src, dst = b.seeds, b.seeds2
+    run.events.append(kernel("jfa.cl", "jfa_seed_init")(gpu.queue, gsize, lsize, b.work, src, w_n, cap, chunk))
+    for step in step_sizes(job, extra_passes):
+        run.events.append(kernel("jfa.cl", "jfa_seed_pass")(
+            gpu.queue, gsize, lsize, b.work, src, dst, w_n, np.int32(step), cap, chunk))
         src, dst = dst, src
         run.iterations += 1
-        step //= 2
-    if src is not job.buffers.work:  # an odd number of passes: bring the result home
-        run.events.append(bulk.copy(gpu, job.buffers.work, src, np.uint8, job.work_box.volume))
+    run.events.append(kernel("jfa.cl", "jfa_resolve")(gpu.queue, gsize, lsize, b.work, src, out, w_n, cap))
 
 
 class Jfa:
-    name = "jfa"
     exact = False
+    supports_padding = True
+    seed_scratch = True
+
+    def __init__(self, extra_passes: int = 0) -> None:
+        self.extra_passes = extra_passes
+        self.name = "jfa" if extra_passes == 0 else f"jfa+{extra_passes}"
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         run = AlgorithmRun([init_work(gpu, job, job.buffers.work)])
-        flood(gpu, job, run)
-        run.events.append(pack_region(gpu, job, job.buffers.work))
+        flood(gpu, job, run, job.buffers.work2, self.extra_passes)
+        run.events.append(pack_region(gpu, job, job.buffers.work2))
         return run

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 from sdfserver.algorithms.base import Algorithm, AlgorithmRun, RegionJob, WorldBuffers
 from sdfserver.algorithms.brute import Brute
+from sdfserver.algorithms.conservative import Conservative
 from sdfserver.algorithms.exact import Exact
 from sdfserver.algorithms.fim import Fim
 from sdfserver.algorithms.jfa import Jfa
 from sdfserver.algorithms.jfa_fim import JfaFim
 from sdfserver.errors import InvalidInput
 
-ALGORITHMS: dict[str, Algorithm] = {a.name: a for a in (Exact(), Brute(), Fim(), Jfa(), JfaFim())}
+ALGORITHMS: dict[str, Algorithm] = {a.name: a for a in (Exact(), Brute(), Fim(), Jfa(), JfaFim(),
+                                                      Conservative())}
 DEFAULT_ALGORITHM = "exact"
 DEFAULT_LOD_ALGORITHM = "jfa"
 

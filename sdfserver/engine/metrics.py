@@ -6,7 +6,12 @@ apps live in one process.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+
+if TYPE_CHECKING:
+    from sdfserver.world import RecomputeResult
 
 RECOMPUTE_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
 
@@ -30,6 +35,18 @@ class EngineMetrics:
         self.recompute_device_seconds = Counter(
             "sdfserver_recompute_device_seconds", "Kernel time spent recomputing fields, by algorithm.",
             ["algorithm"], registry=registry)
+        self.recompute_iterations = Counter(
+            "sdfserver_recompute_iterations", "Passes counted by the algorithms that iterate (fim and jfa_fim: "
+            "FIM passes that changed something; jfa: its passes), by algorithm.", ["algorithm"], registry=registry)
+        self.recompute_last_iterations = Gauge(
+            "sdfserver_recompute_last_iterations", "Those passes in the last recompute that ran the algorithm.",
+            ["algorithm"], registry=registry)
+        self.recompute_bytes = Counter(
+            "sdfserver_recompute_bytes", "Device memory traffic counted by the algorithm (exact: 5 bytes per "
+            "work-box voxel and 2 per region voxel), by algorithm.", ["algorithm"], registry=registry)
+        self.recompute_bandwidth = Gauge(
+            "sdfserver_recompute_bandwidth_bytes_per_second", "Achieved bandwidth of the last recompute that ran "
+            "the algorithm: its counted bytes over its kernel time (exact only).", ["algorithm"], registry=registry)
         self.changed_chunks = Counter("sdfserver_changed_chunks", "Chunks rewritten by recomputes.",
                                       registry=registry)
         self.dirty_chunks = Gauge("sdfserver_dirty_chunks", "Dirty chunks over all worlds before a step's "
@@ -61,3 +78,18 @@ class EngineMetrics:
         """The wall-time histogram and device-time counter of one algorithm."""
         return (self._labelled(self.recompute_seconds, algorithm),
                 self._labelled(self.recompute_device_seconds, algorithm))
+
+    def observe_recompute(self, algorithm: str, result: RecomputeResult) -> None:
+        """One world's recompute: its wall time under the world's algorithm; kernel time,
+        passes and bytes under each algorithm it ran (a focus runs two)."""
+        self._labelled(self.recompute_seconds, algorithm).observe(result.wall_ms / 1e3)
+        self.changed_chunks.inc(result.changed_chunk_count)
+        for name, stats in result.algorithms.items():
+            self._labelled(self.recompute_device_seconds, name).inc(stats.device_ms / 1e3)
+            self._labelled(self.recompute_iterations, name).inc(stats.iterations)
+            self._labelled(self.recompute_last_iterations, name).set(stats.iterations)
+            if stats.bytes_moved:
+                self._labelled(self.recompute_bytes, name).inc(stats.bytes_moved)
+                bandwidth = stats.bandwidth_gbps
+                if bandwidth is not None:
+                    self._labelled(self.recompute_bandwidth, name).set(bandwidth * 1e9)

@@ -36,8 +36,9 @@ def checkout_env(*paths: Path) -> dict[str, str]:
 
 
 class ServerProcess:
-    def __init__(self, data_dir: Path, *flags: str, env: dict | None = None):
-        self.port = free_port()
+    def __init__(self, data_dir: Path, *flags: str, env: dict | None = None, port: int | None = None):
+        """``port``: a given one (a test of a port in use) instead of a free one."""
+        self.port = free_port() if port is None else port
         self.url = f"http://127.0.0.1:{self.port}"
         self.log_path = Path(data_dir).parent / f"server-{self.port}.log"
         self.log = open(self.log_path, "wb")

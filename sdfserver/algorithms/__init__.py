@@ -11,7 +11,7 @@ from sdfserver.algorithms.jfa import Jfa
 from sdfserver.algorithms.jfa_fim import JfaFim
 from sdfserver.errors import InvalidInput
 
-ALGORITHMS: dict[str, Algorithm] = {a.name: a for a in (Exact(), Brute(), Fim(), Jfa(), JfaFim(),
+ALGORITHMS: dict[str, Algorithm] = {a.name: a for a in (Exact(), Brute(), Fim(), Jfa(), Jfa(1), Jfa(2), JfaFim(),
                                                       Conservative())}
 DEFAULT_ALGORITHM = "exact"
 DEFAULT_LOD_ALGORITHM = "jfa"

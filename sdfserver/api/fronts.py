@@ -1,10 +1,10 @@
 """The server process's side of its front processes (``front.py``): start them, take their
 engine commands, adopt the connections they hand over, start one again if it dies.
 
-``FrontedServer`` is uvicorn's Server without a listening socket of its own: the port is held
-by a bound, non-listening ``SO_REUSEPORT`` socket, the fronts listen on it, and every
-connection they hand over joins this server as if it had accepted it (uvicorn's own
-protocol, its keep-alive and shutdown handling), starting with the bytes the front read.
+``FrontedServer`` is uvicorn's Server without a listening socket of its own: the server
+holds the port (``port.py``), the fronts listen on it, and every connection they hand over
+joins this server as if it had accepted it (uvicorn's own protocol, its keep-alive and
+shutdown handling), starting with the bytes the front read.
 """
 
 from __future__ import annotations
@@ -102,11 +102,10 @@ class Front:
 
 
 class FrontPool:
-    def __init__(self, settings: Settings, state: Any):
-        self.settings, self.state = settings, state
+    def __init__(self, settings: Settings, state: Any, port: int):
+        """``port``: the one the server holds (``port.hold_port``), where the fronts listen."""
+        self.settings, self.state, self.port = settings, state, port
         self.fronts: list[Front] = []
-        self.port: int | None = None
-        self._reservation: socket.socket | None = None
         self._protocol_factory: Callable[[], asyncio.Protocol] | None = None
         self._stopping = False
         self._watch: asyncio.Task | None = None
@@ -122,8 +121,6 @@ class FrontPool:
 
     async def start(self, protocol_factory: Callable[[], asyncio.Protocol]) -> None:
         self._protocol_factory = protocol_factory
-        self._reservation = link.reuseport_socket(self.settings.host, self.settings.port)
-        self.port = self._reservation.getsockname()[1]
         for index in range(self.settings.fronts):
             self.fronts.append(await self._spawn(index))
         self._watch = asyncio.get_running_loop().create_task(self._watch_fronts())
@@ -212,8 +209,6 @@ class FrontPool:
         for front in self.fronts:
             await asyncio.get_running_loop().run_in_executor(None, _wait_or_kill, front.process)
             self._close(front)
-        if self._reservation is not None:
-            self._reservation.close()
 
 
 def _wait_or_kill(process: subprocess.Popen, timeout_s: float = 10.0) -> None:

@@ -10,14 +10,17 @@ from __future__ import annotations
 
 import argparse
 import logging
+import socket
 import sys
 import typing
 from typing import Any
 
 from pydantic import ValidationError
 
-from sdfserver.errors import SdfServerError
+from sdfserver.errors import NoOpenCLDevice, SdfServerError
 from sdfserver.settings import Settings, log_unknown_environment
+
+DEVICE_ADVICE = "`sdfserver devices` lists the usable OpenCL devices and --device picks one"
 
 
 def _flag_type(annotation: Any) -> tuple[Any, list[str] | None]:
@@ -51,14 +54,11 @@ def settings_from(argv: list[str]) -> Settings:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import uvicorn
-
-    from sdfserver.api.app import build_engine, create_app
+    from sdfserver.api.app import build_engine
     from sdfserver.api.auth import is_loopback, parse_keys
-    from sdfserver.api.coalesce import CoalescingHttpToolsProtocol
-    from sdfserver.api.durability import open_journal, restore
-    from sdfserver.api.fronts import FrontedServer, FrontPool
+    from sdfserver.api.durability import open_journal
     from sdfserver.api.logs import configure_logging
+    from sdfserver.api.port import cannot_listen, hold_port
     from sdfserver.engine import EngineMetrics
     from sdfserver.storage.lock import lock_data_dir
 
@@ -81,40 +81,86 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sdfserver serve: refusing to listen on {settings.host} with no API keys configured; set "
               "SDFSERVER_API_KEYS / --api-keys or --api-key-file, or listen on 127.0.0.1", file=sys.stderr)
         return 2
-    journal = None
-    try:
-        journal = open_journal(settings)
-        data_dir_lock = lock_data_dir(journal.storage.data_dir) if journal is not None else None
-        engine = build_engine(settings, journal=journal, metrics=EngineMetrics())
-    except SdfServerError as exc:  # no OpenCL device, unusable data directory: say so and stop
-        print(f"sdfserver serve: {exc}", file=sys.stderr)
-        if journal is not None:
-            journal.close()
+    try:  # before the warm-up: a second server on this port stops at once
+        held = hold_port(settings.host, settings.port)
+    except OSError as exc:
+        print(f"sdfserver serve: {cannot_listen(settings.host, settings.port, exc)}", file=sys.stderr)
         return 1
-    logging.getLogger("sdfserver").info("device: %s", engine.gpu.device_name)
-    if journal is not None:
-        logging.getLogger("sdfserver").info("data directory: %s (sync %s)", journal.storage.data_dir,
-                                            "on" if settings.sync else "OFF")
-        restore(engine, journal)
-    app = create_app(settings, engine, freeze_gc=True)
-    app.state.journal = journal
+    journal = data_dir_lock = engine = None
     try:
-        config = uvicorn.Config(app, host=settings.host, port=settings.port, log_config=log_config,
-                                http=CoalescingHttpToolsProtocol,  # one send per answer, not one per head and body
-                                log_level=settings.log_level, access_log=settings.access_log,
-                                ws_max_size=settings.max_request_bytes, timeout_graceful_shutdown=5)
-        server = FrontedServer(config, FrontPool(settings, app.state)) if settings.fronts else uvicorn.Server(config)
         try:
-            server.run()
-        except KeyboardInterrupt:
-            pass
-        if not server.started:
-            return 3  # uvicorn's start-up failure status, as uvicorn.run exits with
+            journal = open_journal(settings)
+            data_dir_lock = lock_data_dir(journal.storage.data_dir) if journal is not None else None
+            engine = build_engine(settings, journal=journal, metrics=EngineMetrics())
+        except SdfServerError as exc:  # no OpenCL device, unusable data directory: say so and stop
+            advice = f" ({DEVICE_ADVICE})" if isinstance(exc, NoOpenCLDevice) else ""
+            print(f"sdfserver serve: {exc}{advice}", file=sys.stderr)
+            return 1
+        return _serve(settings, engine, journal, held, log_config)
     finally:
+        if engine is not None:
+            engine.stop()
         if journal is not None:
             journal.close()
         if data_dir_lock is not None:
             data_dir_lock.close()
+        held.close()
+
+
+def _serve(settings: Settings, engine: Any, journal: Any, held: socket.socket, log_config: Any) -> int:
+    """Warm the engine up, then listen; the exit status."""
+    import uvicorn
+
+    from sdfserver.api.app import create_app
+    from sdfserver.api.coalesce import CoalescingHttpToolsProtocol
+    from sdfserver.api.durability import restore
+    from sdfserver.api.fronts import FrontedServer, FrontPool
+    from sdfserver.api.port import OneProcessServer, listener
+
+    log = logging.getLogger("sdfserver")
+    log.info("device: %s", engine.gpu.device_name)
+    if journal is not None:
+        log.info("data directory: %s (sync %s)", journal.storage.data_dir, "on" if settings.sync else "OFF")
+        restore(engine, journal)
+    server: uvicorn.Server | None = None
+    died: list[str] = []
+
+    def on_death(reason: str) -> None:  # the engine thread, as it dies: no serving without it
+        died.append(reason)
+        if server is not None:
+            server.should_exit = True
+
+    engine.start(warm_up=settings.warm_up, on_death=on_death)
+    failure = engine.wait_started()  # listen only once the engine has shown it can serve
+    if failure is not None:
+        print(f"sdfserver serve: {failure}; {DEVICE_ADVICE}", file=sys.stderr)
+        return 1
+    app = create_app(settings, engine, freeze_gc=True)
+    app.state.journal = journal
+    config = uvicorn.Config(app, host=settings.host, port=held.getsockname()[1], log_config=log_config,
+                            http=CoalescingHttpToolsProtocol,  # one send per answer, not one per head and body
+                            log_level=settings.log_level, access_log=settings.access_log,
+                            ws_max_size=settings.max_request_bytes, timeout_graceful_shutdown=5)
+    if settings.fronts:
+        server = FrontedServer(config, FrontPool(settings, app.state, config.port))
+        sockets = None
+    else:
+        server = OneProcessServer(config)
+        sockets = [listener(held)]
+    if died:  # before the server existed to be told
+        server.should_exit = True
+    try:
+        server.run(sockets=sockets)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        for sock in sockets or ():
+            sock.close()
+    if died:
+        print(f"sdfserver serve: {died[0]}; exiting, so that a supervisor can start it again", file=sys.stderr)
+        return 1
+    if not server.started:
+        return 3  # uvicorn's start-up failure status, as uvicorn.run exits with
     return 0
 
 

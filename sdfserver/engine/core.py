@@ -42,7 +42,6 @@ from sdfserver.engine.commands import (
     APPLY, ApplyEdits, CommandCalls, Completion, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Query,
     Read, ReadResult, Reconfigure, StepReport, Subscribe,
 )
-from sdfserver.engine.describe import describe_recompute
 from sdfserver.engine.journal import Journal
 from sdfserver.engine.lifetime import EngineLifetime, Pending
 from sdfserver.engine.mailbox import Subscription
@@ -90,6 +89,7 @@ class Engine(EngineLifetime, CommandCalls):
         self.last_recompute_ms: dict[str, float] = {}
         self._subscribers: dict[str, set[Subscription]] = {}
         self._subscribers_lock = threading.Lock()
+        self._acknowledging: list[list[tuple[Future, int]]] = []  # the step's applied batches
         self._dirty_gauge_at = -DIRTY_GAUGE_EVERY_S
         self.metrics.queue_depth.set_function(self._commands.qsize)
 
@@ -161,7 +161,7 @@ class Engine(EngineLifetime, CommandCalls):
     def _step(self) -> StepReport:
         commands = self._drain()
         serve = self._waiting + [c for c in commands if not isinstance(c[0], APPLY)]
-        self._waiting = []
+        self._waiting, self._acknowledging = [], []
         report = StepReport()
         clock = StepClock(report)
         answers: list[tuple[Future, Any]] = []
@@ -175,16 +175,22 @@ class Engine(EngineLifetime, CommandCalls):
             answers = self._serve(serve, report)
             clock.lap("serve")
         except cl.Error as exc:
-            self._lose_device(exc, commands + serve + self._waiting)
+            self._lose_device(exc, self._unanswered(commands + serve + self._waiting))
             self._waiting = []
         except Exception as exc:
-            self._fail_step(exc, commands + serve + self._waiting)
+            self._fail_step(exc, self._unanswered(commands + serve + self._waiting))
             self._waiting, answers = [], []
         self._count_pending()
         clock.stop(self.metrics, self.limits.slow_step_ms)
         for future, result in answers:  # last: a receiver may need the GIL this thread holds
             future.set_result(result)
         return report
+
+    def _unanswered(self, pending: list[Pending]) -> list[Pending]:
+        """``pending`` less the batches applied this step: they are in the log and the world,
+        and are answered by their acknowledgement."""
+        applied = {id(future) for answers in self._acknowledging for future, _ in answers}
+        return [p for p in pending if id(p[1]) not in applied]
 
     def _drain(self) -> list[Pending]:
         out = []
@@ -264,12 +270,21 @@ class Engine(EngineLifetime, CommandCalls):
         launch_ms = 0.0
         for world_id, world, items, durable in journaled:
             launch = time.perf_counter()
-            versions = world.apply_plans([plan for _, _, plan in items])  # the step's brushes in few launches
-            launch_ms += (time.perf_counter() - launch) * 1e3
+            try:
+                versions = world.apply_plans([plan for _, _, plan in items])  # the step's brushes in few launches
+            except cl.Error:
+                raise
+            except Exception as exc:  # logged but not applied: not acknowledged, the other worlds go on
+                for _, future, _ in items:
+                    self._reject(future, exc, report)
+                continue
+            finally:
+                launch_ms += (time.perf_counter() - launch) * 1e3
             self.metrics.edit_batches.inc(len(items))  # each inc takes a lock: once a world a step
             self.metrics.edit_ops.inc(sum(len(command.edits) for command, _, _ in items))
             report.applied_batches += len(items)
             answers = [(future, version) for (_, future, _), version in zip(items, versions)]
+            self._acknowledging.append(answers)
             if durable is None:
                 for future, version in answers:
                     future.set_result(version)
@@ -335,7 +350,10 @@ class Engine(EngineLifetime, CommandCalls):
             self.metrics.dirty_chunks.set(sum(w.dirty_chunk_count for w in worlds.values()))
         for world_id, world in worlds.items():
             result = world.recompute()
-            self.metrics.observe_recompute(world.config.algorithm, result)
+            wall_seconds, device_seconds = self.metrics.recompute_by(world.config.algorithm)
+            wall_seconds.observe(result.wall_ms / 1e3)
+            device_seconds.inc(result.device_ms / 1e3)
+            self.metrics.changed_chunks.inc(result.changed_chunk_count)
             self.last_recompute_ms[world_id] = result.wall_ms
             results[world_id] = result
             if self.journal is not None and self.journal.wants_snapshot(world_id):
@@ -441,7 +459,6 @@ class Engine(EngineLifetime, CommandCalls):
             "field_version": world.field_version,
             "dirty_chunks": world.dirty_chunk_count,
             "last_recompute_ms": self.last_recompute_ms.get(world_id),
-            "last_recompute": describe_recompute(world.last_recompute),
             "device_bytes": world.device_bytes,
             "owner": self.owners.get(world_id),
         }

@@ -7,7 +7,8 @@ Sections, each on any OpenCL device:
   update    a radius-8 brush edit in the largest world: incremental device time per cap
   accuracy  each algorithm against `exact`: share of exact voxels, max/mean error, underestimates
   anchors   scipy's distance_transform_cdt (CPU) and cupyx's distance_transform_edt (GPU), if installed
-`sdfserver bench render ...` runs the rendering scenario instead (Tables 4.1 and 4.3; see --help there).
+`sdfserver bench render ...` runs the rendering scenario instead (Tables 4.1 and 4.3; see --help there);
+`sdfserver bench seed --out DIR` reproduces all of the dissertation's chapter 4 (see --help there).
 Device times come from OpenCL profiling events (sum of kernel durations). A line
 on stderr for each step and each measurement; the tables go to stdout, everything to
 --json, which is rewritten after each measurement. Ctrl-C or SIGTERM stops the run and
@@ -84,21 +85,27 @@ def time_full(world: World, reps: int, rng: np.random.Generator | None = None):
     return times, iterations, launches
 
 
+def measure_chunk(gpu, algorithm: str, cs: int, reps: int, rng: np.random.Generator, max_distance: int = 255,
+                  limits: EditLimits = EditLimits(max_ops_per_batch=4096)) -> dict:
+    """One world of one chunk: full regenerations after random brush edits (the dissertation's
+    Tables 4.2, 4.4, 4.5, 4.6). Brute force above 32^3 takes a tenth of the repetitions."""
+    world = World(gpu, WorldConfig((cs, cs, cs), cs, max_distance, algorithm), limits)
+    try:
+        populate(world, rng, brushes_per_chunk=4)
+        reps = reps if algorithm != "brute" or cs <= 32 else max(2, reps // 10)
+        times, iters, _ = time_full(world, reps, rng)
+    finally:
+        world.release()
+    return {"algorithm": algorithm, "chunk_size": cs, **summarize(times), "iterations_mean": float(np.mean(iters))}
+
+
 def bench_chunks(gpu, args, rng, results: Results) -> None:
     for algorithm in args.algorithms:
         for cs in args.chunk_sizes:
             if algorithm == "brute" and cs > args.brute_max_chunk:
                 continue
             progress(f"chunks: {algorithm} {cs}^3")
-            world = World(gpu, WorldConfig((cs, cs, cs), cs, args.max_distance, algorithm), args.limits)
-            try:
-                populate(world, rng, brushes_per_chunk=4)
-                reps = args.reps if algorithm != "brute" or cs <= 32 else max(2, args.reps // 10)
-                times, iters, _ = time_full(world, reps, rng)
-            finally:
-                world.release()
-            row = {"algorithm": algorithm, "chunk_size": cs, **summarize(times),
-                   "iterations_mean": float(np.mean(iters))}
+            row = measure_chunk(gpu, algorithm, cs, args.reps, rng, args.max_distance, args.limits)
             results.add("chunks", row, f"{algorithm} {cs}^3: mean {row['mean_ms']:.4f} ms over {row['n']}")
 
 
@@ -301,6 +308,10 @@ def main(argv: list[str] | None = None) -> int:
         from sdfserver.render.bench import main as render_main
 
         return render_main(argv[1:])
+    if argv[:1] == ["seed"]:  # the dissertation's chapter 4, every table and figure
+        from sdfserver.seedbench.cli import main as seed_main
+
+        return seed_main(argv[1:])
     args = parse_args(argv)
     results = Results({"date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                        "host": platform.node(), "argv": sys.argv, "seed": args.seed}, args.json)

@@ -1,0 +1,10 @@
+"""`sdfserver bench seed`: the dissertation's chapter 4 reproduced — every table (4.1–4.6) and
+figure (4.3, 4.5–4.9) with its world, chunk and focus sizes and its edit schedule, side by side
+with the published numbers.
+
+Modules: ``schedule`` (the seeded edit schedule, shared with the web demo), ``tables`` (the
+dissertation's numbers and what each table and figure measures), ``measure`` (the runs; no
+matplotlib), ``images`` (rendered comparisons), ``figures`` (matplotlib plots, from results.json
+alone), ``report`` (report.md) and ``cli`` (the command). Kept free of imports here, so that
+``sdfserver.render.bench`` can use the schedule without a cycle.
+"""

@@ -7,6 +7,7 @@
 // `?access_token=` on the WebSocket (browsers cannot set its headers).
 import { encode, decode } from "./msgpack.js";
 import { demoScene } from "./scene.js";
+import { Benchmark } from "./benchmode.js";
 
 const ALGORITHMS = ["exact", "brute", "fim", "jfa", "jfa_fim"];
 const PALETTE = [0xe4, 0xf4, 0xfc, 0x5c, 0x1c, 0x1f, 0x0b, 0x4b, 0x8e, 0xe3, 0x92, 0xb6, 0xdb, 0xff, 0x49, 0x6d];
@@ -15,7 +16,7 @@ const canvas = $("frame");
 const ctx = canvas.getContext("2d");
 
 const demo = { framesReceived: 0, lastVersion: -1, world: null, ready: false, edits: 0, errors: [],
-  needsKey: false, misses: 0 };
+  needsKey: false, misses: 0, notReady: null };
 window.sdfDemo = demo;  // read by the browser test
 
 const cam = { position: [0, 0, 0], yaw: 0, pitch: 0, fov: 60 };
@@ -56,6 +57,7 @@ function takeKeyFromAddress() {
 }
 
 class Unauthorized extends Error {}
+class NotReady extends Error {}  // the server answers 503 not_ready, or cannot be reached
 
 // A missing or refused key: say so plainly, stop reconnecting, and ask for one.
 function needKey(reason) {
@@ -84,7 +86,12 @@ async function api(method, path, body) {
     init.headers["Content-Type"] = "application/json";
     init.body = JSON.stringify(body);
   }
-  const response = await fetch(path, init);
+  let response;
+  try {
+    response = await fetch(path, init);
+  } catch (err) {
+    throw new NotReady(`the server cannot be reached (${err.message})`);
+  }
   const text = await response.text();
   let data = null;
   try { data = text ? JSON.parse(text) : null; } catch { data = { message: text.slice(0, 200) }; }
@@ -95,6 +102,7 @@ async function api(method, path, body) {
       needKey(said);
       throw new Unauthorized(said);
     }
+    if (response.status === 503 && data?.error?.code === "not_ready") throw new NotReady(said);
     throw new Error(said);
   }
   return data;
@@ -118,9 +126,49 @@ async function guarded(what, fn) {
   try {
     return await fn();
   } catch (err) {
-    if (!(err instanceof Unauthorized)) flash(`${what}: ${err.message}`, 4000, true);  // needKey spoke
+    if (err instanceof NotReady) waitForServer();  // it says why, for as long as it lasts
+    else if (!(err instanceof Unauthorized)) flash(`${what}: ${err.message}`, 4000, true);  // needKey spoke
     return undefined;
   }
+}
+
+// ---------------------------------------------------------------------------------------------- readiness
+
+// Why the server cannot serve, from /readyz; null once it can.
+async function notReadyReason() {
+  try {
+    const response = await fetch("/readyz", { headers: { Accept: "application/json" } });
+    if (response.ok) return null;
+    const data = await response.json().catch(() => null);
+    return data?.error?.message ?? `/readyz answered ${response.status}`;
+  } catch (err) {
+    return `the server cannot be reached (${err.message})`;
+  }
+}
+
+// Say why the server cannot serve, checking every few seconds; resolves once it can. One wait at a time.
+let serverWait = null;
+function waitForServer() {
+  serverWait ??= (async () => {
+    let shown = null;
+    for (let reason = await notReadyReason(); reason !== null; reason = await notReadyReason()) {
+      if (reason !== shown) {
+        shown = reason;
+        demo.ready = false;
+        demo.notReady = reason;
+        $("world-line").textContent = `server not ready: ${reason}`;
+        showStatus(`server not ready: ${reason}`, true);
+      }
+      await new Promise((resolve) => setTimeout(resolve, 2000));
+    }
+    demo.notReady = null;
+    if (shown !== null) {
+      showStatus("");
+      $("world-line").textContent = "connecting…";
+    }
+    serverWait = null;
+  })();
+  return serverWait;
 }
 
 // ---------------------------------------------------------------------------------------------- worlds
@@ -185,6 +233,7 @@ function connect(worldId) {
   ws.onmessage = (event) => {
     const msg = typeof event.data === "string" ? JSON.parse(event.data) : decode(event.data);
     if (msg.type === "frame") onFrame(msg);
+    else if (msg.type === "error" && msg.error?.code === "not_ready") waitForServer();
     else if (msg.type === "error") showStatus(`Server: ${msg.message ?? msg.error?.message ?? "error"}`, true);
   };
   ws.onclose = (event) => {
@@ -197,7 +246,8 @@ function connect(worldId) {
       return;
     }
     showStatus("Disconnected — reconnecting…", true);
-    setTimeout(() => { if (socket === ws) connect(worldId); }, 1000);
+    // a server that cannot serve says why until it can; then the stream comes back
+    setTimeout(() => waitForServer().then(() => { if (socket === ws) connect(worldId); }), 1000);
   };
 }
 
@@ -235,6 +285,7 @@ const frameTimes = [];
 function onFrame(msg) {
   demo.framesReceived++;
   demo.lastVersion = msg.version;
+  benchmark.onFrame(msg.version);
   frameTimes.push(performance.now());
   $("render-ms").textContent = msg.render_ms != null ? msg.render_ms.toFixed(2) : "–";
   $("field-ms").textContent = msg.field_ms != null ? msg.field_ms.toFixed(2) : "–";
@@ -375,6 +426,7 @@ function tick(now) {
     for (let i = 0; i < 3; i++) cam.position[i] += move[i] * speed;
     viewDirty = true;
   }
+  benchmark.tick(now);
   sendView(now);
   updateStats(now);
   requestAnimationFrame(tick);
@@ -400,7 +452,16 @@ function cssToRgb332(hex) {
   return Math.max(1, (Math.round(r * 7 / 255) << 5) | (Math.round(g * 7 / 255) << 2) | Math.round(b * 3 / 255));
 }
 
+// The §3.5 benchmark mode; its numbers are in window.sdfDemo.benchmark for the browser test.
+demo.benchmark = {};
+const benchmark = new Benchmark({ api, lookAt, viewChanged: () => { viewDirty = true; },
+  world: () => demo.world, size: () => worldSize, stats: demo.benchmark });
+
 function setupPanel() {
+  $("bench-on").onchange = (e) => {
+    if (e.target.checked && demo.world) benchmark.start(Number($("bench-seed").value) >>> 0);
+    else { e.target.checked = false; benchmark.stop(); }
+  };
   const palette = $("palette");
   for (const c of PALETTE) {
     const button = document.createElement("button");
@@ -471,22 +532,34 @@ async function start() {
   setupPanel();
   setupKeyForm();
   requestAnimationFrame(tick);
+  await waitForServer();
   await openStartWorld();
 }
 
-// The world named in the address, else the first one this key sees, else a new demo world.
+// The world named in the address, else the first one this key sees, else a new demo world; once
+// the server can serve, if it cannot now.
 async function openStartWorld() {
+  let notReady = false;
   await guarded("Start", async () => {
-    const wanted = decodeURIComponent((location.hash.match(/world=([^&]+)/) || [])[1] || "");
-    let worlds = await refreshWorlds();
-    let world = worlds.find((w) => w.id === wanted) ?? worlds[0];
-    if (!world) {
-      world = await createWorld(64, "exact");
-      worlds = await refreshWorlds(world.id);
+    try {
+      const wanted = decodeURIComponent((location.hash.match(/world=([^&]+)/) || [])[1] || "");
+      let worlds = await refreshWorlds();
+      let world = worlds.find((w) => w.id === wanted) ?? worlds[0];
+      if (!world) {
+        world = await createWorld(64, "exact");
+        worlds = await refreshWorlds(world.id);
+      }
+      $("world-select").value = world.id;
+      openWorld(world);
+    } catch (err) {
+      notReady = err instanceof NotReady;
+      throw err;
     }
-    $("world-select").value = world.id;
-    openWorld(world);
   });
+  if (notReady) {
+    await waitForServer();
+    await openStartWorld();
+  }
 }
 
 start();

@@ -42,6 +42,7 @@ from sdfserver.engine.commands import (
     APPLY, ApplyEdits, CommandCalls, Completion, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Query,
     Read, ReadResult, Reconfigure, StepReport, Subscribe,
 )
+from sdfserver.engine.describe import describe_recompute
 from sdfserver.engine.journal import Journal
 from sdfserver.engine.lifetime import EngineLifetime, Pending
 from sdfserver.engine.mailbox import Subscription
@@ -350,10 +351,7 @@ class Engine(EngineLifetime, CommandCalls):
             self.metrics.dirty_chunks.set(sum(w.dirty_chunk_count for w in worlds.values()))
         for world_id, world in worlds.items():
             result = world.recompute()
-            wall_seconds, device_seconds = self.metrics.recompute_by(world.config.algorithm)
-            wall_seconds.observe(result.wall_ms / 1e3)
-            device_seconds.inc(result.device_ms / 1e3)
-            self.metrics.changed_chunks.inc(result.changed_chunk_count)
+            self.metrics.observe_recompute(world.config.algorithm, result)
             self.last_recompute_ms[world_id] = result.wall_ms
             results[world_id] = result
             if self.journal is not None and self.journal.wants_snapshot(world_id):
@@ -459,6 +457,7 @@ class Engine(EngineLifetime, CommandCalls):
             "field_version": world.field_version,
             "dirty_chunks": world.dirty_chunk_count,
             "last_recompute_ms": self.last_recompute_ms.get(world_id),
+            "last_recompute": describe_recompute(world.last_recompute),
             "device_bytes": world.device_bytes,
             "owner": self.owners.get(world_id),
         }

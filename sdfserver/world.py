@@ -117,6 +117,9 @@ class World:
         self.version = 0  # edit batches applied
         self.field_version = 0  # the version the field reflects
         self.last_recompute: RecomputeResult | None = None  # what the last recompute did
+        if config.borders == "padded":  # an empty chunk's field is its distance to its frame, not the cap
+            self._dirty_all = True
+            self.recompute()
 
     @staticmethod
     def buffer_bytes(config: WorldConfig) -> list[int]:

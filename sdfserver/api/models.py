@@ -8,7 +8,8 @@ from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, StrictInt, Stric
 
 Int3 = Annotated[list[StrictInt], Field(min_length=3, max_length=3, description="[x, y, z]")]
 Point3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
-Algorithm = Annotated[StrictStr, Field(description="exact, brute, fim, jfa or jfa_fim")]
+Algorithm = Annotated[StrictStr, Field(description="exact, brute, fim, jfa, jfa+1, jfa+2 or jfa_fim")]
+Borders = Annotated[StrictStr, Field(description="exact (default) or padded: each chunk computed alone, everything outside it solid (the dissertation's §4.2.1; brute, fim, jfa, jfa+1, jfa+2, jfa_fim)")]
 
 
 class Strict(BaseModel):
@@ -27,11 +28,13 @@ class CreateWorldBody(Strict):
     algorithm: Algorithm = "exact"
     lod_algorithm: Algorithm = "jfa"
     focus: FocusBody | None = Field(None, description="Where `algorithm` runs; elsewhere `lod_algorithm`.")
+    borders: Borders = "exact"
 
 
 class PatchWorldBody(Strict):
     algorithm: Algorithm | None = None
     lod_algorithm: Algorithm | None = None
+    borders: Borders | None = None
     max_distance: StrictInt | None = None
     focus: FocusBody | None = Field(None, description="null removes the focus; leave it out to keep it.")
 

@@ -41,7 +41,8 @@ def _focus(body: Any) -> Focus | None:
 async def create_world(request: Request) -> Response:
     body = CreateWorldBody.model_validate(await decode_body(request))
     config = WorldConfig(size=tuple(body.size), chunk_size=body.chunk_size, max_distance=body.max_distance,
-                         algorithm=body.algorithm, lod_algorithm=body.lod_algorithm, focus=_focus(body.focus))
+                         algorithm=body.algorithm, lod_algorithm=body.lod_algorithm, focus=_focus(body.focus),
+                         borders=body.borders)
     principal = check_world_quota(request)
     described = await engine_of(request).create_world(config, owner=principal.name)
     response = respond(request, described, status_code=201)
@@ -62,10 +63,10 @@ async def describe_world(request: Request, world_id: str) -> Response:
 
 
 @router.patch("/worlds/{world_id}", openapi_extra=request_body(PatchWorldBody),
-              summary="Change algorithm, focus or cap (the field is recomputed)")
+              summary="Change algorithm, focus, cap or borders (the field is recomputed)")
 async def patch_world(request: Request, world_id: str) -> Response:
     body = PatchWorldBody.model_validate(await decode_body(request))
-    changes: dict[str, Any] = {k: getattr(body, k) for k in ("algorithm", "lod_algorithm", "max_distance")
+    changes: dict[str, Any] = {k: getattr(body, k) for k in ("algorithm", "lod_algorithm", "max_distance", "borders")
                                if getattr(body, k) is not None}
     if "focus" in body.model_fields_set:
         changes["focus"] = _focus(body.focus)

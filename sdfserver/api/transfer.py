@@ -38,7 +38,7 @@ from sdfserver.world import WorldConfig
 router = APIRouter(prefix="/v1")
 FORMATS = "^(snapshot|npy|vox)$"
 EXTENSIONS = {"snapshot": "sdfsnap", "npy": "npy", "vox": "vox"}
-CONFIG_KEYS = ("size", "chunk_size", "max_distance", "algorithm", "lod_algorithm", "focus")
+CONFIG_KEYS = ("size", "chunk_size", "max_distance", "algorithm", "lod_algorithm", "focus", "borders")
 
 
 @router.get("/worlds/{world_id}/export", summary="Download the world's voxels as a snapshot, .npy or .vox",

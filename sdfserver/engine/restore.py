@@ -37,6 +37,7 @@ def config_from_dict(d: dict) -> WorldConfig:
     focus = d.get("focus")
     return WorldConfig(size=tuple(d["size"]), chunk_size=d["chunk_size"], max_distance=d["max_distance"],
                        algorithm=d["algorithm"], lod_algorithm=d.get("lod_algorithm", "jfa"),
+                       borders=d.get("borders", "exact"),  # older logs and snapshots predate it
                        focus=None if focus is None else Focus(tuple(focus["center"]), tuple(focus["size"])))
 
 

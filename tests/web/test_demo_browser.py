@@ -147,6 +147,23 @@ async def _drive(base: str, tmp: Path) -> None:
         assert changed.mean() > 0.001, "placing voxels did not change the picture"
         assert not await browser.evaluate("window.sdfDemo.errors.length"), \
             await browser.evaluate("window.sdfDemo.errors")
+
+        # Benchmark mode (§3.5): seeded brushes every 200 ms while the camera orbits; the page shows
+        # FPS over all frames and over the frames that came while a recompute was in flight.
+        version = httpx.get(base + f"/v1/worlds/{worlds[0]['id']}").json()["version"]
+        await browser.evaluate("document.getElementById('bench-seed').value = '7'; "
+                               "document.getElementById('bench-on').click()")
+        await browser.wait_for("window.sdfDemo.benchmark.edits >= 5 && window.sdfDemo.benchmark.recomputeFrames >= 2",
+                               60)
+        await browser.evaluate("document.getElementById('bench-on').click()")
+        stats = await browser.evaluate("window.sdfDemo.benchmark")
+        assert stats["seed"] == 7 and not stats["running"]
+        assert stats["fpsOverall"] > 0 and stats["fpsRecompute"] > 0, stats
+        shown = [float(await browser.evaluate(f"document.getElementById('{i}').textContent"))
+                 for i in ("bench-fps", "bench-fps-recompute")]
+        assert shown == pytest.approx([stats["fpsOverall"], stats["fpsRecompute"]], abs=0.051)
+        assert httpx.get(base + f"/v1/worlds/{worlds[0]['id']}").json()["version"] >= version + stats["edits"]
+        await browser.screenshot(tmp / "benchmark.png")
     finally:
         await browser.close()
 

@@ -4,6 +4,10 @@ Flags are generated from the Settings fields (``--max-request-bytes`` for
 ``max_request_bytes``) and override ``SDFSERVER_*`` environment variables.
 Scale with one process per device, never with uvicorn workers on one device; ``--fronts N``
 adds processes that parse the hot requests' HTTP for this one (``fronts.py``).
+
+Start-up in order: the port (``port.py``: a second server stops here), the data directory, the
+device, the stored worlds, the engine's warm-up; only then does it listen. What fails on the way
+is said in one line, with exit status 1. A dead engine thread ends the server, also with 1.
 """
 
 from __future__ import annotations
@@ -99,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
         return _serve(settings, engine, journal, held, log_config)
     finally:
         if engine is not None:
-            engine.stop()
+            engine.stop(timeout_s=5.0)  # stopped already unless it never served
         if journal is not None:
             journal.close()
         if data_dir_lock is not None:
@@ -131,7 +135,10 @@ def _serve(settings: Settings, engine: Any, journal: Any, held: socket.socket, l
             server.should_exit = True
 
     engine.start(warm_up=settings.warm_up, on_death=on_death)
-    failure = engine.wait_started()  # listen only once the engine has shown it can serve
+    try:
+        failure = engine.wait_started()  # listen only once the engine has shown it can serve
+    except KeyboardInterrupt:
+        return 130
     if failure is not None:
         print(f"sdfserver serve: {failure}; {DEVICE_ADVICE}", file=sys.stderr)
         return 1

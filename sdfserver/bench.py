@@ -5,7 +5,8 @@ Sections, each on any OpenCL device:
             regeneration after random brush edits (mean, std, 95% CI) and FIM passes
   worlds    full-regeneration time per algorithm for worlds 64^3 .. 1024^3
   update    a radius-8 brush edit in the largest world: incremental device time per cap
-  accuracy  each algorithm against `exact`: share of exact voxels, max/mean error, underestimates
+  accuracy  each algorithm against `exact`: share of exact voxels, max/mean error, underestimates;
+            with --padded, those algorithms again with padded chunk borders (§4.2.1)
   anchors   scipy's distance_transform_cdt (CPU) and cupyx's distance_transform_edt (GPU), if installed
 `sdfserver bench render ...` runs the rendering scenario instead (Tables 4.1 and 4.3; see --help there);
 `sdfserver bench seed --out DIR` reproduces all of the dissertation's chapter 4 (see --help there).
@@ -35,7 +36,8 @@ from sdfserver.errors import DeviceMemoryExceeded
 from sdfserver.gpu import GpuContext
 from sdfserver.world import World, WorldConfig
 
-ALL_ALGORITHMS = ["exact", "jfa", "jfa_fim", "fim", "brute"]
+ALL_ALGORITHMS = ["exact", "jfa", "jfa+1", "jfa+2", "jfa_fim", "fim", "brute"]
+PADDED_ALGORITHMS = ["brute", "fim", "jfa", "jfa_fim"]  # also run with borders "padded" in the worlds section
 SECTIONS = ["chunks", "worlds", "update", "anchors"]
 # Brute force is O(n^6) on one chunk: beyond these sizes a single run takes minutes.
 BRUTE_MAX_CHUNK = 64
@@ -113,13 +115,15 @@ def bench_worlds(gpu, args, rng, results: Results) -> None:
     results.rows("accuracy")
     for n in args.world_sizes:
         reference = None
-        for algorithm in args.algorithms:
-            if algorithm == "brute" and n > args.brute_max_world:
+        runs = [(a, "exact") for a in args.algorithms] + [(a, "padded") for a in args.padded]
+        for base, borders in runs:
+            if base == "brute" and n > args.brute_max_world:
                 continue
+            algorithm = base if borders == "exact" else f"{base} padded"
             progress(f"worlds: {algorithm} {n}^3")
             try:
-                world = World(gpu, WorldConfig((n, n, n), args.chunk_size, args.max_distance, algorithm),
-                              args.limits)
+                world = World(gpu, WorldConfig((n, n, n), args.chunk_size, args.max_distance, base,
+                                               borders=borders), args.limits)
             except DeviceMemoryExceeded as exc:
                 results.add("worlds", {"algorithm": algorithm, "world_size": n, "skipped": str(exc)},
                             f"{algorithm} {n}^3: skipped: {exc}")
@@ -229,12 +233,12 @@ def format_tables(results: dict) -> str:
         lines.append("")
     if results.get("worlds"):
         lines.append("Whole world, full regeneration")
-        lines.append(f"{'algorithm':<9} {'world':>6} {'median ms':>10} {'mean ms':>10} {'std ms':>9} {'Gvox/s':>8} {'iters':>6} {'MiB':>7}")
+        lines.append(f"{'algorithm':<14} {'world':>6} {'median ms':>10} {'mean ms':>10} {'std ms':>9} {'Gvox/s':>8} {'iters':>6} {'MiB':>7}")
         for r in results["worlds"]:
             if "skipped" in r:
-                lines.append(f"{r['algorithm']:<9} {r['world_size']:>5}³ skipped: {r['skipped']}")
+                lines.append(f"{r['algorithm']:<14} {r['world_size']:>5}³ skipped: {r['skipped']}")
                 continue
-            lines.append(f"{r['algorithm']:<9} {r['world_size']:>5}³ {r['median_ms']:>10.4f} {r['mean_ms']:>10.4f} "
+            lines.append(f"{r['algorithm']:<14} {r['world_size']:>5}³ {r['median_ms']:>10.4f} {r['mean_ms']:>10.4f} "
                          f"{r['std_ms']:>9.4f} {r['voxels_per_s'] / 1e9:>8.2f} {r['iterations_mean']:>6.1f} "
                          f"{r['device_bytes'] / 2**20:>7.0f}")
         lines.append("")
@@ -249,9 +253,9 @@ def format_tables(results: dict) -> str:
         lines.append("")
     if results.get("accuracy"):
         lines.append("Accuracy against exact")
-        lines.append(f"{'algorithm':<9} {'world':>6} {'exact %':>8} {'max err':>8} {'mean err':>9} {'under':>6}")
+        lines.append(f"{'algorithm':<14} {'world':>6} {'exact %':>8} {'max err':>8} {'mean err':>9} {'under':>6}")
         for r in results["accuracy"]:
-            lines.append(f"{r['algorithm']:<9} {r['world_size']:>5}³ {100 * r['exact_share']:>8.2f} "
+            lines.append(f"{r['algorithm']:<14} {r['world_size']:>5}³ {100 * r['exact_share']:>8.2f} "
                          f"{r['max_error']:>8} {r['mean_error']:>9.4f} {r['underestimates']:>6}")
         lines.append("")
     if results.get("anchors"):
@@ -268,6 +272,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--sections", default=",".join(SECTIONS),
                    help=f"comma list of: {', '.join(SECTIONS)} (accuracy comes with worlds)")
     p.add_argument("--algorithms", default=",".join(ALL_ALGORITHMS))
+    p.add_argument("--padded", default=",".join(PADDED_ALGORITHMS),
+                   help="of --algorithms, those the worlds section runs again with padded chunk borders "
+                        "(each chunk alone, its outside solid; accuracy against exact)")
     p.add_argument("--chunk-sizes", default="8,16,32,64,128")
     p.add_argument("--world-sizes", default="64,128,256,512,1024")
     p.add_argument("--chunk-size", type=int, default=32, help="chunk size of the whole-world runs")
@@ -288,6 +295,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         args.update_caps, args.reps = "255,16", 3
         args.brute_max_world, args.brute_max_chunk = 32, 16
     args.algorithms = [a for a in args.algorithms.split(",") if a]
+    args.padded = [a for a in args.padded.split(",") if a in args.algorithms]
     unknown = set(args.algorithms) - set(ALGORITHMS)
     if unknown:
         p.error(f"unknown algorithms {sorted(unknown)}; choose from {sorted(ALGORITHMS)}")

@@ -38,16 +38,19 @@ class Settings(BaseSettings):
     log_format: Literal["text", "json"] = Field("text", description="Log line format: 'text' or 'json' "
                                                                     "(one JSON object per line).")
     log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Lowest level logged.")
-    fronts: int = Field(
-        2, ge=0, le=64, description="Front processes that parse HTTP for the hot requests (edits, field reads, point "
-                                    "queries) and pass their commands to this process's engine; every other "
-                                    "connection is handed to this process. 0: this process serves everything, "
-                                    "with the shortest lone-client round trip (~0.1-0.5 ms less) but under half "
-                                    "the 64-client throughput on the GPU machine (docs/architecture.md, "
-                                    "docs/benchmarks.md).")
+    workers: int = Field(
+        2, ge=1, le=64, description="Identical API processes (uvicorn + FastAPI) sharing the listening socket; "
+                                    "each parses HTTP and WebSocket traffic and sends typed requests to the "
+                                    "engine processes. 2 by default: one process's HTTP work caps a server "
+                                    "near a few thousand requests/s (docs/architecture.md, docs/benchmarks.md).")
+    devices: str = Field(
+        "", description="Comma-separated device specs (as `device` takes them), one engine process each; "
+                        "worlds are placed on the engine with the most free device memory. Empty: one engine "
+                        "on `device`.")
     access_log: bool = Field(False, description="Log every HTTP request (costs throughput).")
     switch_interval_ms: float = Field(
-        0.5, gt=0, le=100, description="Longest the event loop keeps Python's GIL while the engine thread waits "
+        0.5, gt=0, le=100, description="Longest another thread of an engine process (its input or output "
+                                       "thread, the log writer) keeps Python's GIL while the engine thread waits "
                                        "for it (sys.setswitchinterval), in milliseconds. Each time the engine "
                                        "blocks on the device or the disk it waits up to this long to go on; "
                                        "Python's default is 5.")

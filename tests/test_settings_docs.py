@@ -58,7 +58,7 @@ def test_unknown_environment_variables_are_named_with_the_likely_setting():
 def test_serve_warns_of_an_unknown_variable_at_start(tmp_path):
     from server_process import ServerProcess
 
-    server = ServerProcess(tmp_path / "data", "--no-warm-up", "--fronts", "0",
+    server = ServerProcess(tmp_path / "data", "--no-warm-up", "--workers", "1",
                            env={"SDFSERVER_MAX_WORLD_VOXEL": "512"})
     try:
         server.wait_ready()

@@ -1,5 +1,5 @@
 """HTTP and WebSocket API (FastAPI); the only layer that knows about requests."""
 
-from sdfserver.api.app import build_engine, create_app
+from sdfserver.api.app import create_app
 
-__all__ = ["build_engine", "create_app"]
+__all__ = ["create_app"]

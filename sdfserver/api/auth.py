@@ -11,17 +11,16 @@ Each key owns the worlds it creates and sees only those: another tenant's world 
 no keys configured the server is open (everyone is admin) and ``sdfserver serve`` refuses to
 listen on anything but loopback.
 
-``guard`` is the one dependency every ``/v1`` route runs: authenticate, rate-limit
-(a token bucket per key — per client address on an open server), and check the owner of
-the ``{world_id}`` in the path.
+``guard`` is the one dependency every ``/v1`` route runs: it authenticates and leaves the
+request's ``Access`` for the engine, which rate-limits (a token bucket per key — per client
+address on an open server) and checks the owner of the world, in one place for every API
+process.
 """
 
 from __future__ import annotations
 
 import hmac
 import ipaddress
-import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,7 +29,8 @@ from fastapi import Request
 from starlette.requests import HTTPConnection
 
 from sdfserver.api.bodies import header
-from sdfserver.errors import InvalidInput, NotFound, RateLimited, TooLarge, Unauthorized
+from sdfserver.engine.messages import Access
+from sdfserver.errors import InvalidInput, Unauthorized
 
 
 @dataclass(frozen=True)
@@ -84,31 +84,14 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-class TokenBucket:
-    def __init__(self, rate_per_s: float, burst: int):
-        self.rate, self.burst = rate_per_s, float(burst)
-        self.tokens, self.stamp = float(burst), time.monotonic()
-
-    def take(self) -> float:
-        """0 when a token was taken, else the seconds until one is available."""
-        now = time.monotonic()
-        self.tokens = min(self.burst, self.tokens + (now - self.stamp) * self.rate)
-        self.stamp = now
-        if self.tokens >= 1.0:
-            self.tokens -= 1.0
-            return 0.0
-        return (1.0 - self.tokens) / self.rate
-
-
 class Gatekeeper:
-    MAX_BUCKETS = 4096  # bounds the per-address buckets of an open server
+    """The keys, in every API process alike; the rate limit and the owners are the engine's
+    (``sdfserver/engine/access.py``), so that N API processes share one budget per key."""
 
-    def __init__(self, keys: list[ApiKey], rate_per_s: float = 0.0, burst: int = 100):
+    def __init__(self, keys: list[ApiKey], rate_per_s: float = 0.0):
         self.keys = keys
         self.principals = [Principal(key.name, key.admin) for key in keys]  # built once, not per request
-        self.rate_per_s, self.burst = rate_per_s, burst
-        self._buckets: dict[str, TokenBucket] = {}
-        self._lock = threading.Lock()
+        self.rate_per_s = rate_per_s
 
     @property
     def open(self) -> bool:
@@ -128,20 +111,11 @@ class Gatekeeper:
             raise Unauthorized("unknown API key")
         return found
 
-    def throttle(self, principal: Principal, client: str) -> None:
-        if self.rate_per_s <= 0:
-            return
-        who = principal.name if principal.name is not None else f"address {client}"
-        with self._lock:
-            bucket = self._buckets.get(who)
-            if bucket is None:
-                if len(self._buckets) >= self.MAX_BUCKETS:
-                    self._buckets.clear()
-                bucket = self._buckets[who] = TokenBucket(self.rate_per_s, self.burst)
-            wait = bucket.take()
-        if wait:
-            raise RateLimited(f"rate limit of {self.rate_per_s:g} requests/s (burst {self.burst}) reached for "
-                              f"{who}; retry in {wait:.2f} s", wait)
+    def access(self, principal: Principal, client: str) -> Access | None:
+        """What the engine checks for this principal; None when there is nothing to check."""
+        if self.open and self.rate_per_s <= 0:
+            return None
+        return Access(principal.name, principal.admin, client)
 
 
 def bearer_token(connection: HTTPConnection, allow_query: bool = False) -> str | None:
@@ -151,22 +125,6 @@ def bearer_token(connection: HTTPConnection, allow_query: bool = False) -> str |
     if allow_query:
         return connection.query_params.get("access_token")
     return None
-
-
-def check_owner(engine: Any, principal: Principal, world_id: str) -> None:
-    """Another tenant's world is NotFound, word for word as a missing one."""
-    if principal.admin:
-        return
-    if engine.owner_of(world_id) != principal.name:
-        raise NotFound(f"no world {world_id!r}")
-
-
-def admit(gate: Gatekeeper, engine: Any, principal: Principal, client: str, world_id: str | None) -> None:
-    """Rate limit and world owner, for a principal already authenticated (here or in a front)."""
-    if gate.rate_per_s > 0:
-        gate.throttle(principal, client)
-    if world_id is not None:
-        check_owner(engine, principal, world_id)
 
 
 def client_host(connection: HTTPConnection) -> str:
@@ -186,22 +144,16 @@ def authenticate(request: Request) -> Principal:
 
 
 async def guard(request: Request) -> None:
-    """The dependency of every /v1 route: key, rate limit, world owner."""
+    """The dependency of every /v1 route: the key here; its rate limit and the world's owner
+    are checked by the engine with the request's ``access``."""
     principal = authenticate(request)
     gate: Gatekeeper = request.app.state.gatekeeper
-    client = client_host(request) if gate.rate_per_s > 0 else "unknown"  # the address is needed only then
-    admit(gate, request.app.state.engine, principal, client, request.path_params.get("world_id"))
+    request.state.access = gate.access(principal, client_host(request))
 
 
 def principal_of(request: Request) -> Principal:
     return getattr(request.state, "principal", OPEN)
 
 
-def check_world_quota(request: Request) -> Principal:
-    """The principal creating a world, after checking ``max_worlds_per_key``."""
-    principal = principal_of(request)
-    limit = request.app.state.settings.max_worlds_per_key
-    owners = list(request.app.state.engine.owners.values())
-    if not principal.admin and sum(o == principal.name for o in owners) >= limit:
-        raise TooLarge(f"API key {principal.name!r} already owns {limit} worlds, its limit")
-    return principal
+def access_of(request: Request) -> Access | None:
+    return getattr(request.state, "access", None)

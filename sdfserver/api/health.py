@@ -6,8 +6,9 @@ from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
+from sdfserver.api.engines import not_ready
 from sdfserver.api.errors import error_response
-from sdfserver.errors import NotReady
+from sdfserver.errors import NotReady, WritesDisabled
 
 router = APIRouter()
 
@@ -17,21 +18,25 @@ async def livez() -> JSONResponse:
     return JSONResponse({"status": "ok"})
 
 
-@router.get("/readyz", summary="The engine runs and the device works (503 otherwise)")
+@router.get("/readyz", summary="Every engine runs and its device works (503 otherwise)")
 async def readyz(request: Request) -> JSONResponse:
-    engine = request.app.state.engine
-    if engine is None or not engine.ready:
-        reason = engine.not_ready_reason() if engine is not None else "the engine is not started"
-        return error_response(NotReady(reason))
-    fronts = request.app.state.fronts
-    if fronts is not None and fronts.listening < fronts.wanted:
-        return error_response(NotReady(f"{fronts.listening} of {fronts.wanted} front processes listen"))
-    journal = request.app.state.journal
-    if journal is not None and journal.storage.committer.failure is not None:
-        return error_response(journal.storage.committer.failure)  # writes are disabled
-    return JSONResponse({"status": "ready", "device": engine.gpu.device_name})
+    engines = request.app.state.engine
+    if engines is None:
+        return error_response(NotReady("the engine is not started"))
+    statuses = await engines.status()
+    failure = not_ready(statuses)
+    if failure is not None:
+        return error_response(failure)
+    for status in statuses:
+        if status.writes_disabled is not None:
+            return error_response(WritesDisabled(status.writes_disabled))
+    devices = [s.device for s in statuses]
+    return JSONResponse({"status": "ready", "device": devices[0], "devices": devices})
 
 
 @router.get("/metrics", summary="Prometheus metrics", response_class=PlainTextResponse)
 async def metrics(request: Request) -> Response:
-    return Response(generate_latest(request.app.state.metrics.registry), media_type=CONTENT_TYPE_LATEST)
+    api = request.app.state.metrics
+    api.report()  # this process's counts, before the engine's text is taken
+    engines = await request.app.state.engine.metrics_text()
+    return Response(engines + generate_latest(api.registry).decode(), media_type=CONTENT_TYPE_LATEST)

@@ -1,4 +1,4 @@
-"""Log set-up of the server process and its fronts: one handler on the root logger, text or
+"""Log set-up of the launcher, shared by its engine and API processes: one handler on the root logger, text or
 JSON lines, API keys in query strings redacted."""
 
 from __future__ import annotations

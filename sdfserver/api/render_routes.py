@@ -9,11 +9,10 @@
 - On ``/v1/worlds/{id}/stream``: ``{type: "camera", ...camera, max_fps?, format?, quality?}``
   sets the client's view; the server then pushes ``{type: "frame", world, version, format,
   width, height, data, render_ms, field_ms, seq}`` whenever the view or the field changed,
-  at most ``max_fps`` a second. Frames are rendered on the engine thread between steps
-  (one field version each), encoded in a thread pool, and wait in a single slot: a client
-  that reads slowly gets the newest frame, never a backlog.
-
-Everything that touches the device runs inside ``engine.run_on_device``.
+  at most ``max_fps`` a second. Frames are rendered by the engine between steps (one field
+  version each; a ``Render`` request carries the view as plain data), encoded here, in this
+  API process's thread pool, and wait in a single slot: a client that reads slowly gets the
+  newest frame, never a backlog.
 """
 
 from __future__ import annotations
@@ -28,11 +27,13 @@ from fastapi import APIRouter, FastAPI, Request, WebSocketDisconnect
 from fastapi.responses import FileResponse, Response
 from fastapi.staticfiles import StaticFiles
 
+from sdfserver.api.auth import access_of
 from sdfserver.api.bodies import decode_body, respond
+from sdfserver.api.engines import Engines
 from sdfserver.api.errors import body_for
-from sdfserver.engine import Engine
-from sdfserver.errors import InvalidInput, NotFound, SdfServerError
-from sdfserver.render import FORMATS, Renderer, encode_frame, format_from_accept, parse_view
+from sdfserver.engine.messages import Access
+from sdfserver.errors import InvalidInput, SdfServerError
+from sdfserver.render import FORMATS, encode_frame, format_from_accept, parse_view
 from sdfserver.render.encode import check_format
 
 STATIC_DIR = Path(__file__).resolve().parents[1] / "web" / "static"
@@ -45,7 +46,6 @@ _encode_pool: ThreadPoolExecutor | None = None
 
 def install(app: FastAPI, dependencies: list | None = None) -> None:
     """The render routes (behind ``dependencies``: the API-key guard), the static files and the demo page at ``/``."""
-    app.state.renderer = None
     app.include_router(router, dependencies=dependencies or [])
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
 
@@ -59,20 +59,6 @@ def encode_pool() -> ThreadPoolExecutor:
     if _encode_pool is None:
         _encode_pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="sdfserver-encode")
     return _encode_pool
-
-
-def _renderer(state: Any, engine: Engine) -> Renderer:
-    """The app's renderer, made on first use (engine thread only)."""
-    if state.renderer is None:
-        state.renderer = Renderer(engine.gpu)
-    return state.renderer
-
-
-def _world(engine: Engine, world_id: str):
-    world = engine.worlds.get(world_id)  # engine thread only
-    if world is None:
-        raise NotFound(f"no world {world_id!r}")
-    return world
 
 
 def _quality(raw: Any) -> int:
@@ -90,12 +76,10 @@ async def render(request: Request, world_id: str, format: str | None = None) -> 
     fmt = check_format(format or (body.get("format") if isinstance(body, dict) else None)
                        or format_from_accept(request.headers.get("accept")))
     quality = _quality(body.get("quality", 85))
-    engine: Engine = request.app.state.engine
-    state = request.app.state
-    frame = await engine.run_on_device(
-        lambda: _renderer(state, engine).render(_world(engine, world_id), camera, options))
+    engine: Engines = request.app.state.engine
+    frame = await engine.render(world_id, body, None, access_of(request))
     data = await asyncio.get_running_loop().run_in_executor(
-        encode_pool(), encode_frame, frame.pixels, fmt, quality)
+        encode_pool(), encode_frame, frame.pixels.numpy(), fmt, quality)
     request.app.state.metrics.bytes_out.inc(len(data))
     return Response(data, media_type=FORMATS[fmt], headers={
         "X-Field-Version": str(frame.field_version), "X-Frame-Width": str(camera.width),
@@ -114,27 +98,21 @@ async def pick(request: Request, world_id: str) -> Response:
     for name, v in (("x", x), ("y", y)):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or v != v or abs(v) > 1e6:
             raise InvalidInput(f"{name} must be a finite number, got {v!r}")
-    engine: Engine = request.app.state.engine
-    state = request.app.state
-
-    def run():
-        world = _world(engine, world_id)
-        return _renderer(state, engine).pick(world, camera, float(x), float(y)), world.field_version
-
-    hit, version = await engine.run_on_device(run)
-    if hit is None:
-        return respond(request, {"hit": False, "field_version": version})
+    engine: Engines = request.app.state.engine
+    hit = await engine.pick(world_id, view, float(x), float(y), access_of(request))
+    if hit.voxel is None:
+        return respond(request, {"hit": False, "field_version": hit.field_version})
     return respond(request, {"hit": True, "voxel": list(hit.voxel), "normal": list(hit.normal),
-                             "place": list(hit.place), "field_version": version})
+                             "place": list(hit.place), "field_version": hit.field_version})
 
 
 class FrameStream:
     """One WebSocket client's frames: render -> encode -> single slot -> send."""
 
-    def __init__(self, app_state: Any, engine: Engine, world_id: str,
-                 send: Callable[[dict[str, Any]], Awaitable[None]]):
-        self.state = app_state
+    def __init__(self, engine: Engines, world_id: str, send: Callable[[dict[str, Any]], Awaitable[None]],
+                 access: Access | None = None):
         self.engine = engine
+        self.access = access
         self.world_id = world_id
         self.send = send
         self.view: tuple | None = None  # (camera, options, format, quality, max_fps)
@@ -153,7 +131,7 @@ class FrameStream:
         max_fps = message.get("max_fps", DEFAULT_FPS)
         if isinstance(max_fps, bool) or not isinstance(max_fps, (int, float)) or not 0 < max_fps <= MAX_FPS:
             raise InvalidInput(f"max_fps must be a number in (0, {MAX_FPS:g}], got {max_fps!r}")
-        self.view = (camera, options, fmt, quality, float(max_fps))
+        self.view = (camera, message, fmt, quality, float(max_fps))
         self.view_serial += 1
         self.view_changed.set()
         if not self._tasks:
@@ -167,15 +145,6 @@ class FrameStream:
                 await task  # a closed socket ends the sender with one of these
         self._tasks = []
 
-    def _render_if_changed(self, serial: int, last: tuple[int, int] | None):
-        """Engine thread: a frame, or None when neither the view nor the field changed."""
-        world = _world(self.engine, self.world_id)
-        if last == (serial, world.field_version):
-            return None
-        camera, options = self.view[0], self.view[1]
-        frame = _renderer(self.state, self.engine).render(world, camera, options)
-        return frame, self.engine.last_recompute_ms.get(self.world_id)
-
     async def _produce(self) -> None:
         loop = asyncio.get_running_loop()
         last: tuple[int, int] | None = None
@@ -183,25 +152,25 @@ class FrameStream:
             started = loop.time()
             serial, view = self.view_serial, self.view
             try:
-                result = await self.engine.run_on_device(lambda: self._render_if_changed(serial, last))
+                unless = last[1] if last is not None and last[0] == serial else None
+                frame = await self.engine.render(self.world_id, view[1], unless, self.access)
             except SdfServerError as exc:  # the world was deleted, the device lost: say so, stop
                 self.slot = {"type": "error", "id": None, **body_for(exc)[1]}
                 self.slot_filled.set()
                 self._tasks = [t for t in self._tasks if t is not asyncio.current_task()]
                 return
-            if result is not None:
-                frame, field_ms = result
+            if frame is not None:
                 last = (serial, frame.field_version)
                 camera, _, fmt, quality, _ = view
-                data = await loop.run_in_executor(encode_pool(), encode_frame, frame.pixels, fmt, quality)
+                data = await loop.run_in_executor(encode_pool(), encode_frame, frame.pixels.numpy(), fmt, quality)
                 self.seq += 1
                 self.slot = {"type": "frame", "world": self.world_id, "version": frame.field_version,
                              "format": fmt, "width": camera.width, "height": camera.height, "data": data,
-                             "render_ms": frame.device_ms, "field_ms": field_ms, "seq": self.seq}
+                             "render_ms": frame.device_ms, "field_ms": frame.field_ms, "seq": self.seq}
                 self.slot_filled.set()
             # At most max_fps frames a second; a new view wakes the loop early only after that.
             await asyncio.sleep(max(0.0, started + 1.0 / view[4] - loop.time()))
-            if result is None:
+            if frame is None:
                 self.view_changed.clear()
                 try:
                     await asyncio.wait_for(self.view_changed.wait(), timeout=1.0 / view[4])

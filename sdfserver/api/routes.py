@@ -12,24 +12,28 @@ from typing import Any
 import numpy as np
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import Response
-from starlette.concurrency import run_in_threadpool
 
 from sdfserver import wire
-from sdfserver.api.auth import check_world_quota, principal_of
+from sdfserver.api.auth import access_of, principal_of
 from sdfserver.api.bodies import MSGPACK, OCTET, Encoded, decode_body, header, respond
+from sdfserver.api.engines import Engines
 from sdfserver.api.models import CreateWorldBody, EditsBody, PatchWorldBody, QueryBody, request_body
-from sdfserver.edits import parse_edits
-from sdfserver.engine import Engine
+from sdfserver.engine.core import world_config_dict
 from sdfserver.errors import InvalidEdit, InvalidInput, TooLarge
 from sdfserver.geometry import Box
+from sdfserver.storage.codec import encode_batch
 from sdfserver.world import Focus, WorldConfig
 
 router = APIRouter(prefix="/v1")
 LITTLE_ENDIAN = {name: np.dtype(name).newbyteorder("<") for name in ("uint8", "uint16")}  # reads' wire dtypes
 
 
-def engine_of(request: Request) -> Engine:
+def engine_of(request: Request) -> Engines:
     return request.app.state.engine
+
+
+def max_owned(request: Request) -> int:
+    return request.app.state.settings.max_worlds_per_key
 
 
 def _focus(body: Any) -> Focus | None:
@@ -43,8 +47,8 @@ async def create_world(request: Request) -> Response:
     config = WorldConfig(size=tuple(body.size), chunk_size=body.chunk_size, max_distance=body.max_distance,
                          algorithm=body.algorithm, lod_algorithm=body.lod_algorithm, focus=_focus(body.focus),
                          borders=body.borders)
-    principal = check_world_quota(request)
-    described = await engine_of(request).create_world(config, owner=principal.name)
+    described = await engine_of(request).create_world(world_config_dict(config), access_of(request),
+                                                      max_owned=max_owned(request))
     response = respond(request, described, status_code=201)
     response.headers["Location"] = f"/v1/worlds/{described['id']}"
     return response
@@ -53,13 +57,13 @@ async def create_world(request: Request) -> Response:
 @router.get("/worlds", summary="List worlds")
 async def list_worlds(request: Request) -> Response:
     principal = principal_of(request)
-    worlds = [w for w in await engine_of(request).list_worlds() if principal.sees(w["owner"])]
+    worlds = [w for w in await engine_of(request).list_worlds(access_of(request)) if principal.sees(w["owner"])]
     return respond(request, {"worlds": worlds})
 
 
 @router.get("/worlds/{world_id}", summary="Describe a world")
 async def describe_world(request: Request, world_id: str) -> Response:
-    return respond(request, await engine_of(request).describe(world_id))
+    return respond(request, await engine_of(request).describe(world_id, access_of(request)))
 
 
 @router.patch("/worlds/{world_id}", openapi_extra=request_body(PatchWorldBody),
@@ -69,16 +73,18 @@ async def patch_world(request: Request, world_id: str) -> Response:
     changes: dict[str, Any] = {k: getattr(body, k) for k in ("algorithm", "lod_algorithm", "max_distance", "borders")
                                if getattr(body, k) is not None}
     if "focus" in body.model_fields_set:
-        changes["focus"] = _focus(body.focus)
+        changes["focus"] = None if body.focus is None else {"center": list(body.focus.center),
+                                                            "size": list(body.focus.size)}
     engine = engine_of(request)
     if changes:
-        await engine.reconfigure(world_id, **changes)
-    return respond(request, await engine.describe(world_id))
+        await engine.reconfigure(world_id, changes, access_of(request))
+        return respond(request, await engine.describe(world_id))
+    return respond(request, await engine.describe(world_id, access_of(request)))
 
 
 @router.delete("/worlds/{world_id}", status_code=204, summary="Delete a world")
 async def delete_world(request: Request, world_id: str) -> Response:
-    await engine_of(request).delete_world(world_id)
+    await engine_of(request).delete_world(world_id, access_of(request))
     return Response(status_code=204)
 
 
@@ -95,11 +101,12 @@ def _edits_wire(body: Any, max_ops: int) -> list[dict[str, Any]]:
     return raw
 
 
-async def parse_edits_off_loop(raw: Any) -> list:
-    """parse_edits; long voxel lists (a Python loop over rows) are parsed on a worker thread."""
-    long_lists = isinstance(raw, list) and sum(
-        len(op["voxels"]) for op in raw if isinstance(op, dict) and isinstance(op.get("voxels"), list)) > 4096
-    return await run_in_threadpool(parse_edits, raw) if long_lists else parse_edits(raw)
+def batch_record(raw: Any) -> bytes:
+    """The batch as the engine takes it (its log record); the engine validates it."""
+    try:
+        return encode_batch(raw)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise InvalidEdit(f"edits: cannot be encoded as an edit batch: {exc}") from None
 
 
 @router.post("/worlds/{world_id}/edits", openapi_extra=request_body(EditsBody),
@@ -107,8 +114,7 @@ async def parse_edits_off_loop(raw: Any) -> list:
 async def post_edits(request: Request, world_id: str) -> Response:
     settings = request.app.state.settings
     raw = _edits_wire(await decode_body(request), settings.max_ops_per_batch)
-    edits = await parse_edits_off_loop(raw)
-    version = await engine_of(request).apply_edits(world_id, edits, raw)
+    version = await engine_of(request).apply_edits(world_id, batch_record(raw), access_of(request))
     return respond(request, {"version": version})
 
 
@@ -166,8 +172,8 @@ async def read_field(request: Request, world_id: str,
 
 async def field_response(request: Request, world_id: str, box: Box | None, format: str,
                          min_version: int) -> Response:
-    """The field read once its parameters are checked (here and in fastlane.py)."""
-    result = await engine_of(request).read(world_id, format, box, min_version)
+    """The field read once its parameters are checked."""
+    result = await engine_of(request).read(world_id, format, box, min_version, access_of(request))
     return _array_response(request, result, "uint8" if format == "distance" else "uint16")
 
 
@@ -177,7 +183,8 @@ async def read_voxels(request: Request, world_id: str,
                       max: str | None = Query(None, description="x,y,z (exclusive)"),
                       min_version: int = Query(0, ge=0, description="wait until the voxels reflect this version")
                       ) -> Response:
-    result = await engine_of(request).read(world_id, "voxels", box_param(min, max), min_version)
+    result = await engine_of(request).read(world_id, "voxels", box_param(min, max), min_version,
+                                           access_of(request))
     return _array_response(request, result, "uint8")
 
 
@@ -190,7 +197,7 @@ async def query(request: Request, world_id: str,
 
 
 async def query_response(request: Request, world_id: str, min_version: int) -> Response:
-    """The point query once min_version is checked (here and in fastlane.py)."""
+    """The point query once min_version is checked."""
     settings = request.app.state.settings
     body = await decode_body(request)
     points_raw = body.get("points") if isinstance(body, dict) else None
@@ -204,6 +211,6 @@ async def query_response(request: Request, world_id: str, min_version: int) -> R
         points = np.array(QueryBody.model_validate(body).points, dtype=np.float64).reshape(-1, 3)
     if len(points) > settings.max_query_points:
         raise TooLarge(f"{len(points)} points in one query; the limit is {settings.max_query_points}")
-    result = await engine_of(request).query(world_id, points, min_version)
+    result = await engine_of(request).query(world_id, points, min_version, access_of(request))
     return respond(request, {"version": result.version, "distances": result.distances,
                              "colours": result.colours, "gradients": result.gradients})

@@ -1,30 +1,41 @@
-"""``sdfserver serve``: one uvicorn process, one engine, one device.
+"""``sdfserver serve``: the launcher of one engine process per device and N identical API
+processes sharing one listening socket.
 
 Flags are generated from the Settings fields (``--max-request-bytes`` for
 ``max_request_bytes``) and override ``SDFSERVER_*`` environment variables.
-Scale with one process per device, never with uvicorn workers on one device; ``--fronts N``
-adds processes that parse the hot requests' HTTP for this one (``fronts.py``).
 
-Start-up in order: the port (``port.py``: a second server stops here), the data directory, the
-device, the stored worlds, the engine's warm-up; only then does it listen. What fails on the way
-is said in one line, with exit status 1. A dead engine thread ends the server, also with 1.
+Start-up in order: the listening socket (``port.py``: a second server stops here), one engine
+process per device in ``--devices`` (each opens its data directory, its device and its stored
+worlds, and warms up), then ``--workers`` API processes on that socket. What fails on the way
+is said in one line, with exit status 1; Ctrl-C during the warm-up exits 130.
+
+While serving, the launcher watches its children: an API process that dies is started again;
+an engine process that dies ends the server (every API process is stopped, exit status 1, the
+engine's cause in one line), so that a supervisor starts it again rather than a server
+answering without its engine. SIGTERM stops the API processes first, then the engines.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
-import socket
+import multiprocessing
+import shutil
+import signal
 import sys
+import tempfile
+import time
 import typing
+from multiprocessing.connection import wait
 from typing import Any
 
 from pydantic import ValidationError
 
-from sdfserver.errors import NoOpenCLDevice, SdfServerError
+from sdfserver.errors import SdfServerError
 from sdfserver.settings import Settings, log_unknown_environment
 
-DEVICE_ADVICE = "`sdfserver devices` lists the usable OpenCL devices and --device picks one"
+log = logging.getLogger("sdfserver")
+RESTART_QUIET_S = 1.0  # an API process that lived less than this is started again after this long
 
 
 def _flag_type(annotation: Any) -> tuple[Any, list[str] | None]:
@@ -57,14 +68,18 @@ def settings_from(argv: list[str]) -> Settings:
     return Settings(**overrides)
 
 
+class Stop(Exception):
+    """SIGTERM: stop serving."""
+
+
+def _raise_stop(*_: Any) -> None:
+    raise Stop()
+
+
 def main(argv: list[str] | None = None) -> int:
-    from sdfserver.api.app import build_engine
     from sdfserver.api.auth import is_loopback, parse_keys
-    from sdfserver.api.durability import open_journal
     from sdfserver.api.logs import configure_logging
-    from sdfserver.api.port import cannot_listen, hold_port
-    from sdfserver.engine import EngineMetrics
-    from sdfserver.storage.lock import lock_data_dir
+    from sdfserver.api.port import cannot_listen, listen_once
 
     try:
         settings = settings_from(list(sys.argv[1:] if argv is None else argv))
@@ -73,9 +88,6 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     log_config = configure_logging(settings)
     log_unknown_environment()
-    # The event loop and the engine thread share the GIL: under load, every time the engine
-    # blocks (queue.finish, a read, a log write) it waits up to this long to get it back.
-    sys.setswitchinterval(settings.switch_interval_ms / 1e3)
     try:
         keys = parse_keys(settings.api_keys, settings.api_key_file)
     except SdfServerError as exc:
@@ -85,90 +97,134 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sdfserver serve: refusing to listen on {settings.host} with no API keys configured; set "
               "SDFSERVER_API_KEYS / --api-keys or --api-key-file, or listen on 127.0.0.1", file=sys.stderr)
         return 2
-    try:  # before the warm-up: a second server on this port stops at once
-        held = hold_port(settings.host, settings.port)
+    try:  # before any warm-up: a second server on this port stops at once
+        sock = listen_once(settings.host, settings.port)
     except OSError as exc:
         print(f"sdfserver serve: {cannot_listen(settings.host, settings.port, exc)}", file=sys.stderr)
         return 1
-    journal = data_dir_lock = engine = None
+    run_dir = tempfile.mkdtemp(prefix="sdfserver-")
+    launcher = Launcher(settings, sock, run_dir, log_config)
+    signal.signal(signal.SIGTERM, _raise_stop)
     try:
-        try:
-            journal = open_journal(settings)
-            data_dir_lock = lock_data_dir(journal.storage.data_dir) if journal is not None else None
-            engine = build_engine(settings, journal=journal, metrics=EngineMetrics())
-        except SdfServerError as exc:  # no OpenCL device, unusable data directory: say so and stop
-            advice = f" ({DEVICE_ADVICE})" if isinstance(exc, NoOpenCLDevice) else ""
-            print(f"sdfserver serve: {exc}{advice}", file=sys.stderr)
-            return 1
-        return _serve(settings, engine, journal, held, log_config)
+        return launcher.run()
+    except (KeyboardInterrupt, Stop) as exc:
+        launcher.stop()
+        return 130 if isinstance(exc, KeyboardInterrupt) and not launcher.serving else 0
     finally:
-        if engine is not None:
-            engine.stop(timeout_s=5.0)  # stopped already unless it never served
-        if journal is not None:
-            journal.close()
-        if data_dir_lock is not None:
-            data_dir_lock.close()
-        held.close()
+        launcher.stop()
+        sock.close()
+        shutil.rmtree(run_dir, ignore_errors=True)
 
 
-def _serve(settings: Settings, engine: Any, journal: Any, held: socket.socket, log_config: Any) -> int:
-    """Warm the engine up, then listen; the exit status."""
-    import uvicorn
+class Launcher:
+    def __init__(self, settings: Settings, sock: Any, run_dir: str, log_config: Any):
+        from sdfserver.engine.proc import EngineAddress
 
-    from sdfserver.api.app import create_app
-    from sdfserver.api.coalesce import CoalescingHttpToolsProtocol
-    from sdfserver.api.durability import restore
-    from sdfserver.api.fronts import FrontedServer, FrontPool
-    from sdfserver.api.port import OneProcessServer, listener
+        self.settings = settings
+        self.sock = sock
+        self.log_config = log_config
+        self.context = multiprocessing.get_context("fork")  # children inherit the socket and the imports
+        specs = [d.strip() for d in settings.devices.split(",")] if settings.devices.strip() else [settings.device]
+        self.addresses = [EngineAddress(i, spec, f"ipc://{run_dir}/engine-{i}-in", f"ipc://{run_dir}/engine-{i}-out")
+                          for i, spec in enumerate(specs)]
+        self.engines: list[tuple[Any, Any]] = []  # (process, pipe)
+        self.workers: list[tuple[Any, float]] = []  # (process, started at)
+        self.serving = False
+        self._stopped = False
 
-    log = logging.getLogger("sdfserver")
-    log.info("device: %s", engine.gpu.device_name)
-    if journal is not None:
-        log.info("data directory: %s (sync %s)", journal.storage.data_dir, "on" if settings.sync else "OFF")
-        restore(engine, journal)
-    server: uvicorn.Server | None = None
-    died: list[str] = []
+    def run(self) -> int:
+        from sdfserver.engine.proc import engine_main
 
-    def on_death(reason: str) -> None:  # the engine thread, as it dies: no serving without it
-        died.append(reason)
-        if server is not None:
-            server.should_exit = True
+        for address in self.addresses:
+            receiver, sender = self.context.Pipe(duplex=False)
+            process = self.context.Process(target=_exit_with, args=(engine_main, self.settings, address,
+                                                                      len(self.addresses), sender),
+                                           name=f"sdfserver-engine-{address.index}")
+            process.start()
+            sender.close()
+            self.engines.append((process, receiver))
+        for process, pipe in self.engines:  # listen only once every engine has shown it can serve
+            failure = self._wait_ready(process, pipe)
+            if failure is not None:
+                print(f"sdfserver serve: {failure}", file=sys.stderr)
+                return 1
+        import sdfserver.api.worker  # noqa: F401  imported once here, inherited by every API process
 
-    engine.start(warm_up=settings.warm_up, on_death=on_death)
+        self.workers = [self._start_worker() for _ in range(self.settings.workers)]
+        self.serving = True
+        host, port = self.sock.getsockname()[:2]
+        log.info("listening on http://%s:%d (%d API processes, %d engines)", host, port, len(self.workers),
+                 len(self.engines))
+        return self._watch()
+
+    def _wait_ready(self, process: Any, pipe: Any) -> str | None:
+        while True:
+            if pipe.poll(0.1):
+                try:
+                    kind, text = pipe.recv()
+                except EOFError:
+                    return f"the engine process exited with status {process.exitcode}"
+                return None if kind == "ready" else text
+            if not process.is_alive() and not pipe.poll(0):
+                return f"the engine process exited with status {process.exitcode}"
+
+    def _start_worker(self) -> tuple[Any, float]:
+        from sdfserver.api.worker import worker_main
+
+        process = self.context.Process(target=_exit_with, args=(worker_main, self.settings, self.sock,
+                                                                 self.addresses, self.log_config),
+                                       name="sdfserver-api")
+        process.start()
+        return process, time.monotonic()
+
+    def _watch(self) -> int:
+        while True:
+            sentinels = [p.sentinel for p, _ in self.engines] + [p.sentinel for p, _ in self.workers]
+            wait(sentinels, timeout=1.0)
+            for process, pipe in self.engines:
+                if not process.is_alive():
+                    reason = _death_of(process, pipe)
+                    print(f"sdfserver serve: {reason}; exiting, so that a supervisor can start it again",
+                          file=sys.stderr)
+                    return 1
+            for i, (process, started) in enumerate(self.workers):
+                if not process.is_alive():
+                    log.warning("API process %d exited with status %s; starting another", process.pid,
+                                process.exitcode)
+                    if time.monotonic() - started < RESTART_QUIET_S:
+                        time.sleep(RESTART_QUIET_S)  # no crash loop
+                    self.workers[i] = self._start_worker()
+
+    def stop(self) -> None:
+        if self._stopped:
+            return
+        self._stopped = True
+        for group, grace in ((self.workers, 10.0), (self.engines, 30.0)):
+            for process, _ in group:
+                if process.is_alive():
+                    process.terminate()
+            deadline = time.monotonic() + grace
+            for process, _ in group:
+                process.join(max(0.0, deadline - time.monotonic()))
+                if process.is_alive():
+                    process.kill()
+                    process.join()
+
+
+def _death_of(process: Any, pipe: Any) -> str:
     try:
-        failure = engine.wait_started()  # listen only once the engine has shown it can serve
-    except KeyboardInterrupt:
-        return 130
-    if failure is not None:
-        print(f"sdfserver serve: {failure}; {DEVICE_ADVICE}", file=sys.stderr)
-        return 1
-    app = create_app(settings, engine, freeze_gc=True)
-    app.state.journal = journal
-    config = uvicorn.Config(app, host=settings.host, port=held.getsockname()[1], log_config=log_config,
-                            http=CoalescingHttpToolsProtocol,  # one send per answer, not one per head and body
-                            log_level=settings.log_level, access_log=settings.access_log,
-                            ws_max_size=settings.max_request_bytes, timeout_graceful_shutdown=5)
-    if settings.fronts:
-        server = FrontedServer(config, FrontPool(settings, app.state, config.port))
-        sockets = None
-    else:
-        server = OneProcessServer(config)
-        sockets = [listener(held)]
-    if died:  # before the server existed to be told
-        server.should_exit = True
-    try:
-        server.run(sockets=sockets)
-    except KeyboardInterrupt:
+        while pipe.poll(0):
+            kind, text = pipe.recv()
+            if kind == "died":
+                return text
+    except (EOFError, OSError):
         pass
-    finally:
-        for sock in sockets or ():
-            sock.close()
-    if died:
-        print(f"sdfserver serve: {died[0]}; exiting, so that a supervisor can start it again", file=sys.stderr)
-        return 1
-    if not server.started:
-        return 3  # uvicorn's start-up failure status, as uvicorn.run exits with
-    return 0
+    return f"the engine process exited with status {process.exitcode}"
+
+
+def _exit_with(main: Any, *args: Any) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # the child's own handlers, not the launcher's
+    raise SystemExit(main(*args))
 
 
 if __name__ == "__main__":

@@ -17,8 +17,8 @@ chunk_size, format, chunks: [{chunk: [cx, cy, cz], origin: [x, y, z], data:
 failed (the connection stays open). An unknown world closes the socket with
 4404; see errors.py for the close codes.
 
-Updates wait in the connection's single-slot mailbox (engine/mailbox.py): a
-client that reads slowly gets fewer, merged frames, never a growing queue.
+Updates wait in single-slot mailboxes (engine/mailbox.py), in the engine process and again
+in this one: a client that reads slowly gets fewer, merged frames, never a growing queue.
 """
 
 from __future__ import annotations
@@ -30,11 +30,13 @@ from typing import Any
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from sdfserver import wire
-from sdfserver.api.auth import OPEN, bearer_token, check_owner
+from sdfserver.api.auth import bearer_token, client_host
+from sdfserver.api.engines import Engines
 from sdfserver.api.errors import body_for, close_code_for
 from sdfserver.api.render_routes import FrameStream
-from sdfserver.api.routes import _edits_wire, parse_edits_off_loop
-from sdfserver.engine import Engine, Mailbox, Subscription, check_subscription_region
+from sdfserver.api.routes import _edits_wire, batch_record
+from sdfserver.engine import Mailbox, check_subscription_region
+from sdfserver.engine.messages import Access, ChunkUpdate
 from sdfserver.errors import InvalidInput, SdfServerError
 from sdfserver.geometry import Box
 
@@ -43,20 +45,19 @@ router = APIRouter(prefix="/v1")
 
 @router.websocket("/worlds/{world_id}/stream")
 async def stream(websocket: WebSocket, world_id: str) -> None:
-    engine: Engine = websocket.app.state.engine
+    engine: Engines = websocket.app.state.engine
     gate = websocket.app.state.gatekeeper
     await websocket.accept()
     try:
         principal = gate.authenticate(bearer_token(websocket, allow_query=True))
-        check_owner(engine, principal, world_id)
-        described = await engine.describe(world_id)
+        access = gate.access(principal, client_host(websocket))
+        described = await engine.describe(world_id, access)
     except SdfServerError as exc:
         await websocket.close(code=close_code_for(exc), reason=str(exc)[:120])
         return
     metrics = websocket.app.state.metrics
     metrics.ws_clients.inc()
-    session = StreamSession(websocket, engine, world_id, described["chunk_size"], tuple(described["size"]))
-    session.principal = principal
+    session = StreamSession(websocket, engine, world_id, described["chunk_size"], tuple(described["size"]), access)
     try:
         await session.run()
     finally:
@@ -65,23 +66,21 @@ async def stream(websocket: WebSocket, world_id: str) -> None:
 
 
 class StreamSession:
-    def __init__(self, websocket: WebSocket, engine: Engine, world_id: str, chunk_size: int,
-                 size: tuple[int, int, int]):
+    def __init__(self, websocket: WebSocket, engine: Engines, world_id: str, chunk_size: int,
+                 size: tuple[int, int, int], access: Access | None):
         self.websocket = websocket
         self.world_box = Box.of_size(size)
         self.engine = engine
         self.world_id = world_id
         self.chunk_size = chunk_size
         self.settings = websocket.app.state.settings
-        self.gate = websocket.app.state.gatekeeper
-        self.principal = OPEN
-        self.client = websocket.client.host if websocket.client else "unknown"
+        self.access = access
         self.metrics = websocket.app.state.metrics
-        self.subscription: Subscription | None = None
-        self.loop = asyncio.get_running_loop()
+        self.subscription: tuple[Any, int, str, str] | None = None  # (engine, number, format, dtype)
+        self.mailbox = Mailbox()
         self.wake = asyncio.Event()
         self.send_lock = asyncio.Lock()
-        self.frames = FrameStream(websocket.app.state, engine, world_id, self.send)  # issue 4
+        self.frames = FrameStream(engine, world_id, self.send, access)
 
     async def run(self) -> None:
         sender = asyncio.create_task(self._send_updates())
@@ -95,8 +94,9 @@ class StreamSession:
 
     def close(self) -> None:
         if self.subscription is not None:
-            self.engine.unsubscribe(self.subscription)
+            self.engine.unsubscribe(self.subscription[0], self.subscription[1])
             self.subscription = None
+            self.mailbox = Mailbox()
 
     async def send(self, message: dict[str, Any]) -> None:
         data = wire.encode(message)
@@ -119,7 +119,8 @@ class StreamSession:
                 if not isinstance(frame, dict):
                     raise InvalidInput("a frame must be a map with a 'type'")
                 frame_id = frame.get("id")
-                self.gate.throttle(self.principal, self.client)
+                if self.access is not None and frame.get("type") != "edits":  # edits are admitted with their batch
+                    await self.engine.admit(self.access, self.world_id)
                 await self._handle(frame)
             except WebSocketDisconnect:
                 raise
@@ -131,7 +132,7 @@ class StreamSession:
         kind, frame_id = frame.get("type"), frame.get("id")
         if kind == "edits":
             raw = _edits_wire({"edits": frame.get("edits")}, self.settings.max_ops_per_batch)
-            version = await self.engine.apply_edits(self.world_id, await parse_edits_off_loop(raw), raw)
+            version = await self.engine.apply_edits(self.world_id, batch_record(raw), self.access)
             await self.send({"type": "ack", "id": frame_id, "version": version})
         elif kind == "subscribe":
             await self._subscribe(frame)
@@ -155,36 +156,34 @@ class StreamSession:
         # Checked here too, so that a bad region is refused before "subscribed" goes out.
         check_subscription_region(region, self.world_box, self.settings.max_subscription_voxels)
         self.close()
-        subscription = Subscription(self.world_id, region, fmt, Mailbox(self._notify))
-        # "subscribed" goes out before the engine can put the first chunks in the mailbox.
+        dtype = "uint16" if fmt == "packed" else "uint8"
+        # "subscribed" goes out before the first chunks can.
         await self.send({"type": "subscribed", "id": frame.get("id"), "min": list(region.lo),
                          "max": list(region.hi), "chunk_size": self.chunk_size, "format": fmt,
-                         "dtype": subscription.dtype})
-        self.subscription = subscription
-        try:
-            await self.engine.subscribe(subscription)
-        except BaseException:
-            self.subscription = None
-            raise
+                         "dtype": dtype})
+        mailbox = self.mailbox = Mailbox(self.wake.set)
 
-    def _notify(self) -> None:  # engine thread
-        with contextlib.suppress(RuntimeError):  # the loop already closed: nobody to wake
-            self.loop.call_soon_threadsafe(self.wake.set)
+        def deliver(update: ChunkUpdate) -> None:  # on this process's event loop
+            mailbox.put(update.version, {tuple(key): data for key, data in update.chunks})
+
+        engine, number = await self.engine.subscribe(self.world_id, region, fmt, self.access, deliver)
+        self.subscription = (engine, number, fmt, dtype)
+        self.wake.set()  # the first chunks may have come before the subscription was recorded
 
     async def _send_updates(self) -> None:
         while True:
             await self.wake.wait()
             self.wake.clear()
             subscription = self.subscription
-            update = subscription.mailbox.take() if subscription is not None else None
+            update = self.mailbox.take() if subscription is not None else None
             if update is None:
                 continue
-            cs, dtype = self.chunk_size, subscription.dtype
+            cs, fmt, dtype = self.chunk_size, subscription[2], subscription[3]
             chunks = [{"chunk": list(key), "origin": [c * cs for c in key],
                        "data": {"dtype": dtype, "shape": [cs, cs, cs], "data": data}}
                       for key, data in sorted(update.chunks.items())]
             await self.send({"type": "chunks", "world": self.world_id, "version": update.version,
-                             "chunk_size": cs, "format": subscription.format, "chunks": chunks})
+                             "chunk_size": cs, "format": fmt, "chunks": chunks})
 
 
 def _int3(value: Any, name: str) -> tuple[int, int, int]:

@@ -25,8 +25,9 @@ from fastapi import APIRouter, Query, Request
 from fastapi.responses import Response
 from starlette.requests import ClientDisconnect
 
-from sdfserver.api.auth import check_world_quota
+from sdfserver.api.auth import access_of
 from sdfserver.api.bodies import OCTET, header, respond
+from sdfserver.engine.core import world_config_dict
 from sdfserver.engine.restore import config_from_dict
 from sdfserver.errors import InvalidInput, TooLarge
 from sdfserver.storage import (
@@ -47,7 +48,7 @@ async def export_world(request: Request, world_id: str,
                        format: str = Query("snapshot", pattern=FORMATS, description="snapshot, npy or vox")
                        ) -> Response:
     engine = request.app.state.engine
-    described = await engine.describe(world_id)
+    described = await engine.describe(world_id, access_of(request))  # admitted once, here
     read = await engine.read(world_id, "voxels")
     config = {k: described[k] for k in CONFIG_KEYS}
     encode = {"snapshot": lambda: encode_snapshot(read.version, config, read.array),
@@ -70,7 +71,6 @@ async def import_world(request: Request,
                        algorithm: str = Query("exact", description="npy/vox: the field's algorithm"),
                        model: int = Query(0, ge=0, description="vox: which model of the file")) -> Response:
     settings = request.app.state.settings
-    principal = check_world_quota(request)
     format, data = await read_upload(request, settings.max_request_bytes, format)  # noqa: A001
     limit = settings.max_world_voxels
 
@@ -90,8 +90,9 @@ async def import_world(request: Request,
                            algorithm=algorithm), voxels
 
     config, voxels = await asyncio.to_thread(parse)
-    described = await request.app.state.engine.create_world(config.validated(), owner=principal.name,
-                                                            voxels=voxels)
+    described = await request.app.state.engine.create_world(
+        world_config_dict(config.validated()), access_of(request), voxels=voxels,
+        max_owned=request.app.state.settings.max_worlds_per_key)
     response = respond(request, described, status_code=201)
     response.headers["Location"] = f"/v1/worlds/{described['id']}"
     return response

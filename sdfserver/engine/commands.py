@@ -59,7 +59,7 @@ class ApplyEdits:
     world_id: str
     edits: list[Edit]
     # the batch as it arrived, for the journal; or its log record already encoded
-    # (storage.codec.encode_batch), as a front sends it
+    # (storage.codec.encode_batch), as an API process sends it
     wire: list[dict[str, Any]] | bytes
 
 
@@ -91,57 +91,36 @@ class Subscribe:
 
 
 @dataclass(frozen=True)
+class Draw:
+    """Render a frame of a world; None when the field is still at ``unless_field_version``."""
+
+    world_id: str
+    camera: Any  # render.Camera
+    options: Any  # render.RenderOptions
+    unless_field_version: int | None = None
+
+
+@dataclass(frozen=True)
+class PickAt:
+    world_id: str
+    camera: Any  # render.Camera
+    x: float
+    y: float
+
+
+@dataclass(frozen=True)
 class OnDevice:
+    """A function run on the engine thread: for tests and tools inside the engine's process."""
+
     fn: Callable[[], Any]
 
 
 APPLY = (CreateWorld, DeleteWorld, Reconfigure, ApplyEdits)
 
 
-class Completion:
-    """What the engine completes for a command, when the caller wants a callback rather than a
-    ``concurrent.futures.Future``: ``deliver(True, result)`` or ``deliver(False, exception)``,
-    once, on the thread that completes it (the engine's or the log committer's). It has the
-    part of the Future interface the engine uses and none of its locks: a Future builds a
-    Condition, which under many clients was a tenth of the event loop's GIL time."""
-
-    __slots__ = ("deliver", "_state")
-
-    def __init__(self, deliver: Callable[[bool, Any], None]):
-        self.deliver = deliver
-        self._state = 0  # 0 pending, 1 running, 2 done
-
-    def set_running_or_notify_cancel(self) -> bool:
-        self._state = 1
-        return True  # never cancelled: nobody waits on it to cancel
-
-    def cancelled(self) -> bool:
-        return False
-
-    def running(self) -> bool:
-        return self._state == 1
-
-    def done(self) -> bool:
-        return self._state == 2
-
-    def set_result(self, result: Any) -> None:
-        self._state = 2
-        self._deliver(True, result)
-
-    def set_exception(self, exc: BaseException) -> None:
-        self._state = 2
-        self._deliver(False, exc)
-
-    def _deliver(self, ok: bool, value: Any) -> None:
-        try:
-            self.deliver(ok, value)
-        except Exception:  # as a Future's callbacks: the engine thread must not die of it
-            log.exception("delivering an engine result failed")
-
-
 class CommandCalls:
-    """The hot calls as commands, for the engine and for a front's link to it alike: a
-    subclass supplies ``call`` (run one command, return its result) and ``max_wait_s``."""
+    """The hot calls as commands: a subclass supplies ``call`` (run one command, return its
+    result) and ``max_wait_s``."""
 
     max_wait_s: float
 
@@ -158,7 +137,6 @@ class CommandCalls:
         return await self.call(Query(world_id, points, min_version, self._deadline()))
 
     def _deadline(self) -> float:
-        # CLOCK_MONOTONIC is the machine's: a front's deadline means the same in the server process
         return time.monotonic() + self.max_wait_s
 
 

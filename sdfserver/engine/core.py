@@ -11,8 +11,8 @@ whenever commands are queued:
    applied in order and acknowledged with their versions (after the log sync);
 3. recompute each touched world once, however many batches it took;
 4. publish the chunks each recompute rewrote to the subscribers of those chunks;
-5. serve reads, point queries, subscriptions and ``run_on_device`` calls, which
-   therefore see every edit applied before them. A read whose ``min_version``
+5. serve reads, point queries, frames, picks, subscriptions and ``run_on_device`` calls
+   (one handler per command type), which therefore see every edit applied before them. A read whose ``min_version``
    the field has not reached waits for later steps until its deadline.
 
 A command's own error fails that command alone. An error the step raises outside
@@ -37,10 +37,9 @@ from typing import Any, Callable, TypeVar
 import numpy as np
 import pyopencl as cl
 
-from sdfserver.delivery import delivery_round
 from sdfserver.engine.commands import (
-    APPLY, ApplyEdits, CommandCalls, Completion, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Query,
-    Read, ReadResult, Reconfigure, StepReport, Subscribe,
+    APPLY, ApplyEdits, CommandCalls, CreateWorld, DeleteWorld, Describe, Draw, EngineLimits, OnDevice, PickAt,
+    Query, Read, ReadResult, Reconfigure, StepReport, Subscribe,
 )
 from sdfserver.engine.describe import describe_recompute
 from sdfserver.engine.journal import Journal
@@ -55,6 +54,7 @@ from sdfserver.errors import (
     VersionNotReached,
 )
 from sdfserver.gpu import GpuContext
+from sdfserver.render import Renderer
 from sdfserver.world import EditPlan, RecomputeResult, World, WorldConfig
 
 log = logging.getLogger("sdfserver.engine")
@@ -92,20 +92,33 @@ class Engine(EngineLifetime, CommandCalls):
         self._subscribers_lock = threading.Lock()
         self._acknowledging: list[list[tuple[Future, int]]] = []  # the step's applied batches
         self._dirty_gauge_at = -DIRTY_GAUGE_EVERY_S
+        self._renderer: Renderer | None = None
+        self._servers: dict[type, Callable[[Any], Any]] = {  # the serving commands' handlers
+            Read: self._read,
+            Query: lambda c: query_points(self._world(c.world_id), c.points),
+            Describe: self._describe_command,
+            Subscribe: lambda c: self._subscribe(c.subscription),
+            Draw: self._draw,
+            PickAt: self._pick,
+            OnDevice: lambda c: c.fn(),
+        }
         self.metrics.queue_depth.set_function(self._commands.qsize)
 
     # -- lifetime -----------------------------------------------------------------------------
 
     def _release_all(self) -> None:
+        if self._renderer is not None:
+            self._renderer.release()
+            self._renderer = None
         for world in self.worlds.values():
             world.release()
         self.worlds.clear()
 
     # -- submitting (any thread) ----------------------------------------------------------------
 
-    def submit(self, command: Any, completion: Completion | None = None) -> Future | Completion:
-        """Queue a command; its result arrives in the returned Future, or through ``completion``."""
-        future = Future() if completion is None else completion
+    def submit(self, command: Any) -> Future:
+        """Queue a command; its result arrives in the returned Future."""
+        future = Future()
         if self._refuse_if_failed(future):
             return future
         self._commands.put((command, future))
@@ -156,10 +169,6 @@ class Engine(EngineLifetime, CommandCalls):
 
     def step(self) -> StepReport:
         """Apply queued edits, recompute touched worlds once each, publish, serve reads."""
-        with delivery_round():  # what the step answers, a receiver may send together at its end
-            return self._step()
-
-    def _step(self) -> StepReport:
         commands = self._drain()
         serve = self._waiting + [c for c in commands if not isinstance(c[0], APPLY)]
         self._waiting, self._acknowledging = [], []
@@ -424,19 +433,34 @@ class Engine(EngineLifetime, CommandCalls):
                                 f"{command.min_version} was not reached in {self.limits.max_wait_s:g} s")
 
     def _serve_one(self, command: Any) -> Any:
-        if isinstance(command, Read):
-            return self._read(command)
-        if isinstance(command, Query):
-            return query_points(self._world(command.world_id), command.points)
-        if isinstance(command, Describe):
-            if command.world_id is None:
-                return [self._describe(i) for i in sorted(self.worlds)]
-            return self._describe(command.world_id)
-        if isinstance(command, Subscribe):
-            return self._subscribe(command.subscription)
-        if isinstance(command, OnDevice):
-            return command.fn()
-        raise TypeError(f"not an engine command: {command!r}")
+        handler = self._servers.get(type(command))
+        if handler is None:
+            raise TypeError(f"not an engine command: {command!r}")
+        return handler(command)
+
+    def _describe_command(self, command: Describe) -> Any:
+        if command.world_id is None:
+            return [self._describe(i) for i in sorted(self.worlds)]
+        return self._describe(command.world_id)
+
+    def _draw(self, command: Draw) -> tuple[Any, float | None] | None:
+        """A frame and the world's last recompute time, or None when the field did not change."""
+        world = self._world(command.world_id)
+        if command.unless_field_version == world.field_version:
+            return None
+        frame = self.renderer.render(world, command.camera, command.options)
+        return frame, self.last_recompute_ms.get(command.world_id)
+
+    def _pick(self, command: PickAt) -> tuple[Any, int]:
+        world = self._world(command.world_id)
+        return self.renderer.pick(world, command.camera, command.x, command.y), world.field_version
+
+    @property
+    def renderer(self) -> Renderer:
+        """The engine's renderer, made on first use (engine thread only)."""
+        if self._renderer is None:
+            self._renderer = Renderer(self.gpu)
+        return self._renderer
 
     def _read(self, command: Read) -> ReadResult:
         world = self._world(command.world_id)

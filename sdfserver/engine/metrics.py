@@ -63,6 +63,10 @@ class EngineMetrics:
         self.merged_chunks = Counter("sdfserver_stream_merged_chunks",
                                      "Pending chunks replaced by newer data before a slow subscriber took them.",
                                      registry=registry)
+        # counted by the API processes and reported to the engine, so that /metrics shows them all
+        self.bytes_out = Counter("sdfserver_bytes_out", "Response and stream bytes sent (bodies and frames).",
+                                 registry=registry)
+        self.ws_clients = Gauge("sdfserver_websocket_clients", "Open WebSocket streams.", registry=registry)
 
     # Labelled children, looked up once: labels() validates and locks on every call (~3 us).
     def _labelled(self, metric, value: str):

@@ -38,7 +38,6 @@ import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
-from sdfserver.delivery import delivery_round
 from sdfserver.errors import WritesDisabled
 from sdfserver.storage.framing import encode_record, encode_segment_header
 from sdfserver.storage.fsutil import fsync_dir, write_atomic
@@ -172,16 +171,15 @@ class Committer:
             else:
                 results = list(self._pool.map(self._sync_one, files.items()))
             errors = [e for e in results if e is not None]
-            with delivery_round():  # the acknowledgements this sync releases may leave together
-                if errors:
-                    failure = self.fail(*errors[0])
-                    for _, _, future in batch:
-                        future.set_exception(failure)
-                else:
-                    self.syncs += len(files)
-                    self.records += len(batch)
-                    for _, _, future in batch:
-                        future.set_result(None)
+            if errors:
+                failure = self.fail(*errors[0])
+                for _, _, future in batch:
+                    future.set_exception(failure)
+            else:
+                self.syncs += len(files)
+                self.records += len(batch)
+                for _, _, future in batch:
+                    future.set_result(None)
 
     @staticmethod
     def _sync_one(item: tuple[int, str]) -> tuple[str, str, OSError] | None:

@@ -87,14 +87,13 @@ class Server:
         return version, voxels.tobytes()
 
 
-@pytest.fixture(scope="session", params=[0, 2], ids=["one-process", "two-fronts"])
+@pytest.fixture(scope="session", params=[1, 2], ids=["one-worker", "two-workers"])
 def server(request, tmp_path_factory) -> Server:
-    """Every test here runs against both layouts: the server process alone, and two front
-    processes parsing the hot requests (and handing every other connection over)."""
+    """Every test here runs against one API process and two (any route in any process)."""
     # A data directory of its own: worlds are durable, and servers sharing one would see each
     # other's leftovers.
     process = ServerProcess(tmp_path_factory.mktemp("api-server") / "data", *SERVER_FLAGS,
-                            "--fronts", str(request.param)).wait_ready()
+                            "--workers", str(request.param)).wait_ready()
     srv = Server(process.process, process.url)
     yield srv
     srv.http.close()

@@ -1,8 +1,8 @@
 """``sdfserver serve`` starts and serves, or says why not and exits: an engine that cannot start,
-a port already in use (with fronts and without), a step that raises, a device lost, an engine
-thread that dies. Real server processes on loopback; faults are injected with a
-``sitecustomize`` module put first on the server's PYTHONPATH (the fronts import it too: they
-never run what it patches)."""
+a port already in use (with one API process or several), a step that raises, a device lost, an
+engine thread that dies. Real server processes on loopback; faults are injected with a
+``sitecustomize`` module put first on the server's PYTHONPATH (every process of the server runs
+it; only the engine process runs what it patches)."""
 
 from __future__ import annotations
 
@@ -106,7 +106,7 @@ def test_a_device_that_does_not_exist_stops_the_server_with_the_reason(tmp_path)
 
 @pytest.fixture(scope="module")
 def faulty(tmp_path_factory):
-    """A server with two fronts and the faults above; the device-loss test, last, ends its use."""
+    """A server with two API processes and the faults above; the device-loss test, last, ends its use."""
     tmp = tmp_path_factory.mktemp("faulty")
     server = ServerProcess(tmp / "data", "--no-warm-up", "--max-wait-ms", "60000",
                            env=hooked(tmp, FAULTS)).wait_ready()
@@ -114,9 +114,9 @@ def faulty(tmp_path_factory):
     server.stop()
 
 
-@pytest.mark.parametrize("fronts", ["0", "2"])
-def test_a_second_server_on_a_port_in_use_stops(faulty, tmp_path, fronts):
-    second = ServerProcess(tmp_path / "data", "--fronts", fronts, port=faulty.port)
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_second_server_on_a_port_in_use_stops(faulty, tmp_path, workers):
+    second = ServerProcess(tmp_path / "data", "--workers", workers, port=faulty.port)
     code, output = exited(second)
     assert code == 1 and "address already in use" in last_line(output), output
     assert httpx.get(faulty.url + "/readyz").status_code == 200  # the first serves on
@@ -181,8 +181,8 @@ def test_after_a_device_loss_every_request_answers_503_at_once(faulty):
 
 
 def test_a_dead_engine_thread_stops_the_server(tmp_path):
-    """And the one without fronts holds its port as well."""
-    server = ServerProcess(tmp_path / "data", "--no-warm-up", "--fronts", "0",
+    """And one with a single API process holds its port as well."""
+    server = ServerProcess(tmp_path / "data", "--no-warm-up", "--workers", "1",
                            env=hooked(tmp_path, FAULTS)).wait_ready()
     try:
         second = ServerProcess(tmp_path / "second", port=server.port)

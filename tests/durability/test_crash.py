@@ -56,12 +56,12 @@ class Writer(threading.Thread):
                 self.next_version += 1
 
 
-@pytest.mark.parametrize("fronts", ["0", "2"])  # acknowledgements through front processes too
-def test_sigkill_loses_no_acknowledged_batch(start_server, tmp_path, fronts):
+@pytest.mark.parametrize("workers", ["1", "2"])  # acknowledgements through several API processes too
+def test_sigkill_loses_no_acknowledged_batch(start_server, tmp_path, workers):
     seed = random.randrange(2 ** 32)
     rng = random.Random(seed)
     # snapshots and log trims happen under the kills too
-    flags = ("--snapshot-every-batches", "40", "--snapshot-min-interval-s", "0", "--fronts", fronts)
+    flags = ("--snapshot-every-batches", "40", "--snapshot-min-interval-s", "0", "--workers", workers)
     server = start_server(*flags)
     worlds = {}
     for _ in range(3):

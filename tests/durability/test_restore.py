@@ -7,10 +7,10 @@ from scipy.ndimage import distance_transform_cdt
 from durable_server import apply_reference, random_batch, read_voxels
 
 
-@pytest.mark.parametrize("fronts", ["0", "2"])  # with fronts the log records arrive encoded
-def test_worlds_and_fields_survive_restart_and_snapshots(start_server, tmp_path, fronts):
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_worlds_and_fields_survive_restart_and_snapshots(start_server, tmp_path, workers):
     rng = np.random.default_rng()
-    server = start_server("--snapshot-every-batches", "7", "--snapshot-min-interval-s", "0", "--fronts", fronts)
+    server = start_server("--snapshot-every-batches", "7", "--snapshot-min-interval-s", "0", "--workers", workers)
     sizes = {"a": (16, 16, 32), "b": (24, 16, 16)}
     ids, expected = {}, {}
     for name, size in sizes.items():
@@ -32,7 +32,7 @@ def test_worlds_and_fields_survive_restart_and_snapshots(start_server, tmp_path,
     snapshots = sorted(p.name for p in (tmp_path / "data" / "worlds" / ids["a"]).glob("snap-*"))
     assert snapshots, "no snapshot was written"
 
-    server = start_server("--fronts", fronts)
+    server = start_server("--workers", workers)
     listed = {w["id"]: w for w in server.http.get("/v1/worlds").json()["worlds"]}
     assert set(listed) == set(ids.values())
     assert listed[ids["b"]]["algorithm"] == "brute" and listed[ids["b"]]["max_distance"] == 9

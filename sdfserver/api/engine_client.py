@@ -1,0 +1,184 @@
+"""An API process's side of one engine: typed requests out, replies and chunk updates in.
+
+``EngineClient`` speaks to an engine process over ZeroMQ: requests PUSHed as ``[identity,
+request]``, answers received on a DEALER that carries the same identity. Each request has an
+id; its future is completed when the ``Reply`` with that id arrives. A subscription's updates
+go to the callback given at ``subscribe``; the callback keeps them in a single-slot mailbox.
+
+``LocalEngineClient`` is the same interface on an engine running in this process (tests and
+tools): the same messages, encoded and decoded as on the wire, handed to the same
+``EngineService``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+import os
+from typing import Any, Callable
+
+import zmq
+import zmq.asyncio
+
+from sdfserver.engine import messages as msg
+
+log = logging.getLogger("sdfserver")
+ENCODE = msg.REQUEST_ENCODER.encode
+DECODE_OUTPUTS = msg.OUTPUTS_DECODER.decode
+HELLO_TIMEOUT_S = 30.0
+
+
+class BaseClient:
+    def __init__(self) -> None:
+        self._ids = itertools.count(1)
+        self._pending: dict[int, asyncio.Future] = {}
+        self._updates: dict[int, Callable[[msg.ChunkUpdate], None]] = {}
+        self.lost: str | None = None  # why this engine can no longer answer
+
+    def next_id(self) -> int:
+        return next(self._ids)
+
+    async def call(self, request: Any) -> Any:
+        """Send ``request`` (its ``id`` from ``next_id``) and return its reply's result."""
+        future = asyncio.get_running_loop().create_future()
+        self._pending[request.id] = future
+        try:
+            self._send(request)
+        except BaseException:
+            self._pending.pop(request.id, None)
+            raise
+        return await future
+
+    def tell(self, request: Any) -> None:
+        """Send a request nobody waits for (its id is 0: the engine answers nothing)."""
+        self._send(request)
+
+    def on_updates(self, number: int, deliver: Callable[[msg.ChunkUpdate], None] | None) -> None:
+        if deliver is None:
+            self._updates.pop(number, None)
+        else:
+            self._updates[number] = deliver
+
+    def _send(self, request: Any) -> None:
+        raise NotImplementedError
+
+    def _take(self, outputs: msg.Outputs) -> None:
+        for item in outputs.items:
+            if isinstance(item, msg.Reply):
+                future = self._pending.pop(item.id, None)
+                if future is None or future.done():
+                    continue
+                if item.failure is not None:
+                    try:
+                        msg.raise_failure(item.failure)
+                    except Exception as exc:
+                        future.set_exception(exc)
+                else:
+                    future.set_result(item.result)
+            else:
+                deliver = self._updates.get(item.subscription)
+                if deliver is not None:
+                    deliver(item)
+
+    def fail_all(self, exc: BaseException) -> None:
+        pending, self._pending = self._pending, {}
+        for future in pending.values():
+            if not future.done():
+                future.set_exception(exc)
+
+
+class EngineClient(BaseClient):
+    def __init__(self, input_address: str, output_address: str):
+        super().__init__()
+        self.input_address, self.output_address = input_address, output_address
+        self.identity = f"api-{os.getpid()}-{id(self):x}".encode()
+        self._context: zmq.asyncio.Context | None = None
+        self._push = self._dealer = None
+        self._receiver: asyncio.Task | None = None
+
+    async def start(self) -> None:
+        self._context = zmq.asyncio.Context()
+        self._push = self._context.socket(zmq.PUSH)
+        self._push.setsockopt(zmq.SNDHWM, 0)
+        self._push.setsockopt(zmq.LINGER, 0)
+        self._push.connect(self.input_address)
+        self._dealer = self._context.socket(zmq.DEALER)
+        self._dealer.setsockopt(zmq.IDENTITY, self.identity)
+        self._dealer.setsockopt(zmq.RCVHWM, 0)
+        self._dealer.setsockopt(zmq.LINGER, 0)
+        self._dealer.connect(self.output_address)
+        # The engine's ROUTER can answer this process only once it has heard from it.
+        await self._dealer.send(b"hello")
+        welcome = await asyncio.wait_for(self._dealer.recv(), HELLO_TIMEOUT_S)
+        DECODE_OUTPUTS(welcome)
+        self._receiver = asyncio.create_task(self._receive())
+
+    async def stop(self) -> None:
+        if self._receiver is not None:
+            self._receiver.cancel()
+        for sock in (self._push, self._dealer):
+            if sock is not None:
+                sock.close(0)
+        if self._context is not None:
+            self._context.term()
+
+    def _send(self, request: Any) -> None:
+        # PUSH with no high-water mark never blocks: the send completes at once
+        self._push.send_multipart([self.identity, ENCODE(request)], copy=False)
+
+    async def _receive(self) -> None:
+        while True:
+            payload = await self._dealer.recv(copy=True)
+            try:
+                outputs = DECODE_OUTPUTS(payload)
+            except Exception:
+                log.exception("an undecodable engine output was dropped")
+                continue
+            self._take(outputs)
+
+
+class LocalEngineClient(BaseClient):
+    """An engine in this process, through the same service and the same encoding."""
+
+    IDENTITY = b"local"
+
+    def __init__(self, engine: Any, settings: Any):
+        from sdfserver.engine.access import Doorkeeper, RateLimiter
+        from sdfserver.engine.service import EngineService
+
+        super().__init__()
+        self.engine = engine
+        limiter = RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst)
+        doorkeeper = Doorkeeper(limiter, engine.owner_of, lambda: list(engine.owners.values()))
+        journal = engine.journal
+
+        def writes_failure() -> str | None:
+            committer = getattr(getattr(journal, "storage", None), "committer", None)
+            failed = getattr(committer, "failure", None)
+            return None if failed is None else str(failed)
+
+        self.service = EngineService(engine, doorkeeper, self._deliver, writes_failure=writes_failure)
+        self._loop: asyncio.AbstractEventLoop | None = None
+
+    async def start(self) -> None:
+        self._loop = asyncio.get_running_loop()
+
+    async def stop(self) -> None:
+        pass
+
+    def _send(self, request: Any) -> None:
+        self.service.handle(self.IDENTITY, msg.REQUEST_DECODER.decode(ENCODE(request)))
+
+    def _deliver(self, client: bytes, item: Any) -> None:  # any thread
+        from sdfserver.engine.service import SubscriptionNews, chunk_update
+
+        if isinstance(item, SubscriptionNews):
+            item = chunk_update(item)
+            if item is None:
+                return
+        outputs = DECODE_OUTPUTS(ENCODE(msg.Outputs([item])))
+        try:
+            self._loop.call_soon_threadsafe(self._take, outputs)
+        except RuntimeError:  # the loop closed: nobody waits
+            pass

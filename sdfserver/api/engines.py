@@ -1,0 +1,212 @@
+"""What the routes call: the engines of this server, each request routed by world id.
+
+``Placement`` says which engine holds a world and where a new one goes; ``LocalPlacement``
+is the one for engine processes on this machine (a new world goes to the engine with the most
+free device memory; a world id not seen yet is looked up on every engine). A distributed
+engine (engines as Ray actors, say) implements the same interface.
+
+``Engines`` builds the typed requests (``sdfserver.engine.messages``) and turns their replies
+back into what the routes need (NumPy arrays, dicts).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass
+from typing import Any, Callable, Protocol, Sequence
+
+import numpy as np
+
+from sdfserver.api.engine_client import BaseClient
+from sdfserver.engine import messages as msg
+from sdfserver.errors import NotFound, NotReady
+from sdfserver.geometry import Box
+
+STATUS_TIMEOUT_S = 2.0  # an engine that does not answer its status in this long is not ready
+
+
+@dataclass(frozen=True)
+class ReadResult:
+    origin: tuple[int, int, int]
+    version: int
+    array: np.ndarray
+
+
+@dataclass(frozen=True)
+class QueryResult:
+    version: int
+    distances: np.ndarray
+    colours: np.ndarray
+    gradients: np.ndarray
+
+
+class Placement(Protocol):
+    engines: Sequence[BaseClient]
+
+    async def engine_for(self, world_id: str) -> BaseClient: ...
+
+    async def place(self, config: dict[str, Any]) -> BaseClient: ...
+
+    def placed(self, world_id: str, engine: BaseClient) -> None: ...
+
+    def forget(self, world_id: str) -> None: ...
+
+
+class LocalPlacement:
+    def __init__(self, engines: Sequence[BaseClient]):
+        self.engines = list(engines)
+        self._where: dict[str, BaseClient] = {}
+
+    async def engine_for(self, world_id: str) -> BaseClient:
+        if len(self.engines) == 1:
+            return self.engines[0]
+        engine = self._where.get(world_id)
+        if engine is None:  # created by another API process, or restored: ask every engine
+            for candidate in self.engines:
+                worlds = await candidate.call(msg.Describe(candidate.next_id(), None))
+                for world in worlds:
+                    self._where[world["id"]] = candidate
+            engine = self._where.get(world_id)
+        if engine is None:
+            raise NotFound(f"no world {world_id!r}")
+        return engine
+
+    async def place(self, config: dict[str, Any]) -> BaseClient:
+        if len(self.engines) == 1:
+            return self.engines[0]
+        statuses = await asyncio.gather(*(e.call(msg.Status(e.next_id())) for e in self.engines))
+        free = [msg.decode_result(s, msg.EngineStatus).free_bytes for s in statuses]
+        return self.engines[int(np.argmax(free))]
+
+    def placed(self, world_id: str, engine: BaseClient) -> None:
+        self._where[world_id] = engine
+
+    def forget(self, world_id: str) -> None:
+        self._where.pop(world_id, None)
+
+
+class Engines:
+    def __init__(self, placement: Placement, max_wait_s: float):
+        self.placement = placement
+        self.max_wait_s = max_wait_s
+        self._subscription_numbers = iter(range(1, 1 << 62))
+
+    @property
+    def clients(self) -> Sequence[BaseClient]:
+        return self.placement.engines
+
+    async def _call(self, world_id: str, make: Callable[[int], Any]) -> Any:
+        engine = await self.placement.engine_for(world_id)
+        return await engine.call(make(engine.next_id()))
+
+    # -- worlds --------------------------------------------------------------------------------
+
+    async def create_world(self, config: dict[str, Any], access: msg.Access | None,
+                           voxels: np.ndarray | None = None, max_owned: int = 0) -> dict[str, Any]:
+        engine = await self.placement.place(config)
+        elsewhere = 0
+        if len(self.clients) > 1 and access is not None and not access.admin and max_owned:
+            for other in self.clients:
+                if other is not engine:
+                    worlds = await other.call(msg.Describe(other.next_id(), None, access))
+                    elsewhere += len(worlds)
+        blob = None if voxels is None else msg.Array.of(voxels)
+        described = await engine.call(msg.CreateWorld(engine.next_id(), config, access, blob, max_owned, elsewhere))
+        self.placement.placed(described["id"], engine)
+        return described
+
+    async def delete_world(self, world_id: str, access: msg.Access | None) -> None:
+        await self._call(world_id, lambda i: msg.DeleteWorld(i, world_id, access))
+        self.placement.forget(world_id)
+
+    async def reconfigure(self, world_id: str, changes: dict[str, Any], access: msg.Access | None) -> None:
+        await self._call(world_id, lambda i: msg.Reconfigure(i, world_id, changes, access))
+
+    async def describe(self, world_id: str, access: msg.Access | None = None) -> dict[str, Any]:
+        return await self._call(world_id, lambda i: msg.Describe(i, world_id, access))
+
+    async def list_worlds(self, access: msg.Access | None = None) -> list[dict[str, Any]]:
+        lists = await asyncio.gather(*(e.call(msg.Describe(e.next_id(), None, access)) for e in self.clients))
+        return sorted((w for worlds in lists for w in worlds), key=lambda w: w["id"])
+
+    # -- the hot requests ------------------------------------------------------------------------
+
+    async def apply_edits(self, world_id: str, batch: bytes, access: msg.Access | None) -> int:
+        return await self._call(world_id, lambda i: msg.ApplyEdits(i, world_id, batch, access))
+
+    async def read(self, world_id: str, kind: str, box: Box | None = None, min_version: int = 0,
+                   access: msg.Access | None = None) -> ReadResult:
+        lo, hi = (None, None) if box is None else (box.lo, box.hi)
+        raw = await self._call(world_id, lambda i: msg.Read(i, world_id, kind, lo, hi, min_version, access))
+        result = msg.decode_result(raw, msg.ReadResult)
+        return ReadResult(tuple(result.origin), result.version, result.array.numpy())
+
+    async def query(self, world_id: str, points: np.ndarray, min_version: int = 0,
+                    access: msg.Access | None = None) -> QueryResult:
+        blob = msg.Array.of(np.asarray(points, dtype=np.float64))
+        raw = await self._call(world_id, lambda i: msg.Query(i, world_id, blob, min_version, access))
+        r = msg.decode_result(raw, msg.QueryResult)
+        return QueryResult(r.version, r.distances.numpy(), r.colours.numpy(), r.gradients.numpy())
+
+    async def render(self, world_id: str, view: dict[str, Any], unless_field_version: int | None = None,
+                     access: msg.Access | None = None) -> msg.Frame | None:
+        raw = await self._call(world_id, lambda i: msg.Render(i, world_id, view, unless_field_version, access))
+        return None if raw is None else msg.decode_result(raw, msg.Frame)
+
+    async def pick(self, world_id: str, view: dict[str, Any], x: float, y: float,
+                   access: msg.Access | None = None) -> msg.PickResult:
+        raw = await self._call(world_id, lambda i: msg.Pick(i, world_id, view, x, y, access))
+        return msg.decode_result(raw, msg.PickResult)
+
+    # -- subscriptions and access ---------------------------------------------------------------
+
+    async def subscribe(self, world_id: str, region: Box, fmt: str, access: msg.Access | None,
+                        deliver: Callable[[msg.ChunkUpdate], None]) -> tuple[BaseClient, int]:
+        engine = await self.placement.engine_for(world_id)
+        number = next(self._subscription_numbers)
+        engine.on_updates(number, deliver)
+        try:
+            await engine.call(msg.Subscribe(engine.next_id(), world_id, number, region.lo, region.hi, fmt, access))
+        except BaseException:
+            engine.on_updates(number, None)
+            raise
+        return engine, number
+
+    def unsubscribe(self, engine: BaseClient, number: int) -> None:
+        engine.on_updates(number, None)
+        engine.tell(msg.Unsubscribe(0, number))
+
+    async def admit(self, access: msg.Access, world_id: str | None = None) -> None:
+        if world_id is None:
+            engine = self.clients[0]  # the rate limit's buckets live in the first engine
+            await engine.call(msg.Admit(engine.next_id(), access))
+        else:
+            await self._call(world_id, lambda i: msg.Admit(i, access, world_id))
+
+    # -- health and metrics ----------------------------------------------------------------------
+
+    async def status(self) -> list[msg.EngineStatus]:
+        async def one(engine: BaseClient) -> msg.EngineStatus:
+            if engine.lost is not None:
+                return msg.EngineStatus(False, engine.lost, "", 0)
+            try:
+                raw = await asyncio.wait_for(engine.call(msg.Status(engine.next_id())), STATUS_TIMEOUT_S)
+            except asyncio.TimeoutError:
+                return msg.EngineStatus(False, f"the engine did not answer in {STATUS_TIMEOUT_S:g} s", "", 0)
+            return msg.decode_result(raw, msg.EngineStatus)
+
+        return list(await asyncio.gather(*(one(e) for e in self.clients)))
+
+    async def metrics_text(self) -> str:
+        texts = await asyncio.gather(*(e.call(msg.MetricsText(e.next_id())) for e in self.clients))
+        return "".join(texts)
+
+    def count(self, bytes_out: int = 0, websocket_clients: int = 0) -> None:
+        self.clients[0].tell(msg.CountApi(0, bytes_out, websocket_clients))
+
+
+def not_ready(statuses: list[msg.EngineStatus]) -> NotReady | None:
+    for status in statuses:
+        if not status.ready:
+            return NotReady(status.reason or "the engine is not ready")
+    return None

@@ -1,0 +1,239 @@
+"""The engine process: one per device, owning its GpuContext, every World, the renderer and
+the journal, speaking only typed messages (``messages.py``) over ZeroMQ.
+
+Around the engine thread's ``step()`` loop run two threads that do all the socket work:
+
+- the input thread reads requests from a PULL socket (every API process PUSHes to it, each
+  message ``[client identity, request]``) and hands each to ``EngineService.handle``, which
+  checks access and queues an engine command;
+- the output thread sends what the engine answered, from one queue, through a ROUTER socket
+  to the API process that asked (its DEALER says hello first, so the ROUTER knows it): all
+  that waited for one API process leaves as one ``Outputs`` batch.
+
+``engine_main`` is the process's body: open the data directory, choose the device, restore
+the stored worlds, warm up, then serve until SIGTERM. What it tells the launcher goes over a
+pipe: ``("ready", device)``, ``("failed", why)`` or, should the engine thread die,
+``("died", why)`` before it exits with status 1.
+"""
+
+from __future__ import annotations
+
+import collections
+import ctypes
+import logging
+import queue
+import signal
+import sys
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zmq
+
+from sdfserver.engine import messages as msg
+from sdfserver.engine.access import Doorkeeper, RateLimiter
+from sdfserver.engine.commands import EngineLimits
+from sdfserver.engine.core import Engine
+from sdfserver.engine.metrics import EngineMetrics
+from sdfserver.engine.service import EngineService, SubscriptionNews, chunk_update
+from sdfserver.errors import NoOpenCLDevice, SdfServerError
+from sdfserver.settings import Settings
+
+log = logging.getLogger("sdfserver.engine")
+DEVICE_ADVICE = "`sdfserver devices` lists the usable OpenCL devices and --device picks one"
+IDLE_POLL_S = 0.05  # how often an idle output thread looks for API processes saying hello
+
+
+@dataclass(frozen=True)
+class EngineAddress:
+    """Where one engine listens: its input (PULL) and output (ROUTER) sockets."""
+
+    index: int
+    device: str  # the device spec this engine runs on ("" chooses)
+    input: str
+    output: str
+
+
+def engine_limits(settings: Settings) -> EngineLimits:
+    return EngineLimits(edits=settings.edit_limits(), max_world_voxels=settings.max_world_voxels,
+                        max_worlds=settings.max_worlds, max_read_voxels=settings.max_read_voxels,
+                        max_subscription_voxels=settings.max_subscription_voxels,
+                        max_wait_s=settings.max_wait_ms / 1e3)
+
+
+def data_dir_of(settings: Settings, index: int, engines: int) -> Path:
+    """One engine keeps the data directory; several keep one sub-directory each."""
+    return Path(settings.data_dir) if engines == 1 else Path(settings.data_dir) / f"engine-{index}"
+
+
+def open_journal(settings: Settings, data_dir: Path):
+    from sdfserver.storage import Storage
+    from sdfserver.storage.journal import StorageJournal
+
+    if not settings.persist:
+        return None
+    storage = Storage(data_dir, sync=settings.sync, commit_window_ms=settings.commit_window_ms,
+                      sync_inline=settings.sync_inline)
+    return StorageJournal(storage, snapshot_every_batches=settings.snapshot_every_batches,
+                          snapshot_min_interval_s=settings.snapshot_min_interval_s)
+
+
+def die_with_parent() -> None:
+    """SIGKILL this process when the launcher dies, however it dies (Linux)."""
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+class EngineTransport:
+    """The input and output threads of one engine process."""
+
+    def __init__(self, service_of, address: EngineAddress):
+        self.context = zmq.Context.instance()
+        self.outputs: queue.SimpleQueue = queue.SimpleQueue()
+        self.service: EngineService = service_of(self.send)
+        self.address = address
+        self._stopping = False
+        self._input = self.context.socket(zmq.PULL)
+        self._input.setsockopt(zmq.RCVHWM, 0)
+        self._input.bind(address.input)
+        self._output = self.context.socket(zmq.ROUTER)
+        self._output.setsockopt(zmq.ROUTER_MANDATORY, 1)
+        self._output.setsockopt(zmq.SNDHWM, 0)
+        self._output.bind(address.output)
+        self._threads = [threading.Thread(target=self._read, name="sdfserver-engine-input", daemon=True),
+                         threading.Thread(target=self._write, name="sdfserver-engine-output", daemon=True)]
+
+    def start(self) -> None:
+        for thread in self._threads:
+            thread.start()
+
+    def stop(self) -> None:
+        self._stopping = True
+
+    def send(self, client: bytes, item: Any) -> None:
+        """Any thread: queue a Reply or a subscription's news for ``client``."""
+        self.outputs.put((client, item))
+
+    def _read(self) -> None:
+        decode, handle = msg.REQUEST_DECODER.decode, self.service.handle
+        while not self._stopping:
+            try:
+                client, payload = self._input.recv_multipart(copy=True)
+                request = decode(payload)
+            except (ValueError, msgspec_errors()) as exc:
+                log.warning("an undecodable request was dropped: %s", exc)
+                continue
+            handle(client, request)
+
+    def _write(self) -> None:
+        encode = msg.REQUEST_ENCODER.encode
+        while not self._stopping:
+            self._welcome()
+            try:
+                first = self.outputs.get(timeout=IDLE_POLL_S)
+            except queue.Empty:
+                continue
+            batches: dict[bytes, list] = collections.defaultdict(list)
+            news_sent: set[tuple[bytes, int]] = set()
+            item: Any = first
+            while True:
+                client, out = item
+                if isinstance(out, SubscriptionNews):
+                    if (client, out.number) not in news_sent:  # one take per batch holds all news
+                        news_sent.add((client, out.number))
+                        update = chunk_update(out)
+                        if update is not None:
+                            batches[client].append(update)
+                else:
+                    batches[client].append(out)
+                try:
+                    item = self.outputs.get_nowait()
+                except queue.Empty:
+                    break
+            for client, items in batches.items():
+                try:
+                    self._output.send_multipart([client, encode(msg.Outputs(items))], copy=False)
+                except zmq.ZMQError as exc:  # that API process is gone
+                    if exc.errno != zmq.EHOSTUNREACH:
+                        raise
+                    self.service.forget(client)
+
+    def _welcome(self) -> None:
+        while self._output.poll(0):
+            client, _ = self._output.recv_multipart()
+            self._output.send_multipart([client, msg.REQUEST_ENCODER.encode(msg.Outputs([]))])
+
+
+def msgspec_errors() -> type:
+    import msgspec
+
+    return msgspec.DecodeError
+
+
+def engine_main(settings: Settings, address: EngineAddress, engines: int, conn: Any) -> int:
+    """The engine process's body (after fork); its exit status."""
+    from sdfserver.engine.restore import restore_worlds
+    from sdfserver.gpu import GpuContext
+    from sdfserver.storage.lock import lock_data_dir
+
+    die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides what Ctrl-C stops
+    # the input and output threads share the GIL with the engine thread: when the engine
+    # blocks (on the device, a read, a log write) it waits up to this long to get it back
+    sys.setswitchinterval(settings.switch_interval_ms / 1e3)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    journal = lock = engine = None
+    try:
+        try:
+            journal = open_journal(settings, data_dir_of(settings, address.index, engines))
+            lock = lock_data_dir(journal.storage.data_dir) if journal is not None else None
+            gpu = GpuContext.create(address.device or None, settings.memory_budget_bytes)
+            engine = Engine(gpu, engine_limits(settings), journal=journal, metrics=EngineMetrics())
+        except SdfServerError as exc:  # no OpenCL device, unusable data directory
+            advice = f" ({DEVICE_ADVICE})" if isinstance(exc, NoOpenCLDevice) else ""
+            conn.send(("failed", f"{exc}{advice}"))
+            return 1
+        log.info("engine %d: device %s", address.index, gpu.device_name)
+        if journal is not None:
+            log.info("data directory: %s (sync %s)", journal.storage.data_dir, "on" if settings.sync else "OFF")
+            restore_worlds(engine, journal.storage, journal)
+        died: list[str] = []
+
+        def on_death(reason: str) -> None:
+            died.append(reason)
+            stop.set()
+
+        engine.start(warm_up=settings.warm_up, on_death=on_death)
+        failure = engine.wait_started()
+        if failure is not None:
+            conn.send(("failed", f"{failure}; {DEVICE_ADVICE}"))
+            return 1
+        limiter = RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst)
+        doorkeeper = Doorkeeper(limiter, engine.owner_of, lambda: list(engine.owners.values()))
+
+        def writes_failure() -> str | None:
+            failed = journal.storage.committer.failure if journal is not None else None
+            return None if failed is None else str(failed)
+
+        transport = EngineTransport(lambda send: EngineService(engine, doorkeeper, send,
+                                                               writes_failure=writes_failure), address)
+        transport.start()
+        conn.send(("ready", gpu.device_name))
+        while not stop.wait(0.5):
+            pass
+        transport.stop()
+        if died:
+            conn.send(("died", died[0]))
+            return 1
+        return 0
+    finally:
+        if engine is not None:
+            engine.stop(timeout_s=5.0)
+        if journal is not None:
+            journal.close()
+        if lock is not None:
+            lock.close()

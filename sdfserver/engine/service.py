@@ -1,0 +1,238 @@
+"""The engine's answers to typed requests: one handler per message type.
+
+``EngineService.handle(client, request)`` runs on the engine process's input thread: it
+checks access (rate limit, owner), turns the request into an engine command, submits it and
+leaves a callback on its future that hands the ``Reply`` to ``send(client, item)``, the
+output side. Requests that need no engine step (status, metrics, admission) are answered at
+once. Subscriptions keep their single-slot mailbox here; ``send`` is told which one has
+news, and the output side takes whatever it holds when it sends.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from concurrent.futures import Future
+from typing import Any, Callable
+
+from prometheus_client import generate_latest
+
+from sdfserver.edits import parse_edits
+from sdfserver.engine import commands as cmd
+from sdfserver.engine import messages as msg
+from sdfserver.engine.access import Doorkeeper
+from sdfserver.engine.core import Engine
+from sdfserver.engine.mailbox import Mailbox, Subscription
+from sdfserver.engine.restore import config_from_dict
+from sdfserver.errors import InvalidInput, SdfServerError
+from sdfserver.geometry import Box
+from sdfserver.render import parse_view
+from sdfserver.storage.codec import decode_batch
+from sdfserver.world import Focus
+
+log = logging.getLogger("sdfserver.engine")
+Send = Callable[[bytes, Any], None]  # (client, Reply | a subscription with news)
+
+
+class SubscriptionNews:
+    """Told to the output side: ``subscription`` of ``client`` has chunks waiting."""
+
+    __slots__ = ("number", "subscription")
+
+    def __init__(self, number: int, subscription: Subscription):
+        self.number = number
+        self.subscription = subscription
+
+
+class EngineService:
+    def __init__(self, engine: Engine, doorkeeper: Doorkeeper, send: Send, *, writes_failure:
+                 Callable[[], str | None] = lambda: None):
+        self.engine = engine
+        self.doorkeeper = doorkeeper
+        self.send = send
+        self.writes_failure = writes_failure
+        self.subscriptions: dict[tuple[bytes, int], Subscription] = {}
+        self.handlers: dict[type, Callable[[bytes, Any], None]] = {
+            msg.CreateWorld: self._create, msg.DeleteWorld: self._delete, msg.Reconfigure: self._reconfigure,
+            msg.Describe: self._describe, msg.ApplyEdits: self._apply, msg.Read: self._read,
+            msg.Query: self._query, msg.Render: self._render, msg.Pick: self._pick,
+            msg.Subscribe: self._subscribe, msg.Unsubscribe: self._unsubscribe, msg.Admit: self._admit,
+            msg.Status: self._status, msg.MetricsText: self._metrics, msg.CountApi: self._count,
+        }
+
+    def handle(self, client: bytes, request: Any) -> None:
+        try:
+            self.handlers[type(request)](client, request)
+        except Exception as exc:  # refused before reaching the engine: that request alone fails
+            if not isinstance(exc, SdfServerError):
+                log.exception("a request failed unexpectedly", exc_info=exc)
+            self._reply(client, request.id, failure=exc)
+
+    def forget(self, client: bytes) -> None:
+        """Drop the subscriptions of an API process that is gone."""
+        for key in [k for k in self.subscriptions if k[0] == client]:
+            self.engine.unsubscribe(self.subscriptions.pop(key))
+
+    # -- replies ------------------------------------------------------------------------------
+
+    def _reply(self, client: bytes, request_id: int, result: Any = None, failure: BaseException | None = None):
+        if request_id:
+            self.send(client, msg.Reply(request_id, result, None if failure is None else msg.failure_of(failure)))
+
+    def _submit(self, client: bytes, request_id: int, command: Any,
+                convert: Callable[[Any], Any] = lambda r: r) -> None:
+        future = self.engine.submit(command)
+
+        def done(future: Future) -> None:
+            exc = future.exception()
+            if exc is not None:
+                self._reply(client, request_id, failure=exc)
+                return
+            try:
+                result = convert(future.result())
+            except Exception as exc:
+                self._reply(client, request_id, failure=exc)
+            else:
+                self._reply(client, request_id, result)
+
+        future.add_done_callback(done)
+
+    # -- the handlers -------------------------------------------------------------------------
+
+    def _create(self, client: bytes, m: msg.CreateWorld) -> None:
+        self.doorkeeper.admit(m.access)
+        self.doorkeeper.check_quota(m.access, m.max_owned, m.owned_elsewhere)
+        try:
+            config = config_from_dict(m.config)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InvalidInput(f"bad world configuration: {exc!r}") from None
+        voxels = None if m.voxels is None else m.voxels.numpy()
+        owner = m.access.key if m.access is not None else None
+        self._submit(client, m.id, cmd.CreateWorld(config, None, owner, voxels))
+
+    def _delete(self, client: bytes, m: msg.DeleteWorld) -> None:
+        self.doorkeeper.admit(m.access, m.world_id)
+        self._submit(client, m.id, cmd.DeleteWorld(m.world_id))
+
+    def _reconfigure(self, client: bytes, m: msg.Reconfigure) -> None:
+        self.doorkeeper.admit(m.access, m.world_id)
+        changes = dict(m.changes)
+        if "focus" in changes and changes["focus"] is not None:
+            focus = changes["focus"]
+            changes["focus"] = Focus(tuple(focus["center"]), tuple(focus["size"]))
+        self._submit(client, m.id, cmd.Reconfigure(m.world_id, changes))
+
+    def _describe(self, client: bytes, m: msg.Describe) -> None:
+        self.doorkeeper.admit(m.access, m.world_id)
+        if m.world_id is not None or m.access is None or m.access.admin:
+            self._submit(client, m.id, cmd.Describe(m.world_id))
+            return
+        key = m.access.key
+        self._submit(client, m.id, cmd.Describe(None), lambda worlds: [w for w in worlds if w["owner"] == key])
+
+    def _apply(self, client: bytes, m: msg.ApplyEdits) -> None:
+        self.doorkeeper.admit(m.access, m.world_id)
+        edits = parse_edits(decode_batch(m.batch, "edit batch"))
+        self._submit(client, m.id, cmd.ApplyEdits(m.world_id, edits, m.batch))
+
+    def _read(self, client: bytes, m: msg.Read) -> None:
+        self.doorkeeper.admit(m.access, m.world_id)
+        if m.kind not in ("packed", "distance", "voxels"):
+            raise InvalidInput(f"unknown read kind {m.kind!r}")
+        box = None if m.lo is None or m.hi is None else Box(m.lo, m.hi)
+        command = cmd.Read(m.world_id, m.kind, box, m.min_version, self._deadline())
+        self._submit(client, m.id, command,
+                     lambda r: msg.ReadResult(tuple(r.origin), r.version, msg.Array.of(r.array)))
+
+    def _query(self, client: bytes, m: msg.Query) -> None:
+        self.doorkeeper.admit(m.access, m.world_id)
+        command = cmd.Query(m.world_id, m.points.numpy(), m.min_version, self._deadline())
+        self._submit(client, m.id, command, lambda r: msg.QueryResult(
+            r.version, msg.Array.of(r.distances), msg.Array.of(r.colours), msg.Array.of(r.gradients)))
+
+    def _render(self, client: bytes, m: msg.Render) -> None:
+        self.doorkeeper.admit(m.access, m.world_id)
+        camera, options = parse_view(m.view)
+
+        def frame(result: Any) -> msg.Frame | None:
+            if result is None:
+                return None
+            drawn, field_ms = result
+            return msg.Frame(msg.Array.of(drawn.pixels), drawn.field_version, drawn.device_ms, field_ms)
+
+        self._submit(client, m.id, cmd.Draw(m.world_id, camera, options, m.unless_field_version), frame)
+
+    def _pick(self, client: bytes, m: msg.Pick) -> None:
+        self.doorkeeper.admit(m.access, m.world_id)
+        camera, _ = parse_view(m.view)
+
+        def picked(result: Any) -> msg.PickResult:
+            hit, version = result
+            if hit is None:
+                return msg.PickResult(version)
+            return msg.PickResult(version, tuple(hit.voxel), tuple(hit.normal), tuple(hit.place))
+
+        self._submit(client, m.id, cmd.PickAt(m.world_id, camera, m.x, m.y), picked)
+
+    def _subscribe(self, client: bytes, m: msg.Subscribe) -> None:
+        self.doorkeeper.admit(m.access, m.world_id)
+        if m.format not in ("packed", "distance"):
+            raise InvalidInput(f"format must be 'distance' or 'packed', got {m.format!r}")
+        key = (client, m.subscription)
+        old = self.subscriptions.pop(key, None)
+        if old is not None:
+            self.engine.unsubscribe(old)
+        subscription = Subscription(m.world_id, Box(m.lo, m.hi), m.format)
+        news = SubscriptionNews(m.subscription, subscription)
+        subscription.mailbox = Mailbox(lambda: self.send(client, news))
+        self.subscriptions[key] = subscription
+
+        future = self.engine.submit(cmd.Subscribe(subscription))
+
+        def done(future: Future) -> None:
+            exc = future.exception()
+            if exc is not None:
+                self.subscriptions.pop(key, None)
+            self._reply(client, m.id, None, exc)
+
+        future.add_done_callback(done)
+
+    def _unsubscribe(self, client: bytes, m: msg.Unsubscribe) -> None:
+        subscription = self.subscriptions.pop((client, m.subscription), None)
+        if subscription is not None:
+            self.engine.unsubscribe(subscription)
+        self._reply(client, m.id)
+
+    def _admit(self, client: bytes, m: msg.Admit) -> None:
+        self.doorkeeper.admit(m.access, m.world_id)
+        self._reply(client, m.id)
+
+    def _status(self, client: bytes, m: msg.Status) -> None:
+        engine = self.engine
+        gpu = engine.gpu
+        free = max(0, gpu.memory_budget_bytes - sum(w.device_bytes for w in list(engine.worlds.values())))
+        self._reply(client, m.id, msg.EngineStatus(engine.ready, None if engine.ready else engine.not_ready_reason(),
+                                                   gpu.device_name, free, self.writes_failure()))
+
+    def _metrics(self, client: bytes, m: msg.MetricsText) -> None:
+        self._reply(client, m.id, generate_latest(self.engine.metrics.registry).decode())
+
+    def _count(self, client: bytes, m: msg.CountApi) -> None:
+        metrics = self.engine.metrics
+        if m.bytes_out:
+            metrics.bytes_out.inc(m.bytes_out)
+        if m.websocket_clients:
+            metrics.ws_clients.inc(m.websocket_clients)
+        self._reply(client, m.id)
+
+    def _deadline(self) -> float:
+        return time.monotonic() + self.engine.max_wait_s
+
+
+def chunk_update(news: SubscriptionNews) -> msg.ChunkUpdate | None:
+    """What a subscription's mailbox holds, taken now (output side)."""
+    update = news.subscription.mailbox.take()
+    if update is None:
+        return None
+    return msg.ChunkUpdate(news.number, update.version, [(k, v) for k, v in update.chunks.items()])
+

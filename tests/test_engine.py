@@ -16,7 +16,7 @@ from scipy.ndimage import distance_transform_cdt
 from sdfserver.edits import parse_edits
 from sdfserver.engine import Engine, EngineLimits, Mailbox, Subscription
 from sdfserver.engine.commands import (
-    ApplyEdits, Completion, CreateWorld, DeleteWorld, Describe, OnDevice, Read, Subscribe,
+    ApplyEdits, CreateWorld, DeleteWorld, Describe, OnDevice, Read, Subscribe,
 )
 from sdfserver.errors import InvalidEdit, NotFound, NotReady, SdfServerError, TooLarge, VersionNotReached
 from sdfserver.geometry import Box
@@ -162,46 +162,6 @@ def test_min_version_waits_then_answers(engine):
     engine.step()
     with pytest.raises(VersionNotReached):
         expired.result()
-
-
-def test_completions_deliver_once_what_futures_would(engine):
-    """A front's commands complete through a Completion instead of a Future: each delivers one
-    result or one error, including a read that waits for its version and one that expires."""
-    world_id = create(engine)
-    delivered = []
-
-    def submit(command):
-        return engine.submit(command, Completion(lambda ok, value: delivered.append(
-            (type(command).__name__, ok, value))))
-
-    batch = [{"op": "box", "min": [2, 2, 2], "max": [4, 4, 4], "colour": 9}]
-    waiting = submit(Read(world_id, "distance", Box((0, 0, 0), (4, 4, 4)), min_version=1, deadline=float("inf")))
-    submit(ApplyEdits("no-such-world", parse_edits(batch), batch))
-    engine.step()
-    assert delivered == [("ApplyEdits", False, delivered[0][2])] and isinstance(delivered[0][2], NotFound)
-    assert not waiting.done()
-    submit(ApplyEdits(world_id, parse_edits(batch), batch))
-    engine.step()
-    assert [(name, ok) for name, ok, _ in delivered[1:]] == [("ApplyEdits", True), ("Read", True)]
-    assert delivered[1][2] == 1 and delivered[2][2].version == 1 and delivered[2][2].array[2, 2, 2] == 0
-    assert waiting.done()
-    submit(Read(world_id, "field", None, min_version=5, deadline=0.0))
-    engine.step()
-    assert len(delivered) == 4 and not delivered[3][1] and isinstance(delivered[3][2], VersionNotReached)
-
-
-def test_a_failing_completion_does_not_stop_the_engine(engine, caplog):
-    world_id = create(engine)
-
-    def broken(ok, value):
-        raise RuntimeError("the link is gone")
-
-    engine.submit(Read(world_id, "distance", Box((0, 0, 0), (2, 2, 2))), Completion(broken))
-    engine.step()
-    assert "delivering an engine result failed" in caplog.text
-    after = engine.submit(Read(world_id, "distance", Box((0, 0, 0), (2, 2, 2))))
-    engine.step()
-    assert after.result().array.shape == (2, 2, 2)
 
 
 def test_limits(engine):
@@ -354,6 +314,13 @@ def test_a_dead_engine_thread_fails_everything_and_says_so(gpu, monkeypatch):
 def test_engine_and_world_do_not_import_the_web_stack():
     code = ("import sys, sdfserver.engine, sdfserver.world; "
             "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('fastapi', 'starlette', 'pydantic')); "
+            "print(bad); raise SystemExit(1 if bad else 0)")
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
+                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    assert done.returncode == 0, done.stdout + done.stderr
+    # the engine process as a whole (it reads Settings, a pydantic-settings model) serves no HTTP
+    code = ("import sys, sdfserver.engine.proc, sdfserver.engine.service; "
+            "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('fastapi', 'starlette', 'uvicorn')); "
             "print(bad); raise SystemExit(1 if bad else 0)")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
                           env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})

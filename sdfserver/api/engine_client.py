@@ -171,10 +171,10 @@ class LocalEngineClient(BaseClient):
         self.service.handle(self.IDENTITY, msg.REQUEST_DECODER.decode(ENCODE(request)))
 
     def _deliver(self, client: bytes, item: Any) -> None:  # any thread
-        from sdfserver.engine.service import SubscriptionNews, chunk_update
+        from sdfserver.engine.service import SubscriptionNews
 
         if isinstance(item, SubscriptionNews):
-            item = chunk_update(item)
+            item = self.service.update_for(client, item)
             if item is None:
                 return
         outputs = DECODE_OUTPUTS(ENCODE(msg.Outputs([item])))

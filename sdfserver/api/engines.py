@@ -172,6 +172,10 @@ class Engines:
             raise
         return engine, number
 
+    def taken(self, engine: BaseClient, number: int) -> None:
+        """The subscriber sent what it had: the engine may send the next update."""
+        engine.tell(msg.Taken(0, number))
+
     def unsubscribe(self, engine: BaseClient, number: int) -> None:
         engine.on_updates(number, None)
         engine.tell(msg.Unsubscribe(0, number))

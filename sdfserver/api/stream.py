@@ -184,6 +184,8 @@ class StreamSession:
                       for key, data in sorted(update.chunks.items())]
             await self.send({"type": "chunks", "world": self.world_id, "version": update.version,
                              "chunk_size": cs, "format": fmt, "chunks": chunks})
+            if self.subscription is subscription:  # sent: the engine may send the next
+                self.engine.taken(subscription[0], subscription[1])
 
 
 def _int3(value: Any, name: str) -> tuple[int, int, int]:

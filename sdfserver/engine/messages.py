@@ -131,6 +131,14 @@ class Unsubscribe(Request, tag=True):
     subscription: int
 
 
+class Taken(Request, tag=True):
+    """The subscriber took its last update: the engine may send the next (until then its
+    chunks merge in the engine's single-slot mailbox)."""
+
+    id: int
+    subscription: int
+
+
 class Admit(Request, tag=True):
     """The rate limit and the world's owner alone (a WebSocket frame that needs no engine work)."""
 
@@ -156,7 +164,7 @@ class CountApi(Request, tag=True):
 
 
 AnyRequest = Union[CreateWorld, DeleteWorld, Reconfigure, Describe, ApplyEdits, Read, Query, Render, Pick,
-                   Subscribe, Unsubscribe, Admit, Status, MetricsText, CountApi]
+                   Subscribe, Unsubscribe, Taken, Admit, Status, MetricsText, CountApi]
 
 
 # -- answers --------------------------------------------------------------------------------------

@@ -36,7 +36,7 @@ from sdfserver.engine.access import Doorkeeper, RateLimiter
 from sdfserver.engine.commands import EngineLimits
 from sdfserver.engine.core import Engine
 from sdfserver.engine.metrics import EngineMetrics
-from sdfserver.engine.service import EngineService, SubscriptionNews, chunk_update
+from sdfserver.engine.service import EngineService, SubscriptionNews
 from sdfserver.errors import NoOpenCLDevice, SdfServerError
 from sdfserver.settings import Settings
 
@@ -142,9 +142,9 @@ class EngineTransport:
             while True:
                 client, out = item
                 if isinstance(out, SubscriptionNews):
-                    if (client, out.number) not in news_sent:  # one take per batch holds all news
+                    if (client, out.number) not in news_sent:  # one update a batch holds all its news
                         news_sent.add((client, out.number))
-                        update = chunk_update(out)
+                        update = self.service.update_for(client, out)
                         if update is not None:
                             batches[client].append(update)
                 else:

@@ -11,6 +11,7 @@ news, and the output side takes whatever it holds when it sends.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from concurrent.futures import Future
 from typing import Any, Callable
@@ -52,11 +53,15 @@ class EngineService:
         self.send = send
         self.writes_failure = writes_failure
         self.subscriptions: dict[tuple[bytes, int], Subscription] = {}
+        # a subscription with credit may be sent its next update; sending spends it, ``Taken`` returns it
+        self._credit: dict[tuple[bytes, int], bool] = {}
+        self._credit_lock = threading.Lock()
         self.handlers: dict[type, Callable[[bytes, Any], None]] = {
             msg.CreateWorld: self._create, msg.DeleteWorld: self._delete, msg.Reconfigure: self._reconfigure,
             msg.Describe: self._describe, msg.ApplyEdits: self._apply, msg.Read: self._read,
             msg.Query: self._query, msg.Render: self._render, msg.Pick: self._pick,
-            msg.Subscribe: self._subscribe, msg.Unsubscribe: self._unsubscribe, msg.Admit: self._admit,
+            msg.Subscribe: self._subscribe, msg.Unsubscribe: self._unsubscribe, msg.Taken: self._taken,
+            msg.Admit: self._admit,
             msg.Status: self._status, msg.MetricsText: self._metrics, msg.CountApi: self._count,
         }
 
@@ -72,6 +77,18 @@ class EngineService:
         """Drop the subscriptions of an API process that is gone."""
         for key in [k for k in self.subscriptions if k[0] == client]:
             self.engine.unsubscribe(self.subscriptions.pop(key))
+            self._credit.pop(key, None)
+
+    def update_for(self, client: bytes, news: SubscriptionNews) -> msg.ChunkUpdate | None:
+        """Output side: the subscription's pending chunks, if it may be sent them now."""
+        key = (client, news.number)
+        with self._credit_lock:
+            if not self._credit.get(key) or self.subscriptions.get(key) is not news.subscription:
+                return None
+            update = chunk_update(news)
+            if update is not None:
+                self._credit[key] = False
+            return update
 
     # -- replies ------------------------------------------------------------------------------
 
@@ -186,6 +203,8 @@ class EngineService:
         news = SubscriptionNews(m.subscription, subscription)
         subscription.mailbox = Mailbox(lambda: self.send(client, news))
         self.subscriptions[key] = subscription
+        with self._credit_lock:
+            self._credit[key] = True
 
         future = self.engine.submit(cmd.Subscribe(subscription))
 
@@ -199,9 +218,20 @@ class EngineService:
 
     def _unsubscribe(self, client: bytes, m: msg.Unsubscribe) -> None:
         subscription = self.subscriptions.pop((client, m.subscription), None)
+        self._credit.pop((client, m.subscription), None)
         if subscription is not None:
             self.engine.unsubscribe(subscription)
         self._reply(client, m.id)
+
+    def _taken(self, client: bytes, m: msg.Taken) -> None:
+        key = (client, m.subscription)
+        subscription = self.subscriptions.get(key)
+        if subscription is None:
+            return
+        with self._credit_lock:
+            self._credit[key] = True
+        if subscription.mailbox.pending_chunks:  # what merged meanwhile goes now
+            self.send(client, SubscriptionNews(m.subscription, subscription))
 
     def _admit(self, client: bytes, m: msg.Admit) -> None:
         self.doorkeeper.admit(m.access, m.world_id)

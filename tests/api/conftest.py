@@ -41,10 +41,16 @@ class Server:
         return self.url.replace("http://", "ws://")
 
     def rss_bytes(self) -> int:
-        for line in Path(f"/proc/{self.process.pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) * 1024
-        raise RuntimeError("no VmRSS")
+        """The server's memory: the launcher, its engine and its API processes."""
+        total, pids = 0, [self.process.pid]
+        while pids:
+            pid = pids.pop()
+            for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    total += int(line.split()[1]) * 1024
+            for task in Path(f"/proc/{pid}/task").iterdir():
+                pids += [int(c) for c in (task / "children").read_text().split()]
+        return total
 
     def metric(self, name: str) -> float:
         for line in self.http.get("/metrics").text.splitlines():

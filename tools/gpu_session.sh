@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # One packed measurement session on the lent GPU machine (see docs/benchmarks.md).
-# Usage there: source .whl/activate.sh; bash tools/gpu_session.sh [sections]
+# Usage there: source .whl/activate.sh; [SERVE_FLAGS="--workers 4"] bash tools/gpu_session.sh [sections]
 # Sections: host tests bench render service restart (default: all). Results: $OUT/results.tgz.
 set -uo pipefail
 export PYTHONPATH=$PWD:${PYTHONPATH:-} PYTHONUNBUFFERED=1
@@ -63,7 +63,7 @@ if has restart; then
   serve server-crash.log
   timeout 60 python3 clients/loadtest.py --url http://127.0.0.1:$port --size 256 256 256 --quiet --keep-world \
     --clients 64 --processes 8 --duration 8 --read-every 0 > "$OUT/load-before-crash.txt" 2>&1
-  kill -9 $server; wait $server 2>/dev/null; sleep 1  # its fronts exit when their link closes
+  kill -9 $server; wait $server 2>/dev/null; sleep 1  # its engine and API processes die with it (PDEATHSIG)
   started=$(date +%s.%N)
   serve server-restart.log
   echo "ready $(python3 -c 'import sys, time; print(round(time.time() - float(sys.argv[1]), 1))' $started) s" \

@@ -1,8 +1,8 @@
 """The server's host overhead per edit batch, next to the device time it bought.
 
 Runs a command (a load test) against a running ``sdfserver serve`` and reads, before and after,
-the server process's CPU time (``/proc/<pid>/stat``, all threads), its front processes' (if
-it runs ``--fronts``) and its ``/metrics``:
+the server process's CPU time (``/proc/<pid>/stat``, all threads), its child processes (engine, API)' (if
+its engine and API processes) and its ``/metrics``:
 
     python tools/service_overhead.py --pid $SERVER_PID --url http://127.0.0.1:8765 -- \\
         python clients/loadtest.py --url http://127.0.0.1:8765 --clients 64 --processes 8 \\
@@ -31,7 +31,7 @@ def cpu_seconds(pid: int) -> float:
 
 
 def children(pid: int) -> list[int]:
-    """The server's front processes (``--fronts``), if any."""
+    """The server's child processes (engine, API) (``--fronts``), if any."""
     try:
         return [int(c) for c in open(f"/proc/{pid}/task/{pid}/children").read().split()]
     except OSError:
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{batches:.0f} batches in {steps:.0f} engine steps ({batches / max(steps, 1):.1f} per step); per batch: "
           f"server CPU {per(c1 - c0):.0f} us, recompute wall {per(d['sdfserver_recompute_seconds_sum']):.0f} us, "
           f"recompute device {per(d['sdfserver_recompute_device_seconds_total']):.0f} us"
-          + (f"; {len(fronts)} front processes: {per(f1 - f0):.0f} us CPU per batch between them" if fronts else ""))
+          + (f"; {len(fronts)} child processes (engine, API): {per(f1 - f0):.0f} us CPU per batch between them" if fronts else ""))
     return code
 
 

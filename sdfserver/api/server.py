@@ -184,6 +184,7 @@ class Launcher:
             for process, pipe in self.engines:
                 if not process.is_alive():
                     reason = _death_of(process, pipe)
+                    self.stop()  # first: what the API processes log as they stop comes before the cause
                     print(f"sdfserver serve: {reason}; exiting, so that a supervisor can start it again",
                           file=sys.stderr)
                     return 1

@@ -93,11 +93,11 @@ def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[Base
                            engine_limits(settings), metrics=EngineMetrics())
         if local is not None and not local.started:
             local.start(warm_up=settings.warm_up)
-        engine_clients = list(clients) if clients is not None else [LocalEngineClient(local, settings)]
+        if app.state.engine is None:
+            use(list(clients) if clients is not None else [LocalEngineClient(local, settings)])
+        engine_clients = app.state.engine.clients
         for client in engine_clients:
             await client.start()
-        app.state.engine = Engines(LocalPlacement(engine_clients), settings.max_wait_ms / 1e3)
-        app.state.metrics.engines = app.state.engine
         reporter = asyncio.create_task(app.state.metrics.report_forever())
         if freeze_gc:  # here, once uvicorn has imported all it serves with
             log.info("%d start-up objects exempted from garbage collection", freeze_startup_objects())
@@ -116,10 +116,17 @@ def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[Base
                   description="Chunked voxel worlds on an OpenCL device with exact Manhattan distance fields. "
                               "See docs/api.md.")
     app.state.settings = settings
-    app.state.engine = None  # Engines, once the app has started
+    app.state.engine = None  # Engines: the engines' clients, routed by world id
+    app.state.metrics = ApiMetrics()
+
+    def use(engine_clients: list[BaseClient]) -> None:
+        app.state.engine = Engines(LocalPlacement(engine_clients), settings.max_wait_ms / 1e3)
+        app.state.metrics.engines = app.state.engine
+
+    if engine is not None:  # usable without the lifespan too (httpx.ASGITransport runs none)
+        use([LocalEngineClient(engine, settings)])
     app.state.gatekeeper = auth.Gatekeeper(auth.parse_keys(settings.api_keys, settings.api_key_file),
                                            settings.rate_limit_per_s)
-    app.state.metrics = ApiMetrics()
     errors.install(app)
     app.include_router(health.router)
     app.include_router(transfer.router, dependencies=[Depends(auth.guard)])  # before /worlds/{id}

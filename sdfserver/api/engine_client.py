@@ -168,6 +168,8 @@ class LocalEngineClient(BaseClient):
         pass
 
     def _send(self, request: Any) -> None:
+        if self._loop is None:  # an app served without its lifespan (httpx.ASGITransport)
+            self._loop = asyncio.get_running_loop()
         self.service.handle(self.IDENTITY, msg.REQUEST_DECODER.decode(ENCODE(request)))
 
     def _deliver(self, client: bytes, item: Any) -> None:  # any thread

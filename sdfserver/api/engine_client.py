@@ -18,10 +18,12 @@ import logging
 import os
 from typing import Any, Callable
 
+import msgspec
 import zmq
 import zmq.asyncio
 
 from sdfserver.engine import messages as msg
+from sdfserver.errors import InvalidInput
 
 log = logging.getLogger("sdfserver")
 ENCODE = msg.REQUEST_ENCODER.encode
@@ -45,6 +47,9 @@ class BaseClient:
         self._pending[request.id] = future
         try:
             self._send(request)
+        except (OverflowError, msgspec.EncodeError) as exc:  # a number no engine could take
+            self._pending.pop(request.id, None)
+            raise InvalidInput(f"a value of the request is out of range: {exc}") from None
         except BaseException:
             self._pending.pop(request.id, None)
             raise

@@ -48,7 +48,7 @@ if has service; then
              "load-64-again:--clients 64 --processes 8 --duration 15 --read-every 0"; do
     name=${run%%:*}
     timeout 60 python3 tools/service_overhead.py --pid $server --url http://127.0.0.1:$port -- \
-      python3 clients/loadtest.py --url http://127.0.0.1:$port --size 256 256 256 --quiet \
+      python3 clients/loadtest --url http://127.0.0.1:$port --size 256 256 256 --quiet \
       --json "$OUT/$name.json" ${run#*:} > "$OUT/$name.txt" 2>&1
   done
   timeout 40 python3 tools/ws_frames.py --url http://127.0.0.1:$port --size 512 --duration 10 \
@@ -61,7 +61,7 @@ if has restart; then
   # the restart replays the batches logged since the world's last snapshot.
   rm -rf /tmp/sdfserver-data
   serve server-crash.log
-  timeout 60 python3 clients/loadtest.py --url http://127.0.0.1:$port --size 256 256 256 --quiet --keep-world \
+  timeout 60 python3 clients/loadtest --url http://127.0.0.1:$port --size 256 256 256 --quiet --keep-world \
     --clients 64 --processes 8 --duration 8 --read-every 0 > "$OUT/load-before-crash.txt" 2>&1
   kill -9 $server; wait $server 2>/dev/null; sleep 1  # its engine and API processes die with it (PDEATHSIG)
   started=$(date +%s.%N)

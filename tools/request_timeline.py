@@ -7,7 +7,7 @@ hand-offs of the hot path — uvicorn receiving the request's bytes, the fast la
 (Ctrl-C or SIGTERM), prints the median of each gap for edits and reads:
 
     python tools/request_timeline.py --device nvidia --port 8765 --data-dir /tmp/tl &
-    python clients/loadtest.py --url http://127.0.0.1:8765 --clients 1 --duration 10 \\
+    python clients/loadtest --url http://127.0.0.1:8765 --clients 1 --duration 10 \\
         --size 256 256 256 --read-every 1 --read-size 16 --quiet
     kill %1
 

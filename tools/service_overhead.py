@@ -5,7 +5,7 @@ the server process's CPU time (``/proc/<pid>/stat``, all threads), its child pro
 its engine and API processes) and its ``/metrics``:
 
     python tools/service_overhead.py --pid $SERVER_PID --url http://127.0.0.1:8765 -- \\
-        python clients/loadtest.py --url http://127.0.0.1:8765 --clients 64 --processes 8 \\
+        python clients/loadtest --url http://127.0.0.1:8765 --clients 64 --processes 8 \\
         --duration 15 --size 256 256 256 --read-every 0
 
 prints batches, engine steps (batches merged per step), and per batch: server CPU, recompute

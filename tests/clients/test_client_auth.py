@@ -98,18 +98,19 @@ def test_wrong_or_missing_key_is_unauthorized(url, worlds):
         assert alice.get_world(a_id).version == 3  # nothing changed
 
 
-def test_lean_connection_sends_the_key(url, worlds):
-    from sdfclient.lean import LeanConnection
+def test_the_load_tests_connection_sends_the_key(url, worlds):
+    sys.path.insert(0, str(CLIENTS))
+    from loadtest.connection import Connection
 
     a_id, a_voxels = worlds["alice"]
 
     async def run():
-        async with LeanConnection(url, api_key=ALICE) as alice:
+        async with Connection(url, api_key=ALICE) as alice:
             voxels = (await alice.read_voxels(a_id)).data
             field = await alice.read_field(a_id)
         refused = []
         for key in (BOB, "not-a-key-0123456789abc", None):
-            async with LeanConnection(url, api_key=key) as other:
+            async with Connection(url, api_key=key) as other:
                 try:
                     await other.edit(a_id, [edits.box((0, 0, 0), (8, 8, 8), 0x11)])
                 except (NotFound, Unauthorized) as exc:
@@ -188,7 +189,7 @@ def _loadtest(url: str, tmp_path, key_env: str | None, *args: str) -> subprocess
     env = env_with_paths()
     if key_env is not None:
         env["SDFSERVER_API_KEY"] = key_env
-    return subprocess.run([sys.executable, str(CLIENTS / "loadtest.py"), "--url", url, "--quiet",
+    return subprocess.run([sys.executable, str(CLIENTS / "loadtest"), "--url", url, "--quiet",
                            "--json", str(tmp_path / "out.json"), *args],
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
 

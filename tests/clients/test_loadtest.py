@@ -1,4 +1,4 @@
-"""clients/loadtest.py: brushes from a seed, and short runs against a real server."""
+"""clients/loadtest: brushes from a seed, and short runs against a real server."""
 
 from __future__ import annotations
 
@@ -59,7 +59,7 @@ def test_latency_summary():
 def _run(server_url: str, tmp_path, *args: str) -> tuple[subprocess.CompletedProcess, dict]:
     out = tmp_path / "result.json"
     proc = subprocess.run(
-        [sys.executable, str(CLIENTS / "loadtest.py"), "--url", server_url, "--json", str(out), *args],
+        [sys.executable, str(CLIENTS / "loadtest"), "--url", server_url, "--json", str(out), *args],
         cwd=ROOT, env=env_with_paths(), capture_output=True, timeout=120,
     )
     proc.stdout, proc.stderr = proc.stdout.decode(), proc.stderr.decode()  # keep the \r of the progress line
@@ -92,7 +92,7 @@ def test_short_run_reports_sane_numbers(server_url, tmp_path):
     assert trips["latency_ms"]["min"] >= reads["latency_ms"]["min"] + edits["latency_ms"]["min"] - 1e-9
     assert trips["latency_ms"]["max"] <= reads["latency_ms"]["max"] + edits["latency_ms"]["max"] + 1e-9
     assert "requests/s" in proc.stdout and "p99" in proc.stdout and "edit+read" in proc.stdout
-    assert result["config"]["http"] == "lean" and result["config"]["loop"] == "uvloop"  # installed here
+    assert result["config"]["http"] == "aiohttp" and result["config"]["loop"] == "uvloop"  # installed here
     timeline = result["edit_timeline"]  # each second's edits and their p99
     seconds = [t["second"] for t in timeline]
     assert seconds == sorted(set(seconds)) and 0 <= seconds[0] and seconds[-1] <= result["elapsed_s"]
@@ -145,7 +145,7 @@ def test_unreachable_server_fails_fast(tmp_path):
     from clients_support import free_port
 
     proc = subprocess.run(
-        [sys.executable, str(CLIENTS / "loadtest.py"), "--url", f"http://127.0.0.1:{free_port()}",
+        [sys.executable, str(CLIENTS / "loadtest"), "--url", f"http://127.0.0.1:{free_port()}",
          "--duration", "1", "--timeout", "2"],
         cwd=ROOT, env=env_with_paths(), capture_output=True, text=True, timeout=60,
     )

@@ -1,0 +1,162 @@
+"""One game client (edit, then read its field with ``min_version``), and a worker's clients on one
+event loop."""
+
+from __future__ import annotations
+
+import array
+import asyncio
+import contextlib
+import functools
+import time
+from dataclasses import dataclass, field
+from typing import Any, Coroutine, TypeVar
+
+import httpx
+
+from loadtest.config import Brushes, LoadConfig
+from loadtest.connection import Connection
+from sdfclient import AsyncClient, RateLimited, SdfClientError, ServerError
+from sdfclient.stream import Stream
+
+T = TypeVar("T")
+
+
+@dataclass
+class Tally:
+    edit_ms: array.array = field(default_factory=lambda: array.array("d"))
+    edit_at_s: array.array = field(default_factory=lambda: array.array("d"))  # when each edit was sent
+    read_ms: array.array = field(default_factory=lambda: array.array("d"))
+    round_trip_ms: array.array = field(default_factory=lambda: array.array("d"))  # edit + its read
+    errors: dict[str, int] = field(default_factory=dict)
+    cpu_s: float = 0.0  # the load generator's own CPU time (time.process_time) over the run
+
+    @property
+    def count(self) -> int:
+        return len(self.edit_ms) + len(self.read_ms) + sum(self.errors.values())
+
+    def error(self, exc: Exception) -> None:
+        key = exc.code if isinstance(exc, ServerError) else type(exc).__name__
+        self.errors[key] = self.errors.get(key, 0) + 1
+
+    def merge(self, other: "Tally") -> None:
+        """Add a worker's tally to this one."""
+        for name in ("edit_ms", "edit_at_s", "read_ms", "round_trip_ms"):
+            getattr(self, name).extend(getattr(other, name))
+        for key, n in other.errors.items():
+            self.errors[key] = self.errors.get(key, 0) + n
+        self.cpu_s += other.cpu_s
+
+
+class Budget:
+    """Request tickets shared by the clients of one worker, and the deadline."""
+
+    def __init__(self, requests: int, deadline: float):
+        self.left = requests if requests > 0 else None
+        self.deadline = deadline
+
+    def take(self) -> bool:
+        if time.perf_counter() >= self.deadline:
+            return False
+        if self.left is None:
+            return True
+        if self.left <= 0:
+            return False
+        self.left -= 1
+        return True
+
+
+async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget, start: float) -> None:
+    brushes = Brushes(cfg.seed * 1_000_003 + index, cfg)
+    interval = cfg.clients / cfg.rate if cfg.rate > 0 else 0.0
+    next_at = start + interval * index / cfg.clients
+    edits_sent = 0
+    async with contextlib.AsyncExitStack() as stack:
+        if cfg.http == "aiohttp":
+            client = Connection(cfg.url, api_key=cfg.api_key, timeout=cfg.timeout_s)
+        else:
+            client = AsyncClient(cfg.url, api_key=cfg.api_key, timeout=cfg.timeout_s,
+                                 limits=httpx.Limits(max_connections=1))
+        await stack.enter_async_context(client)
+        if cfg.edits_over == "ws":  # what AsyncClient.stream opens, whichever HTTP client reads
+            stream = await stack.enter_async_context(Stream.connect(cfg.url, cfg.world_id, api_key=cfg.api_key))
+            edit = stream.edit
+        else:
+            edit = functools.partial(client.edit, cfg.world_id)
+        # Connection's timeout bounds the whole exchange; httpx's are per phase, the stream has none.
+        if cfg.http == "aiohttp" and cfg.edits_over == "http":
+            send_edit = edit
+        else:
+            def send_edit(batch: list[dict]):
+                return asyncio.wait_for(edit(batch), cfg.timeout_s)
+        pending_read = None
+        while True:
+            if interval:
+                delay = next_at - time.perf_counter()
+                if delay > 0:
+                    await asyncio.sleep(delay)
+                next_at = max(next_at + interval, time.perf_counter() - interval)
+            if not budget.take():
+                return
+            t0 = time.perf_counter()
+            try:
+                if pending_read is not None:
+                    box, version, edit_ms = pending_read
+                    pending_read = None
+                    block = await client.read_field(cfg.world_id, box, format=cfg.read_format,
+                                                    min_version=version)
+                    if block.version < version:
+                        tally.errors["stale_read"] = tally.errors.get("stale_read", 0) + 1
+                        continue
+                    read_ms = (time.perf_counter() - t0) * 1e3
+                    tally.read_ms.append(read_ms)
+                    tally.round_trip_ms.append(edit_ms + read_ms)
+                    continue
+                batch, center = brushes.batch()
+                version = await send_edit(batch)
+                edit_ms = (time.perf_counter() - t0) * 1e3
+                tally.edit_ms.append(edit_ms)
+                tally.edit_at_s.append(t0 - start)
+                edits_sent += 1
+                if cfg.read_every and edits_sent % cfg.read_every == 0:
+                    pending_read = (brushes.read_box(center), version, edit_ms)
+            except (SdfClientError, TimeoutError) as exc:
+                tally.error(exc)
+                if isinstance(exc, RateLimited):  # a well-behaved game client waits as told
+                    pause = exc.retry_after_s if exc.retry_after_s is not None else 1.0
+                    await asyncio.sleep(max(0.0, min(pause, budget.deadline - time.perf_counter())))
+
+
+async def run_clients(cfg: LoadConfig, indices: list[int], requests: int, tally: Tally,
+                      progress=None) -> float:
+    cpu_start = time.process_time()
+    start = time.perf_counter()
+    budget = Budget(requests, start + cfg.duration_s)
+    tasks = [asyncio.create_task(game_client(i, cfg, tally, budget, start)) for i in indices]
+    while not all(t.done() for t in tasks):
+        await asyncio.wait(tasks, timeout=0.25)
+        if progress is not None:
+            progress(tally)
+    for t in tasks:
+        t.result()  # a bug in the load test itself surfaces here
+    tally.cpu_s += time.process_time() - cpu_start
+    return time.perf_counter() - start
+
+
+def event_loop_kind(wanted: str) -> str:
+    """uvloop when asked for and installed (``uvicorn[standard]`` brings it), else asyncio."""
+    if wanted == "uvloop":
+        try:
+            import uvloop  # noqa: F401
+        except ImportError:
+            return "asyncio"
+    return wanted
+
+
+def run_loop(cfg: LoadConfig, coroutine: Coroutine[Any, Any, T]) -> T:
+    """Run ``coroutine`` on the configured loop: the generator's own CPU per request is part of
+    every latency it measures, and uvloop spends less of it."""
+    if event_loop_kind(cfg.loop) == "asyncio":
+        return asyncio.run(coroutine)
+    import uvloop
+    with asyncio.Runner(loop_factory=uvloop.new_event_loop) as runner:
+        return runner.run(coroutine)

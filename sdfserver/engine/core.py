@@ -15,6 +15,11 @@ whenever commands are queued:
    (one handler per command type), which therefore see every edit applied before them. A read whose ``min_version``
    the field has not reached waits for later steps until its deadline.
 
+The engine is handed its collaborators and only sequences them: the world table
+(``worlds.py``), the batch pipeline (``batches.py``: plan -> journal -> apply -> acknowledge),
+the reads and their waits (``reads.py``, one handler per command type) and the subscriptions
+(``subscriptions.py``).
+
 A command's own error fails that command alone. An error the step raises outside
 any one command fails the step's commands with 500, and the engine goes on; an
 OpenCL error from the device fails them with NotReady and marks the engine not
@@ -27,53 +32,35 @@ from __future__ import annotations
 import asyncio
 import logging
 import queue
-import secrets
-import threading
 import time
 from concurrent.futures import Future
-from dataclasses import asdict
 from typing import Any, Callable, TypeVar
 
 import numpy as np
 import pyopencl as cl
 
+from sdfserver.engine.batches import BatchPipeline, Planned, fail
 from sdfserver.engine.commands import (
-    APPLY, ApplyEdits, CommandCalls, CreateWorld, DeleteWorld, Describe, Draw, EngineLimits, OnDevice, PickAt,
-    Query, Read, ReadResult, Reconfigure, StepReport, Subscribe,
+    APPLY, ApplyEdits, CommandCalls, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Reconfigure,
+    StepReport, Subscribe,
 )
-from sdfserver.engine.describe import describe_recompute
 from sdfserver.engine.journal import Journal
 from sdfserver.engine.lifetime import EngineLifetime, Pending
 from sdfserver.engine.mailbox import Subscription
 from sdfserver.engine.metrics import EngineMetrics
-from sdfserver.engine.publish import check_subscription_region, chunks_of, publish
-from sdfserver.engine.query import query_points
+from sdfserver.engine.reads import Reads
 from sdfserver.engine.stepclock import StepClock
-from sdfserver.errors import (
-    DeviceMemoryExceeded, InvalidInput, NotFound, NotReady, SdfServerError, StorageError, TooLarge,
-    VersionNotReached,
-)
+from sdfserver.engine.subscriptions import Subscriptions
+from sdfserver.engine.worlds import WorldTable, new_world_id, world_config_dict
+from sdfserver.errors import DeviceMemoryExceeded, NotReady
 from sdfserver.gpu import GpuContext
-from sdfserver.render import Renderer
-from sdfserver.world import EditPlan, RecomputeResult, World, WorldConfig
+from sdfserver.world import RecomputeResult, World, WorldConfig
 
 log = logging.getLogger("sdfserver.engine")
 T = TypeVar("T")
 DIRTY_GAUGE_EVERY_S = 0.1  # the dirty-chunks gauge is counted at most this often
 
-
-def world_config_dict(config: WorldConfig) -> dict[str, Any]:
-    """A WorldConfig in wire form (the body of ``POST /v1/worlds``)."""
-    d = asdict(config)
-    d["size"] = list(config.size)
-    if config.focus is not None:
-        d["focus"] = {"center": list(config.focus.center), "size": list(config.focus.size)}
-    return d
-
-
-def new_world_id() -> str:
-    # Hex, not url-safe base64: an id that starts with '-' reads as an option on command lines.
-    return secrets.token_hex(6)
+__all__ = ["Engine", "new_world_id", "world_config_dict"]
 
 
 class Engine(EngineLifetime, CommandCalls):
@@ -84,35 +71,24 @@ class Engine(EngineLifetime, CommandCalls):
         self.limits = limits
         self.journal = journal
         self.metrics = metrics or EngineMetrics()
-        self.worlds: dict[str, World] = {}  # engine thread only
-        self.owners: dict[str, str | None] = {}  # written by the engine thread, read by any
-        self.refused: dict[str, str] = {}  # worlds on disk that could not be restored, and why
-        self.last_recompute_ms: dict[str, float] = {}
-        self._subscribers: dict[str, set[Subscription]] = {}
-        self._subscribers_lock = threading.Lock()
-        self._acknowledging: list[list[tuple[Future, int]]] = []  # the step's applied batches
-        self._dirty_gauge_at = -DIRTY_GAUGE_EVERY_S
-        self._renderer: Renderer | None = None
-        self._servers: dict[type, Callable[[Any], Any]] = {  # the serving commands' handlers
-            Read: self._read,
-            Query: lambda c: query_points(self._world(c.world_id), c.points),
-            Describe: self._describe_command,
-            Subscribe: lambda c: self._subscribe(c.subscription),
-            Draw: self._draw,
-            PickAt: self._pick,
-            OnDevice: lambda c: c.fn(),
+        self.table = WorldTable(gpu, limits, journal, self.metrics)
+        self.subscriptions = Subscriptions(self.table, limits.max_subscription_voxels, self.metrics)
+        self.batches = BatchPipeline(self.table, journal, self.metrics, lambda: not self._commands.empty())
+        self.reads = Reads(gpu, self.table, self.subscriptions, limits)
+        self._changers: dict[type, Callable[[Any, set[str]], Any]] = {  # the changing commands' handlers
+            CreateWorld: self._create_world, DeleteWorld: self._delete_world, Reconfigure: self._reconfigure,
         }
+        # the table's own dicts: read by restore, tests and the engine's service
+        self.worlds, self.owners, self.refused = self.table.worlds, self.table.owners, self.table.refused
+        self.last_recompute_ms = self.table.last_recompute_ms
+        self._dirty_gauge_at = -DIRTY_GAUGE_EVERY_S
         self.metrics.queue_depth.set_function(self._commands.qsize)
 
     # -- lifetime -----------------------------------------------------------------------------
 
     def _release_all(self) -> None:
-        if self._renderer is not None:
-            self._renderer.release()
-            self._renderer = None
-        for world in self.worlds.values():
-            world.release()
-        self.worlds.clear()
+        self.reads.release()
+        self.table.release_all()
 
     # -- submitting (any thread) ----------------------------------------------------------------
 
@@ -151,11 +127,7 @@ class Engine(EngineLifetime, CommandCalls):
         await self.call(Subscribe(subscription))
 
     def unsubscribe(self, subscription: Subscription) -> None:
-        with self._subscribers_lock:
-            subs = self._subscribers.get(subscription.world_id)
-            if subs is not None:
-                subs.discard(subscription)
-        self._count_subscribers()
+        self.subscriptions.unsubscribe(subscription)
 
     async def run_on_device(self, fn: Callable[[], T]) -> T:
         """Run ``fn()`` on the engine thread between steps (after that step's recompute)."""
@@ -171,7 +143,7 @@ class Engine(EngineLifetime, CommandCalls):
         """Apply queued edits, recompute touched worlds once each, publish, serve reads."""
         commands = self._drain()
         serve = self._waiting + [c for c in commands if not isinstance(c[0], APPLY)]
-        self._waiting, self._acknowledging = [], []
+        self._waiting, self.batches.acknowledging = [], []
         report = StepReport()
         clock = StepClock(report)
         answers: list[tuple[Future, Any]] = []
@@ -180,9 +152,9 @@ class Engine(EngineLifetime, CommandCalls):
             clock.lap("apply")
             report.recomputed = self._recompute(touched)
             clock.lap("recompute")
-            self._publish(report.recomputed)
+            self.subscriptions.publish(report.recomputed)
             clock.lap("publish")
-            answers = self._serve(serve, report)
+            answers = self.reads.serve(serve, report, self._waiting)
             clock.lap("serve")
         except cl.Error as exc:
             self._lose_device(exc, self._unanswered(commands + serve + self._waiting))
@@ -190,7 +162,7 @@ class Engine(EngineLifetime, CommandCalls):
         except Exception as exc:
             self._fail_step(exc, self._unanswered(commands + serve + self._waiting))
             self._waiting, answers = [], []
-        self._count_pending()
+        self.subscriptions.count_pending()
         clock.stop(self.metrics, self.limits.slow_step_ms)
         for future, result in answers:  # last: a receiver may need the GIL this thread holds
             future.set_result(result)
@@ -199,7 +171,7 @@ class Engine(EngineLifetime, CommandCalls):
     def _unanswered(self, pending: list[Pending]) -> list[Pending]:
         """``pending`` less the batches applied this step: they are in the log and the world,
         and are answered by their acknowledgement."""
-        applied = {id(future) for answers in self._acknowledging for future, _ in answers}
+        applied = {id(future) for answers in self.batches.acknowledging for future, _ in answers}
         return [p for p in pending if id(p[1]) not in applied]
 
     def _drain(self) -> list[Pending]:
@@ -211,147 +183,48 @@ class Engine(EngineLifetime, CommandCalls):
                 return out
 
     def _apply(self, commands: list[Pending], report: StepReport) -> set[str]:
-        """Run the changing commands in arrival order. Edit batches are validated one by one as
+        """Run the changing commands in arrival order. Edit batches are planned one by one as
         they come and journaled and applied together (one log write per world) before the next
         command of another kind, so that command still sees them."""
         touched: set[str] = set()
-        batches: list[tuple[ApplyEdits, Future, EditPlan]] = []
+        batches: list[Planned] = []
         for command, future in commands:
             if not future.set_running_or_notify_cancel():
                 continue
             if isinstance(command, ApplyEdits):
-                started = time.perf_counter()
-                try:  # a bad batch fails alone: nothing logged or applied
-                    batches.append((command, future, self._world(command.world_id).plan_edits(command.edits)))
-                except Exception as exc:
-                    self._reject(future, exc, report)
-                report.apply_ms["plan"] += (time.perf_counter() - started) * 1e3
+                planned = self.batches.plan(command, future, report)  # a bad batch fails alone
+                if planned is not None:
+                    batches.append(planned)
                 continue
-            self._apply_batches(batches, touched, report)
+            self.batches.run(batches, touched, report)
             batches = []
             try:
-                if isinstance(command, CreateWorld):
-                    result = self._create_world(command)
-                    if command.voxels is not None:
-                        touched.add(result["id"])  # an import: compute its field this step
-                elif isinstance(command, DeleteWorld):
-                    result = self._delete_world(command.world_id)
-                else:
-                    world = self._world(command.world_id)
-                    world.reconfigure(**command.changes)
-                    if self.journal is not None:
-                        self.journal.record_config(command.world_id, world_config_dict(world.config))
-                    touched.add(command.world_id)
-                    result = None
+                result = self._changers[type(command)](command, touched)
             except cl.Error:
                 raise
             except Exception as exc:  # the command fails alone; the engine carries on
-                self._fail(future, exc)
+                fail(future, exc)
             else:
                 future.set_result(result)
-        self._apply_batches(batches, touched, report)
+        self.batches.run(batches, touched, report)
         return touched
 
-    def _apply_batches(self, batches: list[tuple[ApplyEdits, Future, EditPlan]], touched: set[str],
-                       report: StepReport) -> None:
-        """Journal each world's validated batches in one record, apply them in order, acknowledge."""
-        by_world: dict[str, list[tuple[ApplyEdits, Future, EditPlan]]] = {}
-        for item in batches:
-            by_world.setdefault(item[0].world_id, []).append(item)
-        started = time.perf_counter()
-        journaled = []
-        for world_id, items in by_world.items():
-            world = items[0][2].world
-            durable = None
-            if self.journal is not None:
-                try:  # acknowledged once the journal has them on disk
-                    durable = self.journal.record_batches(world_id, world.version + 1, [c.wire for c, _, _ in items])
-                except Exception as exc:  # not journaled: not applied, not acknowledged
-                    for _, future, _ in items:
-                        self._reject(future, exc, report)
-                    continue
-            journaled.append((world_id, world, items, durable))
-        if self.journal is not None and journaled:
-            # every world's records in one round of syncs; with more commands queued the engine
-            # does not wait for the committer to take them: under load that wait held up every step
-            self.journal.start_syncs(wait=self._commands.empty())
-        logged = time.perf_counter()
-        report.apply_ms["log"] += (logged - started) * 1e3
-        launch_ms = 0.0
-        for world_id, world, items, durable in journaled:
-            launch = time.perf_counter()
-            try:
-                versions = world.apply_plans([plan for _, _, plan in items])  # the step's brushes in few launches
-            except cl.Error:
-                raise
-            except Exception as exc:  # logged but not applied: not acknowledged, the other worlds go on
-                for _, future, _ in items:
-                    self._reject(future, exc, report)
-                continue
-            finally:
-                launch_ms += (time.perf_counter() - launch) * 1e3
-            self.metrics.edit_batches.inc(len(items))  # each inc takes a lock: once a world a step
-            self.metrics.edit_ops.inc(sum(len(command.edits) for command, _, _ in items))
-            report.applied_batches += len(items)
-            answers = [(future, version) for (_, future, _), version in zip(items, versions)]
-            self._acknowledging.append(answers)
-            if durable is None:
-                for future, version in answers:
-                    future.set_result(version)
-            else:
-                _acknowledge_when_durable(answers, durable)
-            touched.add(world_id)
-        report.apply_ms["launch"] += launch_ms
-        report.apply_ms["acknowledge"] += (time.perf_counter() - logged) * 1e3 - launch_ms
+    def _create_world(self, command: CreateWorld, touched: set[str]) -> dict[str, Any]:
+        world_id = self.table.create(command)
+        if command.voxels is not None:
+            touched.add(world_id)  # an import: compute its field this step
+        return self.table.describe(world_id)
 
-    def _reject(self, future: Future, exc: BaseException, report: StepReport) -> None:
-        report.rejected_batches += 1
-        self.metrics.rejected_batches.inc()
-        self._fail(future, exc)
+    def _delete_world(self, command: DeleteWorld, touched: set[str]) -> None:
+        self.table.delete(command.world_id)
+        self.subscriptions.drop_world(command.world_id)
 
-    def _create_world(self, command: CreateWorld) -> dict[str, Any]:
-        config = command.config.validated()
-        sx, sy, sz = config.size
-        if sx * sy * sz > self.limits.max_world_voxels:
-            raise TooLarge(f"a {sx}x{sy}x{sz} world has {sx * sy * sz} voxels; the limit is "
-                           f"{self.limits.max_world_voxels}")
-        if len(self.worlds) >= self.limits.max_worlds:
-            raise TooLarge(f"the server already holds {len(self.worlds)} worlds, its limit")
-        world_id = command.world_id or new_world_id()
-        while world_id in self.worlds:
-            if command.world_id:
-                raise InvalidInput(f"world {world_id!r} already exists")
-            world_id = new_world_id()
-        world = World(self.gpu, config, self.limits.edits)
-        try:
-            if command.voxels is not None:
-                world.load_voxels(command.voxels)
-            if self.journal is not None and command.voxels is None:
-                self.journal.record_create(world_id, world_config_dict(world.config), command.owner)
-            elif self.journal is not None:
-                self.journal.record_create(world_id, world_config_dict(world.config), command.owner,
-                                           voxels=command.voxels, version=world.version)
-        except BaseException:
-            world.release()
-            raise
-        self.worlds[world_id] = world
-        self.owners[world_id] = command.owner
-        self._count_worlds()
-        return self._describe(world_id)
-
-    def _delete_world(self, world_id: str) -> None:
-        world = self._world(world_id)
-        if self.journal is not None:
-            self.journal.record_delete(world_id)
-        del self.worlds[world_id]
-        self.owners.pop(world_id, None)
-        self.last_recompute_ms.pop(world_id, None)
-        world.release()
-        with self._subscribers_lock:
-            self._subscribers.pop(world_id, None)
-        self._count_worlds()
+    def _reconfigure(self, command: Reconfigure, touched: set[str]) -> None:
+        self.table.reconfigure(command.world_id, command.changes)
+        touched.add(command.world_id)
 
     def _recompute(self, touched: set[str]) -> dict[str, RecomputeResult]:
+        """One recompute per touched world (the step's one loop over worlds)."""
         results = {}
         worlds = {i: self.worlds[i] for i in touched if i in self.worlds}
         now = time.monotonic()
@@ -375,177 +248,14 @@ class Engine(EngineLifetime, CommandCalls):
             return
         self.journal.record_snapshot(world_id, world.version, world_config_dict(world.config), voxels, ready)
 
-    # -- publishing ---------------------------------------------------------------------------------
-
-    def _publish(self, recomputed: dict[str, RecomputeResult]) -> None:
-        for world_id, result in recomputed.items():
-            with self._subscribers_lock:
-                subs = list(self._subscribers.get(world_id, ()))
-            if subs:
-                self.metrics.merged_chunks.inc(publish(self.worlds[world_id], result, subs))
-
-    def _subscribe(self, sub: Subscription) -> None:
-        world = self._world(sub.world_id)
-        region = sub.region
-        check_subscription_region(region, world.world_box, self.limits.max_subscription_voxels)
-        # The current state first, then every change: the subscriber never misses one.
-        field = world.read_field(region)
-        sub.mailbox.put(world.field_version, chunks_of(field, region.lo, region, world.config.chunk_size,
-                                                        sub.format))
-        with self._subscribers_lock:
-            self._subscribers.setdefault(sub.world_id, set()).add(sub)
-        self._count_subscribers()
-
-    # -- serving -------------------------------------------------------------------------------------
-
-    def _serve(self, commands: list[Pending], report: StepReport) -> list[tuple[Future, Any]]:
-        """Run the serving commands; returns the answers for the caller to deliver."""
-        now = time.monotonic()
-        answers = []
-        for command, future in commands:
-            if future.cancelled():
-                continue
-            try:
-                if isinstance(command, (Read, Query)) and self._must_wait(command, now):
-                    self._waiting.append((command, future))
-                    continue
-                if not future.set_running_or_notify_cancel():
-                    continue
-                result = self._serve_one(command)
-            except cl.Error:
-                raise
-            except Exception as exc:
-                self._fail(future, exc)
-            else:
-                answers.append((future, result))
-                report.served += 1
-        report.waiting = len(self._waiting)
-        return answers
-
-    def _must_wait(self, command: Read | Query, now: float) -> bool:
-        world = self._world(command.world_id)
-        have = world.version if isinstance(command, Read) and command.kind == "voxels" else world.field_version
-        if have >= command.min_version:
-            return False
-        if now < command.deadline:
-            return True
-        raise VersionNotReached(f"world {command.world_id!r} is at version {have}; min_version "
-                                f"{command.min_version} was not reached in {self.limits.max_wait_s:g} s")
-
-    def _serve_one(self, command: Any) -> Any:
-        handler = self._servers.get(type(command))
-        if handler is None:
-            raise TypeError(f"not an engine command: {command!r}")
-        return handler(command)
-
-    def _describe_command(self, command: Describe) -> Any:
-        if command.world_id is None:
-            return [self._describe(i) for i in sorted(self.worlds)]
-        return self._describe(command.world_id)
-
-    def _draw(self, command: Draw) -> tuple[Any, float | None] | None:
-        """A frame and the world's last recompute time, or None when the field did not change."""
-        world = self._world(command.world_id)
-        if command.unless_field_version == world.field_version:
-            return None
-        frame = self.renderer.render(world, command.camera, command.options)
-        return frame, self.last_recompute_ms.get(command.world_id)
-
-    def _pick(self, command: PickAt) -> tuple[Any, int]:
-        world = self._world(command.world_id)
-        return self.renderer.pick(world, command.camera, command.x, command.y), world.field_version
-
-    @property
-    def renderer(self) -> Renderer:
-        """The engine's renderer, made on first use (engine thread only)."""
-        if self._renderer is None:
-            self._renderer = Renderer(self.gpu)
-        return self._renderer
-
-    def _read(self, command: Read) -> ReadResult:
-        world = self._world(command.world_id)
-        box = world.world_box if command.box is None else command.box
-        if box.volume > self.limits.max_read_voxels:
-            raise TooLarge(f"a read of {box.volume} voxels; the limit is {self.limits.max_read_voxels}")
-        if command.kind == "voxels":
-            return ReadResult(box.lo, world.version, world.read_voxels(box))
-        array = world.read_distance(box) if command.kind == "distance" else world.read_field(box)
-        return ReadResult(box.lo, world.field_version, array)
-
-    def _describe(self, world_id: str) -> dict[str, Any]:
-        world = self._world(world_id)
-        return {
-            "id": world_id,
-            **world_config_dict(world.config),
-            "version": world.version,
-            "field_version": world.field_version,
-            "dirty_chunks": world.dirty_chunk_count,
-            "last_recompute_ms": self.last_recompute_ms.get(world_id),
-            "last_recompute": describe_recompute(world.last_recompute),
-            "device_bytes": world.device_bytes,
-            "owner": self.owners.get(world_id),
-        }
-
-    def _world(self, world_id: str) -> World:
-        try:
-            return self.worlds[world_id]
-        except (KeyError, TypeError):
-            if isinstance(world_id, str) and world_id in self.refused:
-                raise StorageError(f"world {world_id!r} was not restored: {self.refused[world_id]}") from None
-            raise NotFound(f"no world {world_id!r}") from None
+    # -- the table, for start-up and the service ----------------------------------------------------
 
     def adopt_world(self, world_id: str, world: World, owner: str | None) -> None:
         """Register a world restored from disk; only before ``start()``."""
         if self.started:
             raise RuntimeError("adopt_world is for start-up, before the engine thread runs")
-        self.worlds[world_id] = world
-        self.owners[world_id] = owner
-        self._count_worlds()
+        self.table.adopt(world_id, world, owner)
 
     def owner_of(self, world_id: str) -> str | None:
         """The owning key's name (any thread); NotFound for an unknown world."""
-        try:
-            return self.owners[world_id]
-        except KeyError:
-            self._world(world_id)
-            raise NotFound(f"no world {world_id!r}") from None
-
-    # -- failures and gauges -----------------------------------------------------------------------
-
-    def _fail(self, future: Future, exc: BaseException) -> None:
-        if not isinstance(exc, SdfServerError):
-            log.exception("engine command failed unexpectedly", exc_info=exc)
-        if not future.done():
-            future.set_exception(exc)
-
-    def _count_worlds(self) -> None:
-        self.metrics.worlds.set(len(self.worlds))
-        self.metrics.device_bytes.set(sum(w.device_bytes for w in self.worlds.values()))
-
-    def _count_subscribers(self) -> None:
-        with self._subscribers_lock:
-            self.metrics.subscribers.set(sum(len(s) for s in self._subscribers.values()))
-
-    def _count_pending(self) -> None:
-        with self._subscribers_lock:
-            subs = [s for group in self._subscribers.values() for s in group]
-        self.metrics.pending_chunks.set(sum(s.mailbox.pending_chunks for s in subs))
-        self.metrics.pending_bytes.set(sum(s.mailbox.pending_bytes for s in subs))
-
-
-def _acknowledge_when_durable(answers: list[tuple[Future, int]], durable: Future) -> None:
-    """Complete each future with its version once ``durable`` completes (or fail them all with
-    its error): one callback for a world's batches of a step, not one each."""
-
-    def done(durable: Future) -> None:
-        exc = durable.exception()
-        for future, version in answers:
-            try:  # one failing must not keep the others unanswered
-                if exc is not None:
-                    future.set_exception(exc)
-                else:
-                    future.set_result(version)
-            except Exception:
-                log.exception("acknowledging an edit batch failed")
-
-    durable.add_done_callback(done)
+        return self.table.owner_of(world_id)

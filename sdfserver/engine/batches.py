@@ -1,0 +1,125 @@
+"""Edit batches through one step: plan (validate against the world; a bad batch fails alone,
+nothing logged or applied) -> journal (each world's batches of the step in one log record) ->
+apply (the step's brushes in few launches) -> acknowledge (each batch with its version, once the
+log has it on disk)."""
+
+from __future__ import annotations
+
+import logging
+import time
+from concurrent.futures import Future
+from typing import Callable
+
+import pyopencl as cl
+
+from sdfserver.engine.commands import ApplyEdits, StepReport
+from sdfserver.engine.journal import Journal
+from sdfserver.engine.metrics import EngineMetrics
+from sdfserver.engine.worlds import WorldTable
+from sdfserver.errors import SdfServerError
+from sdfserver.world import EditPlan
+
+log = logging.getLogger("sdfserver.engine")
+Planned = tuple[ApplyEdits, Future, EditPlan]
+
+
+def fail(future: Future, exc: BaseException) -> None:
+    """Complete ``future`` with ``exc``; a bug (not a project error) is logged with its traceback."""
+    if not isinstance(exc, SdfServerError):
+        log.exception("engine command failed unexpectedly", exc_info=exc)
+    if not future.done():
+        future.set_exception(exc)
+
+
+class BatchPipeline:
+    def __init__(self, table: WorldTable, journal: Journal | None, metrics: EngineMetrics,
+                 more_queued: Callable[[], bool]):
+        self.table = table
+        self.journal = journal
+        self.metrics = metrics
+        self.more_queued = more_queued
+        self.acknowledging: list[list[tuple[Future, int]]] = []  # the step's applied batches
+
+    def plan(self, command: ApplyEdits, future: Future, report: StepReport) -> Planned | None:
+        started = time.perf_counter()
+        try:
+            return command, future, self.table.get(command.world_id).plan_edits(command.edits)
+        except Exception as exc:
+            self.reject(future, exc, report)
+            return None
+        finally:
+            report.apply_ms["plan"] += (time.perf_counter() - started) * 1e3
+
+    def run(self, batches: list[Planned], touched: set[str], report: StepReport) -> None:
+        """Journal each world's planned batches in one record, apply them in order, acknowledge."""
+        by_world: dict[str, list[Planned]] = {}
+        for item in batches:
+            by_world.setdefault(item[0].world_id, []).append(item)
+        started = time.perf_counter()
+        journaled = []
+        for world_id, items in by_world.items():
+            world = items[0][2].world
+            durable = None
+            if self.journal is not None:
+                try:  # acknowledged once the journal has them on disk
+                    durable = self.journal.record_batches(world_id, world.version + 1, [c.wire for c, _, _ in items])
+                except Exception as exc:  # not journaled: not applied, not acknowledged
+                    for _, future, _ in items:
+                        self.reject(future, exc, report)
+                    continue
+            journaled.append((world_id, world, items, durable))
+        if self.journal is not None and journaled:
+            # every world's records in one round of syncs; with more commands queued the engine
+            # does not wait for the committer to take them: under load that wait held up every step
+            self.journal.start_syncs(wait=not self.more_queued())
+        logged = time.perf_counter()
+        report.apply_ms["log"] += (logged - started) * 1e3
+        launch_ms = 0.0
+        for world_id, world, items, durable in journaled:
+            launch = time.perf_counter()
+            try:
+                versions = world.apply_plans([plan for _, _, plan in items])  # the step's brushes in few launches
+            except cl.Error:
+                raise
+            except Exception as exc:  # logged but not applied: not acknowledged, the other worlds go on
+                for _, future, _ in items:
+                    self.reject(future, exc, report)
+                continue
+            finally:
+                launch_ms += (time.perf_counter() - launch) * 1e3
+            self.metrics.edit_batches.inc(len(items))  # each inc takes a lock: once a world a step
+            self.metrics.edit_ops.inc(sum(len(command.edits) for command, _, _ in items))
+            report.applied_batches += len(items)
+            answers = [(future, version) for (_, future, _), version in zip(items, versions)]
+            self.acknowledging.append(answers)
+            if durable is None:
+                for future, version in answers:
+                    future.set_result(version)
+            else:
+                acknowledge_when_durable(answers, durable)
+            touched.add(world_id)
+        report.apply_ms["launch"] += launch_ms
+        report.apply_ms["acknowledge"] += (time.perf_counter() - logged) * 1e3 - launch_ms
+
+    def reject(self, future: Future, exc: BaseException, report: StepReport) -> None:
+        report.rejected_batches += 1
+        self.metrics.rejected_batches.inc()
+        fail(future, exc)
+
+
+def acknowledge_when_durable(answers: list[tuple[Future, int]], durable: Future) -> None:
+    """Complete each future with its version once ``durable`` completes (or fail them all with
+    its error): one callback for a world's batches of a step, not one each."""
+
+    def done(durable: Future) -> None:
+        exc = durable.exception()
+        for future, version in answers:
+            try:  # one failing must not keep the others unanswered
+                if exc is not None:
+                    future.set_exception(exc)
+                else:
+                    future.set_result(version)
+            except Exception:
+                log.exception("acknowledging an edit batch failed")
+
+    durable.add_done_callback(done)

@@ -1,0 +1,135 @@
+"""The world table: every World of one engine, its owner, its last recompute, and the worlds on
+disk that could not be restored. The engine thread writes it; owners are read by any thread (a
+dict read is atomic)."""
+
+from __future__ import annotations
+
+import secrets
+from dataclasses import asdict
+from typing import Any
+
+from sdfserver.engine.commands import CreateWorld, EngineLimits
+from sdfserver.engine.describe import describe_recompute
+from sdfserver.engine.journal import Journal
+from sdfserver.engine.metrics import EngineMetrics
+from sdfserver.errors import InvalidInput, NotFound, StorageError, TooLarge
+from sdfserver.gpu import GpuContext
+from sdfserver.world import World, WorldConfig
+
+
+def world_config_dict(config: WorldConfig) -> dict[str, Any]:
+    """A WorldConfig in wire form (the body of ``POST /v1/worlds``)."""
+    d = asdict(config)
+    d["size"] = list(config.size)
+    if config.focus is not None:
+        d["focus"] = {"center": list(config.focus.center), "size": list(config.focus.size)}
+    return d
+
+
+def new_world_id() -> str:
+    # Hex, not url-safe base64: an id that starts with '-' reads as an option on command lines.
+    return secrets.token_hex(6)
+
+
+class WorldTable:
+    def __init__(self, gpu: GpuContext, limits: EngineLimits, journal: Journal | None, metrics: EngineMetrics):
+        self.gpu = gpu
+        self.limits = limits
+        self.journal = journal
+        self.metrics = metrics
+        self.worlds: dict[str, World] = {}
+        self.owners: dict[str, str | None] = {}
+        self.refused: dict[str, str] = {}  # worlds on disk that could not be restored, and why
+        self.last_recompute_ms: dict[str, float] = {}
+
+    def get(self, world_id: str) -> World:
+        try:
+            return self.worlds[world_id]
+        except (KeyError, TypeError):
+            if isinstance(world_id, str) and world_id in self.refused:
+                raise StorageError(f"world {world_id!r} was not restored: {self.refused[world_id]}") from None
+            raise NotFound(f"no world {world_id!r}") from None
+
+    def owner_of(self, world_id: str) -> str | None:
+        """The owning key's name (any thread); NotFound for an unknown world."""
+        try:
+            return self.owners[world_id]
+        except KeyError:
+            self.get(world_id)
+            raise NotFound(f"no world {world_id!r}") from None
+
+    def create(self, command: CreateWorld) -> str:
+        """A new world (journaled); its id."""
+        config = command.config.validated()
+        sx, sy, sz = config.size
+        if sx * sy * sz > self.limits.max_world_voxels:
+            raise TooLarge(f"a {sx}x{sy}x{sz} world has {sx * sy * sz} voxels; the limit is "
+                           f"{self.limits.max_world_voxels}")
+        if len(self.worlds) >= self.limits.max_worlds:
+            raise TooLarge(f"the server already holds {len(self.worlds)} worlds, its limit")
+        world_id = command.world_id or new_world_id()
+        while world_id in self.worlds:
+            if command.world_id:
+                raise InvalidInput(f"world {world_id!r} already exists")
+            world_id = new_world_id()
+        world = World(self.gpu, config, self.limits.edits)
+        try:
+            if command.voxels is not None:
+                world.load_voxels(command.voxels)
+            if self.journal is not None and command.voxels is None:
+                self.journal.record_create(world_id, world_config_dict(world.config), command.owner)
+            elif self.journal is not None:
+                self.journal.record_create(world_id, world_config_dict(world.config), command.owner,
+                                           voxels=command.voxels, version=world.version)
+        except BaseException:
+            world.release()
+            raise
+        self.adopt(world_id, world, command.owner)
+        return world_id
+
+    def adopt(self, world_id: str, world: World, owner: str | None) -> None:
+        self.worlds[world_id] = world
+        self.owners[world_id] = owner
+        self.count()
+
+    def delete(self, world_id: str) -> None:
+        world = self.get(world_id)
+        if self.journal is not None:
+            self.journal.record_delete(world_id)
+        del self.worlds[world_id]
+        self.owners.pop(world_id, None)
+        self.last_recompute_ms.pop(world_id, None)
+        world.release()
+        self.count()
+
+    def reconfigure(self, world_id: str, changes: dict[str, Any]) -> None:
+        world = self.get(world_id)
+        world.reconfigure(**changes)
+        if self.journal is not None:
+            self.journal.record_config(world_id, world_config_dict(world.config))
+
+    def describe(self, world_id: str | None) -> Any:
+        """One world's description, or every world's (``None``)."""
+        if world_id is None:
+            return [self.describe(i) for i in sorted(self.worlds)]
+        world = self.get(world_id)
+        return {
+            "id": world_id,
+            **world_config_dict(world.config),
+            "version": world.version,
+            "field_version": world.field_version,
+            "dirty_chunks": world.dirty_chunk_count,
+            "last_recompute_ms": self.last_recompute_ms.get(world_id),
+            "last_recompute": describe_recompute(world.last_recompute),
+            "device_bytes": world.device_bytes,
+            "owner": self.owners.get(world_id),
+        }
+
+    def release_all(self) -> None:
+        for world in self.worlds.values():
+            world.release()
+        self.worlds.clear()
+
+    def count(self) -> None:
+        self.metrics.worlds.set(len(self.worlds))
+        self.metrics.device_bytes.set(sum(w.device_bytes for w in self.worlds.values()))

@@ -9,8 +9,8 @@ They reach 2^33 elements, so fills, copies and transfers of them go through
 ``sdfserver.bulk`` (the project's own 64-bit kernels, transfers in pieces).
 
 The life of an edit: ``apply_edits`` validates a whole batch on the host,
-writes it on the device and records the boxes it may have changed (the dirty
-set); ``recompute`` consumes the dirty set — each box grown by the cap and
+writes it on the device (``brushes.py``) and records the boxes it may have
+changed (the dirty set, ``dirty.py``); ``recompute`` consumes the dirty set — each box grown by the cap and
 snapped to chunks, touching boxes merged — runs the world's algorithm over
 each region, seeded from the unchanged field around it, and returns exactly
 the chunks it rewrote. A voxel farther than the cap from every change keeps
@@ -28,22 +28,20 @@ import numpy as np
 import pyopencl as cl
 
 from sdfserver import bulk
+from sdfserver.brushes import enqueue_brushes, enqueue_voxels
 from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, RegionJob, WorldBuffers, get_algorithm
-from sdfserver.algorithms.base import WORK_PLANE_PAD, float4, grid, int4
+from sdfserver.algorithms.base import WORK_PLANE_PAD, int4
 from sdfserver.algorithms.stats import AlgorithmStats, summarize
-from sdfserver.edits import BoxEdit, Edit, EditLimits, SphereEdit, VoxelsEdit, edit_bounds, validate_batch
+from sdfserver.dirty import SMALL_DIRTY_CHUNKS, DirtySet
+from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, validate_batch
 from sdfserver.errors import InvalidInput
-from sdfserver.geometry import Box, merge_regions
+from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
 from sdfserver.world_config import CHUNK_SIZES, MAX_SIDE_VOX, MAX_WORLD_VOXELS, Focus, WorldConfig
 
 BRUSHES_PER_LAUNCH = 256  # each work-item of fill_brushes checks the later brushes of its launch
 WORK_ITEMS_PER_LAUNCH = 1 << 30  # fill_brushes counts its work-items in 32 bits
 
-# Up to this many (chunk, brush) pairs a step's dirty chunks are counted in a set: numpy on the
-# whole chunk mask lets go of the GIL and, with a busy event loop, waits up to a switch interval
-# to get it back, several times a step.
-SMALL_DIRTY_CHUNKS = 4096
 
 
 @dataclass(frozen=True)
@@ -112,13 +110,12 @@ class World:
         bulk.fill(gpu, self.buffers.field, np.uint16, config.max_distance << 8, self.voxel_count)
         gpu.queue.finish()
         self._dims_int4 = int4(config.size)
-        self._dirty: list[Box] = []  # what edits may have changed, world-clipped
-        self._dirty_all = False
+        self.dirty = DirtySet()  # what edits may have changed since the last recompute
         self.version = 0  # edit batches applied
         self.field_version = 0  # the version the field reflects
         self.last_recompute: RecomputeResult | None = None  # what the last recompute did
         if config.borders == "padded":  # an empty chunk's field is its distance to its frame, not the cap
-            self._dirty_all = True
+            self.dirty.mark_all()
             self.recompute()
 
     @staticmethod
@@ -188,7 +185,7 @@ class World:
                         brushes, volume = [], 0
                     brushes.append((edit, boxes[0]))
                     volume += boxes[0].volume
-                self._dirty.extend(boxes)
+                self.dirty.add(boxes)
             self.version += 1
             versions.append(self.version)
         self._enqueue_brushes(brushes)
@@ -199,55 +196,10 @@ class World:
         return self.apply_plan(self.plan_edits(edits))
 
     def _enqueue_voxels(self, e: VoxelsEdit) -> None:
-        # Later duplicates win: keep the last occurrence of each position.
-        flat = np.ravel_multi_index(e.voxels[::-1, 2::-1].T, self.config.size[::-1])
-        _, first = np.unique(flat, return_index=True)
-        rows = e.voxels[::-1][first].astype(np.uint16)
-        list_buf = self.gpu.upload(rows)
-        n = len(rows)
-        self.gpu.programs.kernel("edits.cl", "set_voxels")(self.gpu.queue, (-(-n // 64) * 64,), (64,),
-                                                           self.buffers.voxels, self._dims_int4, list_buf,
-                                                           np.int32(n))
-        list_buf.release()  # OpenCL frees it only once the queued kernel has finished
+        enqueue_voxels(self.gpu, self.buffers.voxels, self._dims_int4, self.config.size, e)
 
-    def _enqueue_brushes(self, brushes: list[tuple[Edit, Box]]) -> None:
-        """Box and sphere edits, each with its clipped box: one alone with its own kernel, several
-        with fill_brushes (their records in one small buffer)."""
-        if len(brushes) == 1:
-            self._enqueue_brush(*brushes[0])
-            return
-        if not brushes:
-            return
-        # Built as tuples and converted once: element-wise numpy stores cost 4x as much host time.
-        ints, floats, first = [], [], 0
-        for edit, box in brushes:
-            (x0, y0, z0), (x1, y1, z1) = box.lo, box.hi
-            ints.append((x0, y0, z0, edit.colour, x1 - x0, y1 - y0, z1 - z0, first))
-            if isinstance(edit, SphereEdit):
-                floats.append((*edit.center, edit.radius * edit.radius))
-            else:
-                floats.append((0.0, 0.0, 0.0, -1.0))  # a negative radius²: a box
-            first += (x1 - x0) * (y1 - y0) * (z1 - z0)
-        records = np.empty((len(brushes), 12), dtype=np.int32)
-        records[:, :8] = ints
-        records[:, 8:].view(np.float32)[:] = floats
-        local = 64
-        with self.gpu.uploads.staged(records) as record_buf:
-            self.gpu.programs.kernel("edits.cl", "fill_brushes")(
-                self.gpu.queue, (-(-first // local) * local,), (local,), self.buffers.voxels, self._dims_int4,
-                record_buf, np.int32(len(brushes)), np.uint32(first))
-
-    def _enqueue_brush(self, e: Edit, box: Box) -> None:
-        q, kernels, b = self.gpu.queue, self.gpu.programs, self.buffers
-        dims = self._dims_int4
-        gsize, lsize = grid(box.shape_xyz)
-        if isinstance(e, BoxEdit):
-            kernels.kernel("edits.cl", "fill_box")(q, gsize, lsize, b.voxels, dims, int4(box.lo), int4(box.shape_xyz),
-                             np.uint32(e.colour))
-        elif isinstance(e, SphereEdit):
-            center = float4(e.center)
-            kernels.kernel("edits.cl", "fill_sphere")(q, gsize, lsize, b.voxels, dims, int4(box.lo), int4(box.shape_xyz),
-                                center, np.float32(e.radius * e.radius), np.uint32(e.colour))
+    def _enqueue_brushes(self, batch: list[tuple[Edit, Box]]) -> None:
+        enqueue_brushes(self.gpu, self.buffers.voxels, self._dims_int4, batch)
 
     def load_voxels(self, voxels: np.ndarray) -> int:
         """Replace every voxel (restore, import); the whole field becomes dirty."""
@@ -256,7 +208,7 @@ class World:
             raise InvalidInput(f"voxels must be uint8 with shape {expected} (z, y, x), "
                                f"got {voxels.dtype} {voxels.shape}")
         bulk.write(self.gpu, self.buffers.voxels, voxels)
-        self._dirty_all = True
+        self.dirty.mark_all()
         self.version += 1
         return self.version
 
@@ -280,7 +232,7 @@ class World:
         config = replace(self.config, **changes).validated()
         self._resize_seeds(config)
         self.config = config
-        self._dirty_all = True
+        self.dirty.mark_all()
 
     def _resize_seeds(self, config: WorldConfig) -> None:
         """Allocate or release the seed buffers as ``config`` needs them (raises before changing
@@ -298,7 +250,7 @@ class World:
 
     def mark_all_dirty(self) -> None:
         """Make the next recompute rebuild the whole field (benchmarks, restores)."""
-        self._dirty_all = True
+        self.dirty.mark_all()
 
     # -- the dirty set ----------------------------------------------------------------------------
 
@@ -308,50 +260,23 @@ class World:
 
     def dirty_regions(self) -> list[Box]:
         """The regions the next recompute will rewrite."""
-        if self._dirty_all:
-            return [self.world_box]
-        cap, cs, (sx, sy, sz) = self.config.max_distance, self.config.chunk_size, self.config.size
-        if self.config.borders == "padded":
-            cap = 0  # each chunk is computed alone: an edit changes only the chunks it touches
-        # Each box grown by the cap, snapped to chunks and clipped to the world, in plain ints
-        # (b.grow(cap).snap(cs).intersect(world) made three Boxes an edit). Under a large cap
-        # many edits grow to the same region: merge each once.
-        grown = {}
-        for b in self._dirty:
-            (x0, y0, z0), (x1, y1, z1) = b.lo, b.hi
-            lo = (max(0, (x0 - cap) // cs * cs), max(0, (y0 - cap) // cs * cs), max(0, (z0 - cap) // cs * cs))
-            hi = (max(lo[0], min(sx, -(-(x1 + cap) // cs) * cs)), max(lo[1], min(sy, -(-(y1 + cap) // cs) * cs)),
-                  max(lo[2], min(sz, -(-(z1 + cap) // cs) * cs)))
-            grown[lo, hi] = None
-        return merge_regions(Box(lo, hi) for lo, hi in grown)
+        return self.dirty.regions(self.config)
 
     @property
     def dirty_chunk_count(self) -> int:
-        if self._dirty_all:
-            return int(np.prod(self.config.chunks))
-        ranges = [box.chunk_range(self.config.chunk_size) for box in self._dirty]
-        if len(ranges) == 1:  # one brush, the common step: no mask to build
-            return ranges[0].volume
-        if sum(r.volume for r in ranges) <= SMALL_DIRTY_CHUNKS:  # a step of brushes: a set, in Python
-            return len({(x, y, z) for r in ranges for z in range(r.lo[2], r.hi[2])
-                        for y in range(r.lo[1], r.hi[1]) for x in range(r.lo[0], r.hi[0])})
-        mask = np.zeros(self.config.chunks[::-1], dtype=bool)
-        for r in ranges:  # one loop over boxes, never over voxels
-            mask[r.slices_zyx()] = True
-        return int(mask.sum())
+        return self.dirty.chunk_count(self.config)
 
     # -- recompute ----------------------------------------------------------------------------------
 
     def recompute(self) -> RecomputeResult:
         """Bring the field up to date with the voxels; returns the chunks rewritten."""
         start = time.perf_counter()
-        regions = self.dirty_regions() if (self._dirty or self._dirty_all) else []
+        regions = self.dirty_regions() if self.dirty else []
         runs: list[tuple[str, AlgorithmRun]] = []
         for region in regions:
             runs.extend(self._compute_region(region))
         self.gpu.queue.finish()
-        self._dirty.clear()
-        self._dirty_all = False
+        self.dirty.clear()
         self.field_version = self.version
         each, by_algorithm = summarize(runs)
         self.last_recompute = RecomputeResult(regions, self.config.chunk_size, sum(each),

@@ -141,9 +141,9 @@ def test_dirty_chunk_count_is_the_chunks_the_brushes_touch(gpu, rng):
             for edit in edits:
                 world.apply_edits([edit])
             expected = np.zeros(world.config.chunks[::-1], dtype=bool)
-            for box in world._dirty:
+            for box in world.dirty.boxes:
                 expected[box.chunk_range(8).slices_zyx()] = True
-            pairs = sum(box.chunk_range(8).volume for box in world._dirty)
+            pairs = sum(box.chunk_range(8).volume for box in world.dirty.boxes)
             assert (pairs > SMALL_DIRTY_CHUNKS) == (radius == 60.0)  # both ways of counting are exercised
             assert world.dirty_chunk_count == int(expected.sum())
             world.recompute()

@@ -1,0 +1,66 @@
+"""A world's dirty set: what edits may have changed since the last recompute, as world-clipped
+boxes (or the whole world), and the regions and chunk count it comes to."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sdfserver.geometry import Box, merge_regions
+from sdfserver.world_config import WorldConfig
+
+# Up to this many (chunk, brush) pairs a step's dirty chunks are counted in a set: numpy on the
+# whole chunk mask lets go of the GIL and, with other busy threads, waits up to a switch interval
+# to get it back, several times a step.
+SMALL_DIRTY_CHUNKS = 4096
+
+
+class DirtySet:
+    def __init__(self) -> None:
+        self.boxes: list[Box] = []
+        self.all = False
+
+    def __bool__(self) -> bool:
+        return self.all or bool(self.boxes)
+
+    def add(self, boxes: list[Box]) -> None:
+        self.boxes.extend(boxes)
+
+    def mark_all(self) -> None:
+        self.all = True
+
+    def clear(self) -> None:
+        self.boxes.clear()
+        self.all = False
+
+    def regions(self, config: WorldConfig) -> list[Box]:
+        """The regions a recompute rewrites: each box grown by the cap, snapped to chunks,
+        clipped to the world, touching ones merged."""
+        if self.all:
+            return [Box.of_size(config.size)]
+        cap, cs, (sx, sy, sz) = config.max_distance, config.chunk_size, config.size
+        if config.borders == "padded":
+            cap = 0  # each chunk is computed alone: an edit changes only the chunks it touches
+        # In plain ints (b.grow(cap).snap(cs).intersect(world) made three Boxes an edit). Under a
+        # large cap many edits grow to the same region: merge each once.
+        grown = {}
+        for b in self.boxes:
+            (x0, y0, z0), (x1, y1, z1) = b.lo, b.hi
+            lo = (max(0, (x0 - cap) // cs * cs), max(0, (y0 - cap) // cs * cs), max(0, (z0 - cap) // cs * cs))
+            hi = (max(lo[0], min(sx, -(-(x1 + cap) // cs) * cs)), max(lo[1], min(sy, -(-(y1 + cap) // cs) * cs)),
+                  max(lo[2], min(sz, -(-(z1 + cap) // cs) * cs)))
+            grown[lo, hi] = None
+        return merge_regions(Box(lo, hi) for lo, hi in grown)
+
+    def chunk_count(self, config: WorldConfig) -> int:
+        if self.all:
+            return int(np.prod(config.chunks))
+        ranges = [box.chunk_range(config.chunk_size) for box in self.boxes]
+        if len(ranges) == 1:  # one brush, the common step: no mask to build
+            return ranges[0].volume
+        if sum(r.volume for r in ranges) <= SMALL_DIRTY_CHUNKS:  # a step of brushes: a set, in Python
+            return len({(x, y, z) for r in ranges for z in range(r.lo[2], r.hi[2])
+                        for y in range(r.lo[1], r.hi[1]) for x in range(r.lo[0], r.hi[0])})
+        mask = np.zeros(config.chunks[::-1], dtype=bool)
+        for r in ranges:  # one loop over boxes, never over voxels
+            mask[r.slices_zyx()] = True
+        return int(mask.sum())

@@ -10,12 +10,13 @@ They reach 2^33 elements, so fills, copies and transfers of them go through
 
 The life of an edit: ``apply_edits`` validates a whole batch on the host,
 writes it on the device (``brushes.py``) and records the boxes it may have
-changed (the dirty set, ``dirty.py``); ``recompute`` consumes the dirty set — each box grown by the cap and
-snapped to chunks, touching boxes merged — runs the world's algorithm over
-each region, seeded from the unchanged field around it, and returns exactly
-the chunks it rewrote. A voxel farther than the cap from every change keeps
-its capped distance, so the result equals a full recompute. With padded
-borders each chunk is computed alone, so a region is the touched chunks only.
+changed (the dirty set, ``dirty.py``); ``recompute`` consumes the dirty set —
+each box grown by the cap and snapped to chunks, touching boxes merged — runs
+the world's algorithm over each region, seeded from the unchanged field around
+it, and returns exactly the chunks it rewrote. A voxel farther than the cap
+from every change keeps its capped distance, so the result equals a full
+recompute. With padded borders each chunk is computed alone, so a region is
+the touched chunks only.
 """
 
 from __future__ import annotations

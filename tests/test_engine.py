@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pyopencl as cl
 import pytest
-from scipy.ndimage import distance_transform_cdt
 
 from sdfserver.edits import parse_edits
 from sdfserver.engine import Engine, EngineLimits, Mailbox, Subscription
@@ -23,12 +22,9 @@ from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
 from sdfserver.world import WorldConfig
 
+from references import oracle_distance as oracle
+
 ROOT = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(scope="module")
-def gpu():
-    return GpuContext.create()
 
 
 @pytest.fixture
@@ -46,10 +42,6 @@ def create(engine: Engine, size=(16, 16, 16), cap=5) -> str:
 
 def edits(engine, world_id, raw):
     return engine.submit(ApplyEdits(world_id, parse_edits(raw), raw))
-
-
-def oracle(voxels: np.ndarray, cap: int) -> np.ndarray:
-    return np.minimum(distance_transform_cdt(voxels == 0, metric="taxicab"), cap)
 
 
 def test_step_applies_each_batch_alone_and_recomputes_each_world_once(engine):

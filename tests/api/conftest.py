@@ -10,10 +10,11 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
-from scipy.ndimage import distance_transform_cdt
 
 from sdfserver import wire
 
+from references import apply_edits as apply_reference
+from references import oracle_distance as distance_reference
 from server_process import ServerProcess
 
 MEMORY_BUDGET_BYTES = 32 << 20
@@ -109,36 +110,6 @@ def server(request, tmp_path_factory) -> Server:
 # -- references -------------------------------------------------------------------------------------
 
 
-def apply_reference(voxels: np.ndarray, edits: list[dict]) -> None:
-    """Apply one batch to a (z, y, x) uint8 array in place, as the server defines the operations."""
-    sz, sy, sx = voxels.shape
-    for op in edits:
-        if op["op"] == "voxels":
-            rows = np.asarray(op["voxels"], dtype=np.int64).reshape(-1, 4)
-            # Later duplicates win: keep the last occurrence of each position.
-            flat = np.ravel_multi_index((rows[:, 2], rows[:, 1], rows[:, 0]), voxels.shape)
-            _, last = np.unique(flat[::-1], return_index=True)
-            keep = rows[::-1][last]
-            voxels[keep[:, 2], keep[:, 1], keep[:, 0]] = keep[:, 3]
-        elif op["op"] == "box":
-            lo = np.clip(op["min"], 0, (sx, sy, sz))
-            hi = np.clip(op["max"], 0, (sx, sy, sz))
-            voxels[lo[2]:hi[2], lo[1]:hi[1], lo[0]:hi[0]] = op["colour"]
-        else:
-            z, y, x = np.ogrid[:sz, :sy, :sx]
-            cx, cy, cz = op["center"]
-            inside = (x - cx) ** 2 + (y - cy) ** 2 + (z - cz) ** 2 <= op["radius"] ** 2
-            voxels[inside] = op["colour"]
-
-
-def distance_reference(voxels: np.ndarray, cap: int) -> np.ndarray:
-    """Capped Manhattan distance to the nearest solid voxel (scipy), outside the world is air."""
-    if not voxels.any():
-        return np.full(voxels.shape, cap, dtype=np.uint8)
-    d = distance_transform_cdt(voxels == 0, metric="taxicab")
-    return np.minimum(d, cap).astype(np.uint8)
-
-
 def random_batch(rng: np.random.Generator, size: tuple[int, int, int], blob: bool = True) -> list[dict]:
     """A few random operations; spheres use integer centres and radius k + 0.5 (no ties)."""
     sx, sy, sz = size
@@ -164,7 +135,7 @@ def random_batch(rng: np.random.Generator, size: tuple[int, int, int], blob: boo
 
 @pytest.fixture(scope="session")
 def ref():
-    """The reference functions above, for test modules (which cannot import conftest by name)."""
+    """The references (tests/references.py) and the random batch, for test modules."""
     from types import SimpleNamespace
 
     return SimpleNamespace(apply=apply_reference, distance=distance_reference, batch=random_batch)

@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
-from scipy.ndimage import distance_transform_cdt
 
+from references import apply_edits, oracle_distance  # noqa: F401  (tests import them here)
 from server_process import ROOT, ServerProcess, checkout_env, free_port  # noqa: F401  (tests import them here)
 
 CLIENTS = ROOT / "clients"
@@ -31,33 +31,6 @@ def serve(directory: Path, *flags: str) -> Iterator[str]:
         yield server.url
     finally:
         server.stop()
-
-
-def apply_edits(voxels: np.ndarray, batch: list[dict]) -> None:
-    """The edit semantics in NumPy, on a (z, y, x) uint8 array: boxes half-open, spheres |p-c| <= r."""
-    sz, sy, sx = voxels.shape
-    for e in batch:
-        if e["op"] == "box":
-            (x0, y0, z0), (x1, y1, z1) = e["min"], e["max"]
-            voxels[max(z0, 0):max(z1, 0), max(y0, 0):max(y1, 0), max(x0, 0):max(x1, 0)] = e["colour"]
-        elif e["op"] == "sphere":
-            z, y, x = np.ogrid[:sz, :sy, :sx]
-            cx, cy, cz = e["center"]
-            inside = (x - cx) ** 2 + (y - cy) ** 2 + (z - cz) ** 2 <= e["radius"] ** 2
-            voxels[inside] = e["colour"]
-        elif e["op"] == "voxels":
-            v = np.asarray(e["voxels"], dtype=np.int64)
-            voxels[v[:, 2], v[:, 1], v[:, 0]] = v[:, 3]  # later rows win, as on the server
-        else:
-            raise ValueError(e["op"])
-
-
-def oracle_distance(voxels: np.ndarray, cap: int) -> np.ndarray:
-    """Manhattan distance to the nearest solid voxel, capped: scipy's taxicab transform."""
-    empty = voxels == 0
-    if empty.all():
-        return np.full(voxels.shape, cap, dtype=np.int64)
-    return np.minimum(distance_transform_cdt(empty, metric="taxicab"), cap)
 
 
 def random_batch(rng: np.random.Generator, size: tuple[int, int, int]) -> list[dict]:

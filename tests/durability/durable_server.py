@@ -10,6 +10,7 @@ import httpx
 import numpy as np
 
 import server_process
+from references import apply_edits as apply_reference  # noqa: F401  (tests import it from here)
 
 FLAGS = ["--memory-budget-bytes", str(32 << 20), "--no-warm-up", "--max-request-bytes", str(1 << 20),
          "--max-ops-per-batch", "64", "--max-brush-radius-vox", "40", "--max-wait-ms", "3000"]
@@ -26,19 +27,6 @@ class ServerProcess(server_process.ServerProcess):
     def close(self) -> None:
         self.http.close()
         super().close()
-
-
-def apply_reference(voxels: np.ndarray, edits: list[dict]) -> None:
-    """Box and voxels edits on a (z, y, x) array, as the server defines them."""
-    sz, sy, sx = voxels.shape
-    for op in edits:
-        if op["op"] == "voxels":
-            rows = np.asarray(op["voxels"], dtype=np.int64).reshape(-1, 4)
-            voxels[rows[:, 2], rows[:, 1], rows[:, 0]] = rows[:, 3]  # the tests send no duplicates
-        else:
-            lo = np.clip(op["min"], 0, (sx, sy, sz))
-            hi = np.clip(op["max"], 0, (sx, sy, sz))
-            voxels[lo[2]:hi[2], lo[1]:hi[1], lo[0]:hi[0]] = op["colour"]
 
 
 def random_batch(rng: np.random.Generator, size: tuple[int, int, int]) -> list[dict]:

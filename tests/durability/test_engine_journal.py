@@ -9,25 +9,19 @@ import threading
 
 import numpy as np
 import pytest
-from scipy.ndimage import distance_transform_cdt
 
 from sdfserver.edits import parse_edits
 from sdfserver.engine import Engine
 from sdfserver.engine.commands import ApplyEdits, CreateWorld, Read
 from sdfserver.engine.restore import restore_worlds
 from sdfserver.errors import WritesDisabled
-from sdfserver.gpu import GpuContext
 from sdfserver.storage import Storage
 from sdfserver.storage.journal import StorageJournal
 from sdfserver.storage.snapshot import decode_snapshot
 from sdfserver.world import WorldConfig
 
 from durable_server import apply_reference, random_batch
-
-
-@pytest.fixture(scope="module")
-def gpu():
-    return GpuContext.create()
+from references import oracle_distance
 
 
 @pytest.fixture
@@ -302,7 +296,6 @@ def test_restore_replays_a_long_log_in_groups(gpu, tmp_path, monkeypatch):
     assert voxels.result().version == 23
     np.testing.assert_array_equal(voxels.result().array, expected)
     assert expected.any()  # 23 random batches leave something solid: the oracle needs it
-    oracle = np.minimum(distance_transform_cdt(expected == 0, metric="taxicab"), 9)
-    np.testing.assert_array_equal(field.result().array, oracle)
+    np.testing.assert_array_equal(field.result().array, oracle_distance(expected, 9))
     fresh.stop()
     fresh_journal.close()

@@ -5,9 +5,9 @@ import io
 import struct
 
 import numpy as np
-from scipy.ndimage import distance_transform_cdt
 
 from durable_server import read_voxels
+from references import oracle_distance as oracle
 
 OCTET = {"content-type": "application/octet-stream"}
 
@@ -18,12 +18,6 @@ def field_of(http, world_id, version):
     assert r.status_code == 200, r.text
     shape = tuple(int(v) for v in r.headers["x-sdf-shape"].split(","))
     return np.frombuffer(r.content, np.uint8).reshape(shape)
-
-
-def oracle(voxels, cap):
-    solid = voxels != 0
-    return np.minimum(distance_transform_cdt(~solid, metric="taxicab"), cap) if solid.any() else \
-        np.full(voxels.shape, cap)
 
 
 def vox_bytes(size, voxels):

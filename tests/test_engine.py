@@ -19,7 +19,6 @@ from sdfserver.engine.commands import (
 )
 from sdfserver.errors import InvalidEdit, NotFound, NotReady, SdfServerError, TooLarge, VersionNotReached
 from sdfserver.geometry import Box
-from sdfserver.gpu import GpuContext
 from sdfserver.world import WorldConfig
 
 from references import oracle_distance as oracle

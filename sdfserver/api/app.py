@@ -128,9 +128,10 @@ def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[Base
     app.state.gatekeeper = auth.Gatekeeper(auth.parse_keys(settings.api_keys, settings.api_key_file),
                                            settings.rate_limit_per_s)
     errors.install(app)
-    app.include_router(health.router)
-    app.include_router(transfer.router, dependencies=[Depends(auth.guard)])  # before /worlds/{id}
+    # the hot routes first: a request is matched against the routes in order
     app.include_router(routes.router, dependencies=[Depends(auth.guard)])
+    app.include_router(health.router)
+    app.include_router(transfer.router, dependencies=[Depends(auth.guard)])
     app.include_router(stream.router)  # authenticates in the handler (WebSocket close codes)
     render_routes.install(app, dependencies=[Depends(auth.guard)])
 

@@ -1,7 +1,8 @@
 """An API process's side of one engine: typed requests out, replies and chunk updates in.
 
 ``EngineClient`` speaks to an engine process over ZeroMQ: requests PUSHed as ``[identity,
-request]``, answers received on a DEALER that carries the same identity. Each request has an
+request]``, answers received on a DEALER that carries the same identity, read by the event loop
+when the DEALER's descriptor wakes it. Each request has an
 id; its future is completed when the ``Reply`` with that id arrives. A subscription's updates
 go to the callback given at ``subscribe``; the callback keeps them in a single-slot mailbox.
 
@@ -20,7 +21,6 @@ from typing import Any, Callable
 
 import msgspec
 import zmq
-import zmq.asyncio
 
 from sdfserver.engine import messages as msg
 from sdfserver.errors import InvalidInput
@@ -94,16 +94,24 @@ class BaseClient:
 
 
 class EngineClient(BaseClient):
+    """Plain (blocking-capable) ZeroMQ sockets driven by the event loop: a PUSH with no
+    high-water mark never blocks, so a send completes at once; the DEALER's file descriptor
+    wakes the loop, which then takes every answer waiting (ZeroMQ's descriptor is
+    edge-triggered: drained in full each time)."""
+
     def __init__(self, input_address: str, output_address: str):
         super().__init__()
         self.input_address, self.output_address = input_address, output_address
         self.identity = f"api-{os.getpid()}-{id(self):x}".encode()
-        self._context: zmq.asyncio.Context | None = None
-        self._push = self._dealer = None
-        self._receiver: asyncio.Task | None = None
+        self._context: zmq.Context | None = None
+        self._push: zmq.Socket | None = None
+        self._dealer: zmq.Socket | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._fd: int | None = None
 
     async def start(self) -> None:
-        self._context = zmq.asyncio.Context()
+        self._loop = asyncio.get_running_loop()
+        self._context = zmq.Context()
         self._push = self._context.socket(zmq.PUSH)
         self._push.setsockopt(zmq.SNDHWM, 0)
         self._push.setsockopt(zmq.LINGER, 0)
@@ -114,14 +122,17 @@ class EngineClient(BaseClient):
         self._dealer.setsockopt(zmq.LINGER, 0)
         self._dealer.connect(self.output_address)
         # The engine's ROUTER can answer this process only once it has heard from it.
-        await self._dealer.send(b"hello")
-        welcome = await asyncio.wait_for(self._dealer.recv(), HELLO_TIMEOUT_S)
-        DECODE_OUTPUTS(welcome)
-        self._receiver = asyncio.create_task(self._receive())
+        self._dealer.send(b"hello")
+        welcomed = self._loop.create_future()
+        self._fd = self._dealer.getsockopt(zmq.FD)
+        self._loop.add_reader(self._fd, self._drain, welcomed)
+        self._drain(welcomed)
+        await asyncio.wait_for(welcomed, HELLO_TIMEOUT_S)
 
     async def stop(self) -> None:
-        if self._receiver is not None:
-            self._receiver.cancel()
+        if self._fd is not None and self._loop is not None:
+            self._loop.remove_reader(self._fd)
+            self._fd = None
         for sock in (self._push, self._dealer):
             if sock is not None:
                 sock.close(0)
@@ -129,17 +140,19 @@ class EngineClient(BaseClient):
             self._context.term()
 
     def _send(self, request: Any) -> None:
-        # PUSH with no high-water mark never blocks: the send completes at once
-        self._push.send_multipart([self.identity, ENCODE(request)], copy=False)
+        self._push.send_multipart([self.identity, ENCODE(request)], flags=zmq.NOBLOCK)
 
-    async def _receive(self) -> None:
-        while True:
-            payload = await self._dealer.recv(copy=True)
+    def _drain(self, welcomed: asyncio.Future | None = None) -> None:
+        dealer = self._dealer
+        while dealer.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+            payload = dealer.recv(zmq.NOBLOCK)
             try:
                 outputs = DECODE_OUTPUTS(payload)
             except Exception:
                 log.exception("an undecodable engine output was dropped")
                 continue
+            if welcomed is not None and not welcomed.done():
+                welcomed.set_result(None)  # the welcome: an empty batch
             self._take(outputs)
 
 

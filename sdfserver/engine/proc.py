@@ -155,7 +155,7 @@ class EngineTransport:
                     break
             for client, items in batches.items():
                 try:
-                    self._output.send_multipart([client, encode(msg.Outputs(items))], copy=False)
+                    self._output.send_multipart([client, encode(msg.Outputs(items))])
                 except zmq.ZMQError as exc:  # that API process is gone
                     if exc.errno != zmq.EHOSTUNREACH:
                         raise

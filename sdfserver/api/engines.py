@@ -203,10 +203,39 @@ class Engines:
 
     async def metrics_text(self) -> str:
         texts = await asyncio.gather(*(e.call(msg.MetricsText(e.next_id())) for e in self.clients))
-        return "".join(texts)
+        return merge_metrics(list(texts))
 
     def count(self, bytes_out: int = 0, websocket_clients: int = 0) -> None:
         self.clients[0].tell(msg.CountApi(0, bytes_out, websocket_clients))
+
+
+def merge_metrics(texts: list[str]) -> str:
+    """Several engines' Prometheus texts as one exposition: each family once (a family may not
+    appear twice), each sample labelled with its engine's index."""
+    if len(texts) == 1:
+        return texts[0]
+    from prometheus_client import CollectorRegistry, generate_latest
+    from prometheus_client.parser import text_string_to_metric_families
+    from prometheus_client.samples import Sample
+
+    families: dict[str, Any] = {}
+    for index, text in enumerate(texts):
+        for family in text_string_to_metric_families(text):
+            samples = [Sample(s.name, {**s.labels, "engine": str(index)}, s.value, s.timestamp, s.exemplar)
+                       for s in family.samples]
+            if family.name in families:
+                families[family.name].samples.extend(samples)
+            else:
+                family.samples = samples
+                families[family.name] = family
+
+    class Merged:
+        def collect(self) -> list[Any]:
+            return list(families.values())
+
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(Merged())
+    return generate_latest(registry).decode()
 
 
 def not_ready(statuses: list[msg.EngineStatus]) -> NotReady | None:

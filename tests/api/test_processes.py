@@ -56,6 +56,12 @@ def test_two_engines_hold_worlds_routed_by_id(tmp_path):
                 assert http.post(f"/v1/worlds/{world_id}/edits", json={"edits": [box]}).json() == {"version": 1}
             listed = {w["id"] for w in http.get("/v1/worlds").json()["worlds"]}
             assert listed == set(ids)
+            metrics = http.get("/metrics").text.splitlines()
+            assert metrics.count("# TYPE sdfserver_worlds gauge") == 1  # one family, a sample per engine
+            worlds = {line.split()[0]: float(line.split()[1]) for line in metrics
+                      if line.startswith("sdfserver_worlds{")}
+            assert set(worlds) == {'sdfserver_worlds{engine="0"}', 'sdfserver_worlds{engine="1"}'}
+            assert sum(worlds.values()) == 4
             for i, world_id in enumerate(ids):  # over fresh connections: any API process, any engine
                 with httpx.Client(base_url=server.url, timeout=30) as fresh:
                     r = fresh.get(f"/v1/worlds/{world_id}/voxels", params={"min": "1,1,1", "max": "2,2,2"},
@@ -87,3 +93,25 @@ def test_a_dead_api_process_is_replaced_and_a_dead_engine_ends_the_server(tmp_pa
     assert code == 1, output[-5:]
     assert output[-1] == ("sdfserver serve: the engine process exited with status -9; exiting, so that a "
                           "supervisor can start it again"), output[-5:]
+
+
+def test_a_stopped_api_process_leaves_new_connections_to_the_others_and_a_stopped_engine_is_not_ready(tmp_path):
+    server = ServerProcess(tmp_path / "data", "--no-warm-up", "--workers", "2").wait_ready()
+    try:
+        wait_for(lambda: len(engine_and_api_pids(server)[1]) == 2, 30, "two API processes")
+        engines, api = engine_and_api_pids(server)
+        os.kill(api[0], signal.SIGSTOP)  # hangs: alive to the launcher, deaf to the socket
+        try:
+            for _ in range(20):  # each a new connection, accepted by the process that runs
+                assert httpx.get(server.url + "/livez", timeout=5).status_code == 200
+        finally:
+            os.kill(api[0], signal.SIGCONT)
+        os.kill(engines[0], signal.SIGSTOP)
+        try:
+            r = httpx.get(server.url + "/readyz", timeout=10)
+            assert r.status_code == 503 and "did not answer" in r.json()["error"]["message"], r.text
+        finally:
+            os.kill(engines[0], signal.SIGCONT)
+        assert httpx.get(server.url + "/readyz", timeout=10).status_code == 200
+    finally:
+        server.stop()

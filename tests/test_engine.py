@@ -358,3 +358,22 @@ def test_a_slow_step_is_logged_with_its_phases_and_cpu_use(gpu, caplog, monkeypa
             assert ", 1 batches; 2 more slow steps (the slowest " in lines[1]
     finally:
         engine.stop()
+
+
+def test_the_engine_sequences_the_collaborators_it_is_handed(gpu):
+    from sdfserver.engine.core import EngineParts
+    from sdfserver.engine.metrics import EngineMetrics
+
+    published = []
+    metrics, limits = EngineMetrics(), EngineLimits()
+    parts = EngineParts.build(gpu, limits, None, metrics, lambda: False)
+    parts.subscriptions.publish = published.append  # the step's publish phase, observed
+    engine = Engine(gpu, limits, metrics=metrics, parts=parts)
+    created = engine.submit(CreateWorld(WorldConfig(size=(8, 8, 8), chunk_size=8, max_distance=4)))
+    engine.step()
+    world_id = created.result()["id"]
+    assert parts.table.worlds is engine.worlds and world_id in parts.table.worlds
+    edits(engine, world_id, [{"op": "box", "min": [1, 1, 1], "max": [2, 2, 2], "colour": 3}])
+    engine.step()
+    assert [list(recomputed) for recomputed in published] == [[], [world_id]]
+    engine.stop()

@@ -34,6 +34,7 @@ import logging
 import queue
 import time
 from concurrent.futures import Future
+from dataclasses import dataclass
 from typing import Any, Callable, TypeVar
 
 import numpy as np
@@ -60,21 +61,40 @@ log = logging.getLogger("sdfserver.engine")
 T = TypeVar("T")
 DIRTY_GAUGE_EVERY_S = 0.1  # the dirty-chunks gauge is counted at most this often
 
-__all__ = ["Engine", "new_world_id", "world_config_dict"]
+__all__ = ["Engine", "EngineParts", "new_world_id", "world_config_dict"]
+
+
+@dataclass(frozen=True)
+class EngineParts:
+    """The engine's collaborators: what it sequences in a step."""
+
+    table: WorldTable
+    batches: BatchPipeline
+    reads: Reads
+    subscriptions: Subscriptions
+
+    @classmethod
+    def build(cls, gpu: GpuContext, limits: EngineLimits, journal: Journal | None, metrics: EngineMetrics,
+              more_queued: Callable[[], bool]) -> "EngineParts":
+        table = WorldTable(gpu, limits, journal, metrics)
+        subscriptions = Subscriptions(table, limits.max_subscription_voxels, metrics)
+        return cls(table, BatchPipeline(table, journal, metrics, more_queued),
+                   Reads(gpu, table, subscriptions, limits), subscriptions)
 
 
 class Engine(EngineLifetime, CommandCalls):
     def __init__(self, gpu: GpuContext, limits: EngineLimits = EngineLimits(), *,
-                 journal: Journal | None = None, metrics: EngineMetrics | None = None):
+                 journal: Journal | None = None, metrics: EngineMetrics | None = None,
+                 parts: EngineParts | None = None):
+        """``parts``: the collaborators, handed in; by default built from the other arguments."""
         super().__init__()
         self.gpu = gpu
         self.limits = limits
         self.journal = journal
         self.metrics = metrics or EngineMetrics()
-        self.table = WorldTable(gpu, limits, journal, self.metrics)
-        self.subscriptions = Subscriptions(self.table, limits.max_subscription_voxels, self.metrics)
-        self.batches = BatchPipeline(self.table, journal, self.metrics, lambda: not self._commands.empty())
-        self.reads = Reads(gpu, self.table, self.subscriptions, limits)
+        parts = parts or EngineParts.build(gpu, limits, journal, self.metrics, lambda: not self._commands.empty())
+        self.table, self.batches, self.reads, self.subscriptions = (
+            parts.table, parts.batches, parts.reads, parts.subscriptions)
         self._changers: dict[type, Callable[[Any, set[str]], Any]] = {  # the changing commands' handlers
             CreateWorld: self._create_world, DeleteWorld: self._delete_world, Reconfigure: self._reconfigure,
         }

@@ -23,7 +23,7 @@ from sdfserver.world import WorldConfig
 
 from references import oracle_distance as oracle
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture

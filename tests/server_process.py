@@ -18,6 +18,22 @@ ROOT = Path(__file__).resolve().parents[1]
 READY_TIMEOUT_S = 120.0  # PoCL builds the kernels while the server warms up
 
 
+def tree_rss_bytes(pid: int) -> int:
+    """Resident memory of a server: the launcher, its engine processes and its API processes."""
+    total, pids = 0, [pid]
+    while pids:
+        pid = pids.pop()
+        try:
+            for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    total += int(line.split()[1]) * 1024
+            for task in Path(f"/proc/{pid}/task").iterdir():
+                pids += [int(c) for c in (task / "children").read_text().split()]
+        except FileNotFoundError:  # gone meanwhile (an API process being replaced)
+            continue
+    return total
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -4,7 +4,6 @@ NumPy/SciPy references to check what it answers."""
 from __future__ import annotations
 
 import subprocess
-from pathlib import Path
 from typing import Any
 
 import httpx
@@ -15,7 +14,7 @@ from sdfserver import wire
 
 from references import apply_edits as apply_reference
 from references import oracle_distance as distance_reference
-from server_process import ServerProcess
+from server_process import ServerProcess, tree_rss_bytes
 
 MEMORY_BUDGET_BYTES = 32 << 20
 SERVER_FLAGS = [
@@ -43,15 +42,7 @@ class Server:
 
     def rss_bytes(self) -> int:
         """The server's memory: the launcher, its engine and its API processes."""
-        total, pids = 0, [self.process.pid]
-        while pids:
-            pid = pids.pop()
-            for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-                if line.startswith("VmRSS:"):
-                    total += int(line.split()[1]) * 1024
-            for task in Path(f"/proc/{pid}/task").iterdir():
-                pids += [int(c) for c in (task / "children").read_text().split()]
-        return total
+        return tree_rss_bytes(self.process.pid)
 
     def metric(self, name: str) -> float:
         for line in self.http.get("/metrics").text.splitlines():

@@ -5,7 +5,6 @@ bounded and the world — voxels, version and log — is left exactly as it was.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,6 +14,7 @@ from websockets.sync.client import connect
 from sdfserver import wire
 
 from durable_server import read_voxels
+from server_process import tree_rss_bytes
 
 MP = {"content-type": "application/msgpack", "accept": "application/msgpack"}
 BOX = {"op": "box", "min": [0, 0, 0], "max": [16, 16, 16], "colour": 9}  # would change everything
@@ -49,13 +49,6 @@ HOSTILE = {
 }
 
 
-def rss_bytes(pid: int) -> int:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) * 1024
-    raise RuntimeError("no VmRSS")
-
-
 @pytest.fixture
 def target(start_server, tmp_path):
     server = start_server("--max-request-bytes", str(1 << 16))
@@ -75,7 +68,7 @@ def snapshot_state(server, world, directory):
 def test_hostile_http_bodies(target):
     server, world, directory = target
     before = snapshot_state(server, world, directory)
-    rss = rss_bytes(server.process.pid)
+    rss = tree_rss_bytes(server.process.pid)
     for name, body in HOSTILE.items():
         r = server.http.post(f"/v1/worlds/{world}/edits", content=body, headers=MP)
         assert r.status_code in (413, 422), (name, r.status_code, r.text)
@@ -88,7 +81,7 @@ def test_hostile_http_bodies(target):
                          headers={"content-type": "application/json"})
     assert r.status_code == 413
     assert snapshot_state(server, world, directory) == before
-    assert rss_bytes(server.process.pid) - rss < 64 << 20, "memory grew by more than 64 MiB"
+    assert tree_rss_bytes(server.process.pid) - rss < 64 << 20, "memory grew by more than 64 MiB"
 
 
 def test_hostile_websocket_frames(target):

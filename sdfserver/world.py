@@ -33,7 +33,7 @@ from sdfserver.brushes import enqueue_brushes, enqueue_voxels
 from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, RegionJob, WorldBuffers, get_algorithm
 from sdfserver.algorithms.base import WORK_PLANE_PAD, int4
 from sdfserver.algorithms.stats import AlgorithmStats, summarize
-from sdfserver.dirty import SMALL_DIRTY_CHUNKS, DirtySet
+from sdfserver.dirty import SMALL_DIRTY_CHUNKS, DirtySet  # noqa: F401  (SMALL_DIRTY_CHUNKS: read by tests)
 from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, validate_batch
 from sdfserver.errors import InvalidInput
 from sdfserver.geometry import Box

@@ -23,7 +23,6 @@ import hmac
 import ipaddress
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from fastapi import Request
 from starlette.requests import HTTPConnection

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import zmq
 
 from sdfserver.engine import messages as msg
@@ -123,54 +124,73 @@ class EngineTransport:
             try:
                 client, payload = self._input.recv_multipart(copy=True)
                 request = decode(payload)
-            except (ValueError, msgspec_errors()) as exc:
+            except (ValueError, msgspec.DecodeError) as exc:
                 log.warning("an undecodable request was dropped: %s", exc)
                 continue
             handle(client, request)
 
     def _write(self) -> None:
-        encode = msg.REQUEST_ENCODER.encode
         while not self._stopping:
-            self._welcome()
             try:
-                first = self.outputs.get(timeout=IDLE_POLL_S)
+                self._write_once()
+            except Exception:  # a bug here must not leave every later answer unsent
+                log.exception("the engine's output thread failed to send; it goes on")
+
+    def _write_once(self) -> None:
+        """Wait for an answer, take every other one waiting, send them: one batch per API process."""
+        self._welcome()
+        try:
+            first = self.outputs.get(timeout=IDLE_POLL_S)
+        except queue.Empty:
+            return
+        batches: dict[bytes, list] = collections.defaultdict(list)
+        news_sent: set[tuple[bytes, int]] = set()
+        item: Any = first
+        while True:
+            client, out = item
+            if isinstance(out, SubscriptionNews):
+                if (client, out.number) not in news_sent:  # one update a batch holds all its news
+                    news_sent.add((client, out.number))
+                    update = self.service.update_for(client, out)
+                    if update is not None:
+                        batches[client].append(update)
+            else:
+                batches[client].append(out)
+            try:
+                item = self.outputs.get_nowait()
             except queue.Empty:
-                continue
-            batches: dict[bytes, list] = collections.defaultdict(list)
-            news_sent: set[tuple[bytes, int]] = set()
-            item: Any = first
-            while True:
-                client, out = item
-                if isinstance(out, SubscriptionNews):
-                    if (client, out.number) not in news_sent:  # one update a batch holds all its news
-                        news_sent.add((client, out.number))
-                        update = self.service.update_for(client, out)
-                        if update is not None:
-                            batches[client].append(update)
-                else:
-                    batches[client].append(out)
-                try:
-                    item = self.outputs.get_nowait()
-                except queue.Empty:
-                    break
-            for client, items in batches.items():
-                try:
-                    self._output.send_multipart([client, encode(msg.Outputs(items))])
-                except zmq.ZMQError as exc:  # that API process is gone
-                    if exc.errno != zmq.EHOSTUNREACH:
-                        raise
-                    self.service.forget(client)
+                break
+        for client, items in batches.items():
+            try:
+                self._output.send_multipart([client, encoded(items)])
+            except zmq.ZMQError as exc:  # that API process is gone
+                if exc.errno != zmq.EHOSTUNREACH:
+                    raise
+                self.service.forget(client)
 
     def _welcome(self) -> None:
+        """Answer the hello of API processes: from then on the ROUTER can reach them."""
         while self._output.poll(0):
             client, _ = self._output.recv_multipart()
             self._output.send_multipart([client, msg.REQUEST_ENCODER.encode(msg.Outputs([]))])
 
 
-def msgspec_errors() -> type:
-    import msgspec
-
-    return msgspec.DecodeError
+def encoded(items: list[Any]) -> bytes:
+    """One API process's batch of outputs; an answer that cannot be encoded (a bug) is replaced
+    by its failure, so that its request is answered and the others still go."""
+    try:
+        return msg.REQUEST_ENCODER.encode(msg.Outputs(items))
+    except (TypeError, ValueError, OverflowError, msgspec.EncodeError):
+        kept = []
+        for item in items:
+            try:
+                msg.REQUEST_ENCODER.encode(item)
+                kept.append(item)
+            except (TypeError, ValueError, OverflowError, msgspec.EncodeError) as exc:
+                log.exception("an engine answer could not be encoded", exc_info=exc)
+                if isinstance(item, msg.Reply):
+                    kept.append(msg.Reply(item.id, None, msg.failure_of(exc)))
+        return msg.REQUEST_ENCODER.encode(msg.Outputs(kept))
 
 
 def engine_main(settings: Settings, address: EngineAddress, engines: int, conn: Any) -> int:

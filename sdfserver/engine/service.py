@@ -61,8 +61,8 @@ class EngineService:
             msg.Describe: self._describe, msg.ApplyEdits: self._apply, msg.Read: self._read,
             msg.Query: self._query, msg.Render: self._render, msg.Pick: self._pick,
             msg.Subscribe: self._subscribe, msg.Unsubscribe: self._unsubscribe, msg.Taken: self._taken,
-            msg.Admit: self._admit,
-            msg.Status: self._status, msg.MetricsText: self._metrics, msg.CountApi: self._count,
+            msg.Admit: self._admit, msg.Status: self._status, msg.MetricsText: self._metrics,
+            msg.CountApi: self._count,
         }
 
     def handle(self, client: bytes, request: Any) -> None:
@@ -75,9 +75,12 @@ class EngineService:
 
     def forget(self, client: bytes) -> None:
         """Drop the subscriptions of an API process that is gone."""
-        for key in [k for k in self.subscriptions if k[0] == client]:
-            self.engine.unsubscribe(self.subscriptions.pop(key))
-            self._credit.pop(key, None)
+        for key in list(self.subscriptions):  # a copy: the input thread may change it meanwhile
+            if key[0] == client:
+                subscription = self.subscriptions.pop(key, None)
+                self._credit.pop(key, None)
+                if subscription is not None:
+                    self.engine.unsubscribe(subscription)
 
     def update_for(self, client: bytes, news: SubscriptionNews) -> msg.ChunkUpdate | None:
         """Output side: the subscription's pending chunks, if it may be sent them now."""
@@ -210,8 +213,9 @@ class EngineService:
 
         def done(future: Future) -> None:
             exc = future.exception()
-            if exc is not None:
+            if exc is not None and self.subscriptions.get(key) is subscription:
                 self.subscriptions.pop(key, None)
+                self._credit.pop(key, None)
             self._reply(client, m.id, None, exc)
 
         future.add_done_callback(done)

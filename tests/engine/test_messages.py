@@ -118,3 +118,14 @@ def test_a_subscription_gets_the_current_chunks_then_the_changed_ones(served):
     assert len(updates) == 2 and updates[-1].version == 1 and updates[-1].chunks[0][0] == (0, 0, 0)
     service.forget(b"api-1")
     assert not service.subscriptions
+
+
+def test_an_answer_that_cannot_be_encoded_is_answered_with_its_failure():
+    import numpy as np
+
+    from sdfserver.engine.proc import encoded
+
+    items = [msg.Reply(1, {"n": np.int64(3)}), msg.Reply(2, 5)]  # a numpy integer: msgspec refuses it
+    replies = msg.OUTPUTS_DECODER.decode(encoded(items)).items
+    assert [r.id for r in replies] == [1, 2] and replies[1].result == 5
+    assert replies[0].failure is not None and replies[0].failure.kind == "SdfServerError"

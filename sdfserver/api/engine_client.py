@@ -153,7 +153,10 @@ class EngineClient(BaseClient):
                 continue
             if welcomed is not None and not welcomed.done():
                 welcomed.set_result(None)  # the welcome: an empty batch
-            self._take(outputs)
+            try:
+                self._take(outputs)
+            except Exception:  # the rest must still be read: the descriptor wakes the loop only once
+                log.exception("delivering engine outputs failed")
 
 
 class LocalEngineClient(BaseClient):

@@ -4,9 +4,12 @@
 # per device, --workers API processes), alternating, every run with THIS checkout's load
 # generator and ws_frames, so only the server differs.
 #
-# Usage on the GPU machine (source .whl/activate.sh first; pip install aiohttp msgspec pyzmq):
-#   bash tools/topology_ab.sh /path/to/old-checkout [rounds] [worker counts]
-#   e.g. bash tools/topology_ab.sh ../sdfserver-main 2 "2 4 6"
+# Usage on the GPU machine, from this checkout's root (its wheels: ../shared/gpu/fetch-wheels.sh .whl
+# aiohttp aiohappyeyeballs aiosignal attrs frozenlist multidict propcache yarl; msgspec and pyzmq
+# are in its list already), the old topology unpacked inside the tree so that it travels:
+#   mkdir -p ab-old && git archive a946656 sdfserver kernels | tar -x -C ab-old
+#   source .whl/activate.sh; bash tools/topology_ab.sh ab-old [rounds] [worker counts]
+#   e.g. bash tools/topology_ab.sh ab-old 1 "2 4 6"   (about 6 minutes a round)
 # DEVICE, SIZE, WS_SIZE, LOAD_S override the device (nvidia), the load test's world side (256), the
 # frames' world side (512) and each 64-client run's seconds (15): a CPU smoke run uses
 #   DEVICE= SIZE=64 WS_SIZE=64 LOAD_S=4 bash tools/topology_ab.sh ../old 1 2
@@ -14,7 +17,7 @@
 set -uo pipefail
 old=$(cd "${1:?old checkout}" && pwd); rounds=${2:-2}; workers=${3:-"2 4 6"}
 new=$PWD
-export PYTHONUNBUFFERED=1
+export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD:${PYTHONPATH:-}
 FINAL=${OUT:-/tmp/sdfserver-out}; OUT=$(mktemp -d); mkdir -p "$FINAL"
 trap 'tar czf "$FINAL/topology-ab.tgz" -C "$OUT" . ; rm -rf "$OUT"' EXIT
 port=8765
@@ -23,7 +26,7 @@ load="python3 $new/clients/loadtest --url http://127.0.0.1:$port --size $size $s
 
 serve() {  # serve ROOT LOG FLAGS...: the server of checkout ROOT, waited for until ready
   local root=$1 log=$2; shift 2
-  (cd "$root" && PYTHONPATH=$root exec python3 -m sdfserver serve --device "$device" --port $port \
+  (cd "$root" && PYTHONPATH=$root:${PYTHONPATH:-} exec python3 -m sdfserver serve --device "$device" --port $port \
     --data-dir /tmp/sdfserver-ab-data "$@") > "$OUT/$log" 2>&1 &
   server=$!
   for _ in $(seq 480); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && return; sleep 0.25; done

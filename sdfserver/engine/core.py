@@ -43,7 +43,7 @@ from sdfserver.engine.commands import (
     Read, ReadResult, Reconfigure, StepReport, Subscribe,
 )
 from sdfserver.engine.describe import describe_recompute
-from sdfserver.engine.journal import Journal
+from sdfserver.engine.journal import Journal, reconfigure_durably
 from sdfserver.engine.lifetime import EngineLifetime, Pending
 from sdfserver.engine.mailbox import Subscription
 from sdfserver.engine.metrics import EngineMetrics
@@ -143,6 +143,7 @@ class Engine(EngineLifetime, CommandCalls):
             if subs is not None:
                 subs.discard(subscription)
         self._count_subscribers()
+        self._count_pending()  # what its mailbox held leaves the gauges now, not at the next step
 
     async def run_on_device(self, fn: Callable[[], T]) -> T:
         """Run ``fn()`` on the engine thread between steps (after that step's recompute)."""
@@ -228,10 +229,8 @@ class Engine(EngineLifetime, CommandCalls):
                 elif isinstance(command, DeleteWorld):
                     result = self._delete_world(command.world_id)
                 else:
-                    world = self._world(command.world_id)
-                    world.reconfigure(**command.changes)
-                    if self.journal is not None:
-                        self.journal.record_config(command.world_id, world_config_dict(world.config))
+                    reconfigure_durably(self.journal, command.world_id, self._world(command.world_id),
+                                        command.changes, world_config_dict)
                     touched.add(command.world_id)
                     result = None
             except cl.Error:

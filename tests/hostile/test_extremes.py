@@ -255,3 +255,43 @@ def test_a_world_poisoned_by_an_older_server_is_described_again(start_server, tm
         assert r.status_code == 200, r.text
     described = server.http.get(f"/v1/worlds/{world}").json()
     assert described["focus"] == {"center": [1, 0, 0], "size": [4, 1, 1]}  # chunks -1..2: all of x
+
+
+def snapshot_file(header: bytes, body: bytes = b"") -> bytes:
+    return b"SDFSNAP1" + len(header).to_bytes(4, "little") + header + body
+
+
+def npy_file(header: str) -> bytes:
+    text = header.encode()
+    text += b" " * ((64 - (10 + len(text) + 1) % 64) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + len(text).to_bytes(2, "little") + text + b"\x00" * 64
+
+
+HOSTILE_FILES = {
+    "snapshot header nested 20,000 deep": snapshot_file(b"[" * 20_000 + b"]" * 20_000),
+    "snapshot version 10^400": snapshot_file(json.dumps({
+        "format": 1, "version": "X", "config": {"size": [16, 16, 16]}, "compression": "zlib", "dtype": "uint8",
+        "order": "zyx", "body_bytes": 0, "body_crc32": 0}).replace('"X"', "1e400").encode()),
+    "snapshot sides of 2^62": snapshot_file(json.dumps({
+        "format": 1, "version": 1, "config": {"size": [2 ** 62, 2 ** 62, 16]}, "compression": "zlib",
+        "dtype": "uint8", "order": "zyx", "body_bytes": 0, "body_crc32": 0}).encode()),
+    "npy shape of 2^40 a side": npy_file("{'descr': '|u1', 'fortran_order': False, "
+                                         "'shape': (1099511627776, 1099511627776, 1099511627776), }"),
+    "npy negative side": npy_file("{'descr': '|u1', 'fortran_order': False, 'shape': (-1, 4, 4), }"),
+    "npy expression in its header": npy_file("{'descr': '|u1', 'fortran_order': False, 'shape': (2**40,), }"),
+    "vox chunk of -1 bytes": b"VOX \x96\x00\x00\x00MAIN\x00\x00\x00\x00\xff\xff\xff\xff",
+    "vox huge model": b"VOX \x96\x00\x00\x00MAIN\x00\x00\x00\x00\x18\x00\x00\x00SIZE\x0c\x00\x00\x00\x00\x00\x00\x00"
+                      + (2 ** 31 - 1).to_bytes(4, "little") * 3,
+}
+
+
+def test_hostile_import_files(target):
+    server, world = target
+    before = server.state(world)
+    wrong = []
+    for name, data in HOSTILE_FILES.items():
+        status, code = error_of(server.http.post("/v1/worlds/import", content=data))
+        if not 400 <= status < 500 or "not an error" in code:
+            wrong.append((name, status, code))
+    assert not wrong, wrong
+    assert server.state(world) == before

@@ -18,11 +18,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from numbers import Integral, Real
+from numbers import Integral
 from typing import Any, Union
 
 import numpy as np
 
+from sdfserver import incoming
 from sdfserver.errors import InvalidEdit, TooLarge
 from sdfserver.geometry import Box
 
@@ -77,40 +78,24 @@ def _colour(value: Any, where: str) -> int:
 
 def _int3(value: Any, where: str) -> Vec3:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise InvalidEdit(f"{where}: expected three integers [x, y, z], got {_short(value)}")
+        raise InvalidEdit(f"{where}: expected three integers [x, y, z], got {incoming.short(value)}")
     for v in value:
         if isinstance(v, bool) or not isinstance(v, Integral):
-            raise InvalidEdit(f"{where}: expected integers, got {_short(v)}")
+            raise InvalidEdit(f"{where}: expected integers, got {incoming.short(v)}")
         if not INT64_MIN <= v <= INT64_MAX:
-            raise InvalidEdit(f"{where}: {_short(v)} is out of range (coordinates are "
+            raise InvalidEdit(f"{where}: {incoming.short(v)} is out of range (coordinates are "
                               f"-{MAX_COORDINATE_VOX + 1}..{MAX_COORDINATE_VOX})")
     return tuple(int(v) for v in value)
 
 
 def finite(value: Any, where: str) -> float:
-    """``value`` as a finite float; InvalidEdit for anything else (an integer too large for a
-    float included, which ``float()`` would raise OverflowError on)."""
-    if isinstance(value, bool) or not isinstance(value, Real):
-        raise InvalidEdit(f"{where}: expected a finite number, got {_short(value)}")
-    try:
-        number = float(value)
-    except OverflowError:
-        number = math.inf
-    if not math.isfinite(number):
-        raise InvalidEdit(f"{where}: expected a finite number, got {_short(value)}")
-    return number
+    return incoming.finite(value, where, InvalidEdit)
 
 
 def _real3(value: Any, where: str) -> tuple[float, float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise InvalidEdit(f"{where}: expected three numbers [x, y, z], got {_short(value)}")
+        raise InvalidEdit(f"{where}: expected three numbers [x, y, z], got {incoming.short(value)}")
     return tuple(finite(v, where) for v in value)
-
-
-def _short(value: Any) -> str:
-    """A value for an error message, cut short: a hostile number may have thousands of digits."""
-    text = repr(value)
-    return text if len(text) <= 60 else text[:40] + f"... ({len(text)} characters)"
 
 
 def _voxel_array(value: Any, where: str) -> np.ndarray:
@@ -124,7 +109,7 @@ def _voxel_array(value: Any, where: str) -> np.ndarray:
             if not isinstance(row, (list, tuple)) or len(row) != 4 or any(
                 isinstance(v, bool) or not isinstance(v, Integral) for v in row
             ):
-                raise InvalidEdit(f"{where}: each voxel must be [x, y, z, colour] integers, got {_short(row)}")
+                raise InvalidEdit(f"{where}: each voxel must be [x, y, z, colour] integers, got {incoming.short(row)}")
         try:
             array = np.asarray(value, dtype=np.int64).reshape(-1, 4)
         except OverflowError:

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from numbers import Integral, Real
+from numbers import Integral
 from typing import Any
 
 import numpy as np
 
+from sdfserver import incoming
 from sdfserver.errors import InvalidInput, TooLarge
 
 Vec3f = tuple[float, float, float]
@@ -159,22 +160,15 @@ def parse_view(raw: Any, limits: RenderLimits = RenderLimits()) -> tuple[Camera,
 
 def _seq3(value: Any, name: str) -> tuple:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise InvalidInput(f"{name} must be three numbers [x, y, z], got {_short(value)}")
+        raise InvalidInput(f"{name} must be three numbers [x, y, z], got {incoming.short(value)}")
     return tuple(value)
 
 
 def _real(value: Any, name: str, bound: float = math.inf) -> float:
     """A finite float within ``bound``; an integer too large for a float is out of range too."""
-    if isinstance(value, bool) or not isinstance(value, Real):
-        raise InvalidInput(f"{name} must be a finite number, got {_short(value)}")
-    try:
-        number = float(value)
-    except OverflowError:
-        number = math.inf
-    if not math.isfinite(number):
-        raise InvalidInput(f"{name} must be a finite number, got {_short(value)}")
+    number = incoming.finite(value, name)
     if abs(number) > bound:
-        raise InvalidInput(f"{name} must be within -{bound:g}..{bound:g}, got {_short(value)}")
+        raise InvalidInput(f"{name} must be within -{bound:g}..{bound:g}, got {incoming.short(value)}")
     return number
 
 
@@ -184,13 +178,7 @@ def _real3(value: Any, name: str, bound: float = math.inf) -> Vec3f:
 
 def _int(value: Any, name: str, bound: int = MAX_INT) -> int:
     if isinstance(value, bool) or not isinstance(value, Integral):
-        raise InvalidInput(f"{name} must be an integer, got {_short(value)}")
+        raise InvalidInput(f"{name} must be an integer, got {incoming.short(value)}")
     if not -bound - 1 <= value <= bound:
-        raise InvalidInput(f"{name} must be within {-bound - 1}..{bound}, got {_short(value)}")
+        raise InvalidInput(f"{name} must be within {-bound - 1}..{bound}, got {incoming.short(value)}")
     return int(value)
-
-
-def _short(value: Any) -> str:
-    """A value for an error message, cut short: a hostile number may have thousands of digits."""
-    text = repr(value)
-    return text if len(text) <= 60 else text[:40] + f"... ({len(text)} characters)"

@@ -6,21 +6,30 @@ is inside when ``|p - center| <= radius``). Colour 0 erases. Brushes (boxes
 and spheres) are clipped to the world; explicit voxels out of bounds reject
 the whole batch. Everything is checked here, on the host, before the device
 is touched: a batch applies whole or not at all.
+
+Two kinds of check. ``parse_edits`` checks structure: types, and numbers that the log, NumPy
+and the device can hold (integers within int64, finite numbers). ``validate_batch`` checks
+against ``EditLimits``: counts, the brush radius and the coordinate range a client may send.
+Replaying the log at start-up uses ``REPLAY_LIMITS``, so what was once accepted is applied
+whatever today's limits are.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from numbers import Integral, Real
+from numbers import Integral
 from typing import Any, Union
 
 import numpy as np
 
+from sdfserver import incoming
 from sdfserver.errors import InvalidEdit, TooLarge
 from sdfserver.geometry import Box
 
 Vec3 = tuple[int, int, int]
+INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
+MAX_COORDINATE_VOX = (1 << 31) - 1  # box corners and sphere centres: int32, whatever the world
 
 
 @dataclass(frozen=True)
@@ -28,6 +37,13 @@ class EditLimits:
     max_ops_per_batch: int = 1024
     max_voxels_per_batch: int = 1 << 20
     max_brush_radius_vox: float = 256.0
+    max_coordinate_vox: float = MAX_COORDINATE_VOX  # |box corner|, |sphere centre|
+
+
+# What replay admits: every batch that parses. Limits guard what comes in, not what was
+# already accepted and logged.
+REPLAY_LIMITS = EditLimits(max_ops_per_batch=1 << 62, max_voxels_per_batch=1 << 62,
+                           max_brush_radius_vox=math.inf, max_coordinate_vox=math.inf)
 
 
 @dataclass(frozen=True)
@@ -62,20 +78,24 @@ def _colour(value: Any, where: str) -> int:
 
 def _int3(value: Any, where: str) -> Vec3:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise InvalidEdit(f"{where}: expected three integers [x, y, z], got {value!r}")
+        raise InvalidEdit(f"{where}: expected three integers [x, y, z], got {incoming.short(value)}")
     for v in value:
         if isinstance(v, bool) or not isinstance(v, Integral):
-            raise InvalidEdit(f"{where}: expected integers, got {v!r}")
+            raise InvalidEdit(f"{where}: expected integers, got {incoming.short(v)}")
+        if not INT64_MIN <= v <= INT64_MAX:
+            raise InvalidEdit(f"{where}: {incoming.short(v)} is out of range (coordinates are "
+                              f"-{MAX_COORDINATE_VOX + 1}..{MAX_COORDINATE_VOX})")
     return tuple(int(v) for v in value)
+
+
+def finite(value: Any, where: str) -> float:
+    return incoming.finite(value, where, InvalidEdit)
 
 
 def _real3(value: Any, where: str) -> tuple[float, float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise InvalidEdit(f"{where}: expected three numbers [x, y, z], got {value!r}")
-    for v in value:
-        if isinstance(v, bool) or not isinstance(v, Real) or not math.isfinite(v):
-            raise InvalidEdit(f"{where}: expected finite numbers, got {v!r}")
-    return tuple(float(v) for v in value)
+        raise InvalidEdit(f"{where}: expected three numbers [x, y, z], got {incoming.short(value)}")
+    return tuple(finite(v, where) for v in value)
 
 
 def _voxel_array(value: Any, where: str) -> np.ndarray:
@@ -89,8 +109,12 @@ def _voxel_array(value: Any, where: str) -> np.ndarray:
             if not isinstance(row, (list, tuple)) or len(row) != 4 or any(
                 isinstance(v, bool) or not isinstance(v, Integral) for v in row
             ):
-                raise InvalidEdit(f"{where}: each voxel must be [x, y, z, colour] integers, got {row!r}")
-        array = np.asarray(value, dtype=np.int64).reshape(-1, 4)
+                raise InvalidEdit(f"{where}: each voxel must be [x, y, z, colour] integers, got {incoming.short(row)}")
+        try:
+            array = np.asarray(value, dtype=np.int64).reshape(-1, 4)
+        except OverflowError:
+            raise InvalidEdit(f"{where}: a voxel value is out of range (coordinates lie in the world, "
+                              "colours are 0..255)") from None
     else:
         raise InvalidEdit(f"{where}: voxels must be an N x 4 array or a list, got {type(value).__name__}")
     if array.ndim != 2 or array.shape[1] != 4:
@@ -111,11 +135,8 @@ def parse_edit(raw: Any, index: int) -> Edit:
             return BoxEdit(_int3(raw["min"], where + ".min"), _int3(raw["max"], where + ".max"),
                            _colour(raw["colour"], where))
         if op == "sphere":
-            radius = raw["radius"]
-            if isinstance(radius, bool) or not isinstance(radius, Real) or not math.isfinite(radius):
-                raise InvalidEdit(f"{where}.radius: expected a finite number, got {radius!r}")
-            return SphereEdit(_real3(raw["center"], where + ".center"), float(radius),
-                              _colour(raw["colour"], where))
+            radius = finite(raw["radius"], where + ".radius")
+            return SphereEdit(_real3(raw["center"], where + ".center"), radius, _colour(raw["colour"], where))
     except KeyError as exc:
         raise InvalidEdit(f"{where}: missing field {exc.args[0]!r} for op {op!r}") from None
     raise InvalidEdit(f"{where}: unknown op {op!r}; expected 'voxels', 'box' or 'sphere'")
@@ -149,11 +170,14 @@ def validate_batch(edits: list[Edit], dims: Vec3, limits: EditLimits) -> None:
                     f"edits[{i}]: radius must be 0..{limits.max_brush_radius_vox:g}, got {e.radius:g}"
                 )
             _check_colour(e.colour, i)
+            _check_coordinates(e.center, limits, f"edits[{i}].center")
         elif kind is BoxEdit:
             (x0, y0, z0), (x1, y1, z1) = e.min, e.max
             if x0 > x1 or y0 > y1 or z0 > z1:
                 raise InvalidEdit(f"edits[{i}]: box min {list(e.min)} exceeds max {list(e.max)}")
             _check_colour(e.colour, i)
+            _check_coordinates(e.min, limits, f"edits[{i}].min")
+            _check_coordinates(e.max, limits, f"edits[{i}].max")
         elif kind is VoxelsEdit:
             where = f"edits[{i}]"
             if len(e.voxels) == 0:
@@ -169,6 +193,14 @@ def validate_batch(edits: list[Edit], dims: Vec3, limits: EditLimits) -> None:
                 raise InvalidEdit(f"{where}: colours must be 0..255")
         else:
             raise InvalidEdit(f"edits[{i}]: not an edit: {e!r}")
+
+
+def _check_coordinates(values: tuple, limits: EditLimits, where: str) -> None:
+    bound = limits.max_coordinate_vox
+    if not (-bound - 1 <= values[0] <= bound and -bound - 1 <= values[1] <= bound
+            and -bound - 1 <= values[2] <= bound):
+        raise InvalidEdit(f"{where}: {list(values)} is out of range (coordinates are "
+                          f"{-bound - 1:.0f}..{bound:.0f})")
 
 
 def _check_colour(value: Any, index: int) -> None:

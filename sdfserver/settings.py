@@ -80,7 +80,7 @@ class Settings(BaseSettings):
         1 << 27, ge=1, description="Largest region one WebSocket subscription may cover, in voxels "
                                    "(bounds each subscriber's mailbox).")
     warm_up: bool = Field(True, description="Build the kernels (on a tiny world, and every variant of the "
-                                            "exact transform) before /readyz answers 200.")
+                                            "exact transform) before the server listens.")
     # -- durability (sdfserver/storage) --
     persist: bool = Field(True, description="Keep every world on disk (write-ahead log and snapshots in "
                                             "data_dir) and restore them at start-up; off: worlds live in memory only.")

@@ -16,6 +16,7 @@ This module needs only msgpack and NumPy, so clients can import it alone.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -72,7 +73,7 @@ def unpack_array(blob: Any, where: str = "array") -> np.ndarray:
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise WireError(f"{where}: data must be binary")
     dt = np.dtype(dtype).newbyteorder("<")
-    count = int(np.prod(shape, dtype=np.int64)) if shape else 1
+    count = math.prod(shape)  # Python integers: a product of huge sides must not wrap around
     if count * dt.itemsize != len(data):
         raise WireError(f"{where}: {len(data)} bytes do not hold a {dtype} array of shape {list(shape)}")
     return np.frombuffer(data, dtype=dt).reshape(shape).astype(dt.newbyteorder("="), copy=False)

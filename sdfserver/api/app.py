@@ -140,7 +140,7 @@ def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[Base
             schema = get_openapi(title=app.title, version=app.version, description=app.description,
                                  routes=app.routes)
             schema.setdefault("components", {}).setdefault("schemas", {}).update(models.SCHEMAS)
-            app.openapi_schema = schema
+            app.openapi_schema = errors.document(schema)
         return app.openapi_schema
 
     app.openapi = openapi

@@ -6,6 +6,8 @@ Every failure answers with the same body::
 
 ``code`` is the exception class's ``code`` (``sdfserver.errors``), ``detail``
 is present only where there is more to say (the list of validation errors).
+A 405 carries ``Allow`` (the methods the path takes). ``document`` adds these answers to
+the OpenAPI schema, so that it lists every status a route can return.
 """
 
 from __future__ import annotations
@@ -103,7 +105,41 @@ def error_response(exc: BaseException) -> Response:
         headers = {"Retry-After": str(max(1, round(exc.retry_after_s)))}
     elif isinstance(exc, Unauthorized):
         headers = {"WWW-Authenticate": 'Bearer realm="sdfserver"'}
+    elif isinstance(exc, StarletteHTTPException) and exc.headers:  # 405's Allow
+        headers = dict(exc.headers)
     return JSONResponse(body, status_code=status, headers=headers)
+
+
+ERROR_SCHEMA = {"type": "object", "required": ["error"], "properties": {"error": {
+    "type": "object", "required": ["code", "message"],
+    "properties": {"code": {"type": "string"}, "message": {"type": "string"}, "detail": {}}}}}
+ANSWERS = {401: "No or unknown API key", 404: "Unknown world (or another key's)",
+           413: "Over a size limit", 422: "Invalid input", 429: "Over the key's request rate",
+           500: "A bug, or a world whose files failed their checks (storage_error)",
+           503: "Not ready, writes disabled, or min_version not reached",
+           507: "The world does not fit the device memory budget"}
+_READS = ("/field", "/voxels", "/export")  # answers whose size a limit bounds
+_ALLOCATING = {("post", "/v1/worlds"), ("post", "/v1/worlds/import"), ("patch", "/v1/worlds/{world_id}")}
+
+
+def document(schema: dict[str, Any]) -> dict[str, Any]:
+    """Add the error answers each operation can give to an OpenAPI schema (in place)."""
+    schema.setdefault("components", {}).setdefault("schemas", {})["Error"] = ERROR_SCHEMA
+    content = {"application/json": {"schema": {"$ref": "#/components/schemas/Error"}}}
+    for path, operations in schema.get("paths", {}).items():
+        for method, operation in operations.items():
+            if path.startswith("/v1/"):
+                statuses = [401, 404, 422, 429, 500, 503]
+                if method in ("post", "patch") or path.endswith(_READS):
+                    statuses.append(413)
+                if (method, path) in _ALLOCATING:
+                    statuses.append(507)
+            else:
+                statuses = [503] if path == "/readyz" else []
+            responses = operation.setdefault("responses", {})
+            for status in statuses:
+                responses[str(status)] = {"description": ANSWERS[status], "content": content}  # FastAPI's 422 too
+    return schema
 
 
 def install(app: FastAPI) -> None:

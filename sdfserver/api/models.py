@@ -6,7 +6,14 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, StrictInt, StrictStr
 
-Int3 = Annotated[list[StrictInt], Field(min_length=3, max_length=3, description="[x, y, z]")]
+from sdfserver.world_config import MAX_SIDE_VOX
+
+# Every number is bounded here, at the door: what passes fits the log, msgpack and the device.
+INT32_MIN, INT32_MAX = -(1 << 31), (1 << 31) - 1
+Int32 = Annotated[StrictInt, Field(ge=INT32_MIN, le=INT32_MAX)]
+Int3 = Annotated[list[Int32], Field(min_length=3, max_length=3, description="[x, y, z]")]
+Side = Annotated[StrictInt, Field(ge=1, le=MAX_SIDE_VOX)]
+ChunkCount = Annotated[StrictInt, Field(ge=1, le=INT32_MAX)]
 Point3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
 Algorithm = Annotated[StrictStr, Field(description="exact, brute, fim, jfa, jfa+1, jfa+2 or jfa_fim")]
 Borders = Annotated[StrictStr, Field(description="exact (default) or padded: each chunk computed alone, everything outside it solid (the dissertation's §4.2.1; brute, fim, jfa, jfa+1, jfa+2, jfa_fim)")]
@@ -18,13 +25,15 @@ class Strict(BaseModel):
 
 class FocusBody(Strict):
     center: Int3 = Field(description="Focus centre, in chunks.")
-    size: Int3 = Field(description="Focus extent, in chunks.")
+    size: Annotated[list[ChunkCount], Field(min_length=3, max_length=3)] = Field(
+        description="Focus extent, in chunks.")
 
 
 class CreateWorldBody(Strict):
-    size: Int3 = Field(description="World size in voxels, each a multiple of chunk_size.")
-    chunk_size: StrictInt = Field(16, description="Chunk side in voxels: 8, 16, 32, 64 or 128.")
-    max_distance: StrictInt = Field(255, description="Distance cap, 1..255.")
+    size: Annotated[list[Side], Field(min_length=3, max_length=3)] = Field(
+        description="World size in voxels, each a multiple of chunk_size.")
+    chunk_size: StrictInt = Field(16, ge=8, le=128, description="Chunk side in voxels: 8, 16, 32, 64 or 128.")
+    max_distance: StrictInt = Field(255, ge=1, le=255, description="Distance cap, 1..255.")
     algorithm: Algorithm = "exact"
     lod_algorithm: Algorithm = "jfa"
     focus: FocusBody | None = Field(None, description="Where `algorithm` runs; elsewhere `lod_algorithm`.")
@@ -35,7 +44,7 @@ class PatchWorldBody(Strict):
     algorithm: Algorithm | None = None
     lod_algorithm: Algorithm | None = None
     borders: Borders | None = None
-    max_distance: StrictInt | None = None
+    max_distance: Annotated[StrictInt, Field(ge=1, le=255)] | None = None
     focus: FocusBody | None = Field(None, description="null removes the focus; leave it out to keep it.")
 
 

@@ -21,7 +21,8 @@ The engine calls these on its own thread, in the order things happen:
   they are applied: what was recorded may start becoming durable now (the storage journal
   makes sure its committer has taken them, so the sync overlaps the engine's work; with
   ``wait=False``, when more commands are queued, it only wakes the committer).
-- ``record_config(world_id, config)`` after a world was reconfigured.
+- ``record_config(world_id, config)`` before a reconfiguration takes effect
+  (``reconfigure_durably``): if it raises, the world is left as it was.
 - ``record_delete(world_id)`` after a world was deleted.
 - ``wants_snapshot(world_id)`` after a world's recompute; when it answers True the
   engine calls ``record_snapshot(world_id, version, config, voxels, ready)`` with a host
@@ -35,6 +36,7 @@ A journal must not call back into the engine.
 from __future__ import annotations
 
 from concurrent.futures import Future
+from dataclasses import replace
 from typing import Any, Callable, Protocol
 
 import numpy as np
@@ -57,3 +59,20 @@ class Journal(Protocol):
 
     def record_snapshot(self, world_id: str, version: int, config: dict[str, Any],
                         voxels: np.ndarray, ready: Callable[[], None]) -> Any: ...
+
+
+def reconfigure_durably(journal: Journal | None, world_id: str, world: Any, changes: dict[str, Any],
+                        as_dict: Callable[[Any], dict[str, Any]]) -> None:
+    """``world.reconfigure(**changes)``, written to the journal first: a request changes all it
+    asked or nothing. Should the world refuse the change after it was written (its seed
+    buffers do not fit), the old configuration is written back."""
+    if journal is None:
+        world.reconfigure(**changes)
+        return
+    before = world.config
+    journal.record_config(world_id, as_dict(replace(before, **changes).validated()))
+    try:
+        world.reconfigure(**changes)
+    except BaseException:
+        journal.record_config(world_id, as_dict(before))
+        raise

@@ -38,6 +38,7 @@ class Subscriptions:
             if subs is not None:
                 subs.discard(sub)
         self.count()
+        self.count_pending()  # what its mailbox held leaves the gauges now, not at the next step
 
     def drop_world(self, world_id: str) -> None:
         with self._lock:

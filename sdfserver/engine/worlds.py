@@ -10,7 +10,7 @@ from typing import Any
 
 from sdfserver.engine.commands import CreateWorld, EngineLimits
 from sdfserver.engine.describe import describe_recompute
-from sdfserver.engine.journal import Journal
+from sdfserver.engine.journal import Journal, reconfigure_durably
 from sdfserver.engine.metrics import EngineMetrics
 from sdfserver.errors import InvalidInput, NotFound, StorageError, TooLarge
 from sdfserver.gpu import GpuContext
@@ -103,10 +103,8 @@ class WorldTable:
         self.count()
 
     def reconfigure(self, world_id: str, changes: dict[str, Any]) -> None:
-        world = self.get(world_id)
-        world.reconfigure(**changes)
-        if self.journal is not None:
-            self.journal.record_config(world_id, world_config_dict(world.config))
+        """Written to the journal before it takes effect: a request changes all it asked or nothing."""
+        reconfigure_durably(self.journal, world_id, self.get(world_id), changes, world_config_dict)
 
     def describe(self, world_id: str | None) -> Any:
         """One world's description, or every world's (``None``)."""

@@ -12,16 +12,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from numbers import Integral, Real
+from numbers import Integral
 from typing import Any
 
 import numpy as np
 
+from sdfserver import incoming
 from sdfserver.errors import InvalidInput, TooLarge
 
 Vec3f = tuple[float, float, float]
 
 MAX_PITCH_DEG = 89.9
+# Positions, targets, the light and the cursor: within this many voxels (pixels), so that
+# what the kernels compute in float32 stays finite; far beyond any world (2048 a side).
+MAX_COORDINATE = 1e6
+MAX_INT = (1 << 31) - 1  # integers the kernels take as int32
 
 
 @dataclass(frozen=True)
@@ -50,7 +55,7 @@ class Camera:
         return cls(tuple(float(v) for v in position), yaw, pitch, **kwargs)
 
     def validated(self, limits: RenderLimits = RenderLimits()) -> "Camera":
-        position = _real3(self.position, "position")
+        position = _real3(self.position, "position", MAX_COORDINATE)
         yaw, pitch, fov = (_real(v, n) for v, n in ((self.yaw_deg, "yaw_deg"),
                                                     (self.pitch_deg, "pitch_deg"),
                                                     (self.fov_y_deg, "fov_y_deg")))
@@ -105,12 +110,12 @@ class RenderOptions:
         sky = _int(self.sky_rgb, "sky_rgb")
         if not 0 <= sky <= 0xFFFFFF:
             raise InvalidInput(f"sky_rgb must be 0..0xFFFFFF, got {sky}")
-        light = _real3(self.light, "light")
+        light = _real3(self.light, "light", MAX_COORDINATE)
         if not any(light):
             raise InvalidInput("light must not be the zero vector")
         highlight = None
         if self.highlight is not None:
-            highlight = tuple(_int(v, "highlight") for v in _seq3(self.highlight, "highlight"))
+            highlight = tuple(_int(v, "highlight", MAX_INT) for v in _seq3(self.highlight, "highlight"))
         radius = _real(self.highlight_radius, "highlight_radius")
         if not 0 <= radius <= 256:
             raise InvalidInput(f"highlight_radius must be 0..256, got {radius:g}")
@@ -118,7 +123,7 @@ class RenderOptions:
         if self.cursor is not None:
             if not isinstance(self.cursor, (list, tuple)) or len(self.cursor) != 2:
                 raise InvalidInput(f"cursor must be [x, y] pixel coordinates, got {self.cursor!r}")
-            cursor = tuple(_real(v, "cursor") for v in self.cursor)
+            cursor = tuple(_real(v, "cursor", MAX_COORDINATE) for v in self.cursor)
         return RenderOptions(self.ambient_occlusion, self.shadows, sky, light, highlight, radius, cursor)
 
 
@@ -145,8 +150,8 @@ def parse_view(raw: Any, limits: RenderLimits = RenderLimits()) -> tuple[Camera,
     if "target" in raw:
         if "yaw_deg" in raw or "pitch_deg" in raw:
             raise InvalidInput("give either target or yaw_deg/pitch_deg, not both")
-        camera = Camera.look_at(_real3(raw["position"], "position"), _real3(raw["target"], "target"),
-                                **kwargs)
+        camera = Camera.look_at(_real3(raw["position"], "position", MAX_COORDINATE),
+                                _real3(raw["target"], "target", MAX_COORDINATE), **kwargs)
     else:
         camera = Camera(raw["position"], raw.get("yaw_deg", 0.0), raw.get("pitch_deg", 0.0), **kwargs)
     options = RenderOptions(**{k: raw[k] for k in option_keys if k in raw})
@@ -155,21 +160,25 @@ def parse_view(raw: Any, limits: RenderLimits = RenderLimits()) -> tuple[Camera,
 
 def _seq3(value: Any, name: str) -> tuple:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise InvalidInput(f"{name} must be three numbers [x, y, z], got {value!r}")
+        raise InvalidInput(f"{name} must be three numbers [x, y, z], got {incoming.short(value)}")
     return tuple(value)
 
 
-def _real(value: Any, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(value):
-        raise InvalidInput(f"{name} must be a finite number, got {value!r}")
-    return float(value)
+def _real(value: Any, name: str, bound: float = math.inf) -> float:
+    """A finite float within ``bound``; an integer too large for a float is out of range too."""
+    number = incoming.finite(value, name)
+    if abs(number) > bound:
+        raise InvalidInput(f"{name} must be within -{bound:g}..{bound:g}, got {incoming.short(value)}")
+    return number
 
 
-def _real3(value: Any, name: str) -> Vec3f:
-    return tuple(_real(v, name) for v in _seq3(value, name))
+def _real3(value: Any, name: str, bound: float = math.inf) -> Vec3f:
+    return tuple(_real(v, name, bound) for v in _seq3(value, name))
 
 
-def _int(value: Any, name: str) -> int:
+def _int(value: Any, name: str, bound: int = MAX_INT) -> int:
     if isinstance(value, bool) or not isinstance(value, Integral):
-        raise InvalidInput(f"{name} must be an integer, got {value!r}")
+        raise InvalidInput(f"{name} must be an integer, got {incoming.short(value)}")
+    if not -bound - 1 <= value <= bound:
+        raise InvalidInput(f"{name} must be within {-bound - 1}..{bound}, got {incoming.short(value)}")
     return int(value)

@@ -6,7 +6,7 @@ The engine calls it on its own thread:
 - ``record_batches`` appends a step's batches for a world to its log in one write and returns
   the future that completes once they are durable — the engine acknowledges them only then;
 - ``start_syncs`` hands what the step appended to the committer (``Committer.hand_over``);
-- ``record_config`` rewrites the catalog entry after a reconfiguration;
+- ``record_config`` rewrites the catalog entry before a reconfiguration takes effect;
 - ``record_delete`` removes the world's directory;
 - ``wants_snapshot`` / ``record_snapshot``: after a recompute, a world with
   ``snapshot_every_batches`` records since its last snapshot, and whose last snapshot started
@@ -16,6 +16,10 @@ The engine calls it on its own thread:
   snapshot copies, compresses and writes every voxel of the world.
 
 ``adopt`` registers a world restored at start-up (``sdfserver.engine.restore``).
+
+Each hook either does all it was asked or raises before changing anything:
+``WritesDisabled`` when writes are disabled or the data directory was deleted or replaced
+(``Storage.moved``), ``StorageError`` for any other failed file operation.
 """
 
 from __future__ import annotations
@@ -78,10 +82,10 @@ class StorageJournal:
 
     def record_delete(self, world_id: str) -> None:
         self._wait_snapshot(world_id)
-        store = self.stores.pop(world_id, None)
+        self.storage.delete_world(world_id, self.stores.get(world_id))  # raises before changing anything
+        self.stores.pop(world_id, None)
         self.owners.pop(world_id, None)
         self._last_snapshot_at.pop(world_id, None)
-        self.storage.delete_world(world_id, store)
 
     def wants_snapshot(self, world_id: str) -> bool:
         store = self.stores.get(world_id)

@@ -8,6 +8,7 @@ declared shape is refused before any memory is allocated. Integer arrays with va
 from __future__ import annotations
 
 import io
+import math
 
 import numpy as np
 
@@ -21,11 +22,11 @@ def load_npy(data: bytes, *, max_voxels: int | None = None) -> np.ndarray:
         read_header = (np.lib.format.read_array_header_1_0 if major == 1
                        else np.lib.format.read_array_header_2_0)
         shape, _, dtype = read_header(stream)
-    except (ValueError, EOFError) as exc:
-        raise InvalidInput(f"not a .npy file: {exc}") from None
-    if len(shape) != 3:
-        raise InvalidInput(f".npy voxels must be 3-D (z, y, x), got shape {shape}")
-    count = int(np.prod(shape, dtype=np.int64))
+    except (ValueError, EOFError, SyntaxError, TypeError, OverflowError, RecursionError) as exc:
+        raise InvalidInput(f"not a .npy file: {type(exc).__name__}: {str(exc)[:200]}") from None
+    if len(shape) != 3 or any(n < 0 for n in shape):
+        raise InvalidInput(f".npy voxels must be 3-D (z, y, x), got shape {str(shape)[:100]}")
+    count = math.prod(shape)  # Python integers: huge sides must not wrap around
     if max_voxels is not None and count > max_voxels:
         raise TooLarge(f".npy array of shape {shape} has {count} voxels; the limit is {max_voxels}")
     if dtype.kind not in "biu":
@@ -33,8 +34,8 @@ def load_npy(data: bytes, *, max_voxels: int | None = None) -> np.ndarray:
     stream.seek(0)
     try:
         array = np.load(stream, allow_pickle=False)
-    except (ValueError, EOFError, OSError) as exc:
-        raise InvalidInput(f"cannot read the .npy array: {exc}") from None
+    except (ValueError, EOFError, OSError, TypeError) as exc:
+        raise InvalidInput(f"cannot read the .npy array: {str(exc)[:200]}") from None
     if array.dtype == np.bool_:
         return np.where(array, np.uint8(0xFF), np.uint8(0))
     if array.dtype != np.uint8:

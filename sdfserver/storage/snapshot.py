@@ -31,6 +31,8 @@ SNAPSHOT_MAGIC = b"SDFSNAP1"
 SNAPSHOT_PATTERN = "snap-*.sdfsnap"
 _HEADER_LENGTH = struct.Struct("<I")
 MAX_HEADER_BYTES = 1 << 16
+MAX_SIDE = 1 << 16  # a bound before any arithmetic on sizes; worlds are far smaller (world_config)
+MAX_VERSION = (1 << 62) - 1  # versions are u64 in log records; far beyond any world's batches
 COMPRESSION_LEVEL = 1  # voxel worlds are mostly air; level 1 is fast and already small
 
 
@@ -83,11 +85,11 @@ def decode_snapshot(data: bytes | memoryview, where: str = "snapshot", *,
         size = [int(v) for v in config["size"]]
         body_bytes, body_crc = int(header["body_bytes"]), int(header["body_crc32"])
         fmt = (header["format"], header["compression"], header["dtype"], header["order"])
-    except (ValueError, KeyError, TypeError) as exc:
-        raise fail(head, f"bad header: {exc!r}") from None
+    except (ValueError, KeyError, TypeError, OverflowError, RecursionError) as exc:  # a hostile header nests deeply
+        raise fail(head, f"bad header: {type(exc).__name__}: {str(exc)[:200]}") from None
     if fmt != (1, "zlib", "uint8", "zyx"):
         raise fail(head, f"unsupported format {fmt}")
-    if version < 0 or len(size) != 3 or min(size) <= 0:
+    if not 0 <= version <= MAX_VERSION or len(size) != 3 or not 0 < min(size) <= max(size) <= MAX_SIDE:
         raise fail(head, f"bad version {version} or size {size}")
     raw_bytes = size[0] * size[1] * size[2]
     if max_voxels is not None and raw_bytes > max_voxels:

@@ -8,8 +8,17 @@ Layout::
       worlds/<world id>/wal-<base>.log          log segments, records after <base>
 
 A world exists exactly when its directory holds ``world.json``. Creation builds the
-directory under a temporary name and renames it into place; deletion renames it away
-before removing it, so a crash never leaves half a world in the catalog.
+directory under a temporary name and renames it into place (a failure removes the
+half-built directory at once); deletion renames it away before removing it, so a crash
+never leaves half a world in the catalog. A directory holding a log or snapshots but no
+``world.json`` is damage, reported by ``orphans`` and refused at start-up like any other.
+
+The data directory is watched: its identity (device and inode, and those of ``worlds/``)
+is recorded when it is opened and checked after every round of log syncs, before every
+catalog change and around every snapshot. A directory deleted or replaced under a running
+server disables writes (``WritesDisabled``, 503) instead of acknowledging edits that the
+next start would not find. Other failed file operations of the catalog raise
+``StorageError`` naming the file and the OS error.
 
 ``Storage`` owns the group-commit thread shared by every world's log; ``WorldStore`` is one
 world's handle: ``append`` a batch (a future that completes once it is durable), ``snapshot``
@@ -18,7 +27,10 @@ the voxels (then the log is trimmed), ``close``.
 
 from __future__ import annotations
 
+import errno
 import json
+import logging
+import os
 import re
 import shutil
 import uuid
@@ -28,13 +40,14 @@ from typing import Any
 
 import numpy as np
 
-from sdfserver.errors import CorruptData, InvalidInput, NotFound, StorageError
+from sdfserver.errors import CorruptData, InvalidInput, NotFound, StorageError, WritesDisabled
 from sdfserver.storage.codec import encode_batch
 from sdfserver.storage.fsutil import fsync_dir, write_atomic
 from sdfserver.storage.recovery import Recovered, recover_world
-from sdfserver.storage.snapshot import remove_snapshot_files, write_snapshot
-from sdfserver.storage.wal import SEGMENT_LIMIT_BYTES, Committer, WorldLog
+from sdfserver.storage.snapshot import SNAPSHOT_PATTERN, remove_snapshot_files, write_snapshot
+from sdfserver.storage.wal import SEGMENT_LIMIT_BYTES, SEGMENT_PATTERN, Committer, SyncError, WorldLog
 
+log = logging.getLogger("sdfserver.storage")
 DEFAULT_DATA_DIR = "data"  # relative to the working directory; see docs/configuration.md
 WORLD_ID = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9_.-]{0,127}$")  # never a leading dot
 META_FILE = "world.json"
@@ -80,8 +93,13 @@ class WorldStore:
         in its segment (appends never wait for a snapshot) and loses the segments the snapshot
         covers. A version above it records a replacement of the whole world (an import or
         upload): the log starts over after it."""
-        self.log.committer.check()
-        write_snapshot(self.directory, version, config, voxels)
+        self.log.committer.verify()
+        try:
+            write_snapshot(self.directory, version, config, voxels)
+        except OSError:
+            self.log.committer.verify()  # a vanished directory disables writes, not just this snapshot
+            raise
+        self.log.committer.verify()
         if version > self.log.last_version:
             self.log.rotate(version)
         self.log.trim(version)
@@ -89,7 +107,14 @@ class WorldStore:
         self.records_since_snapshot = self.log.last_version - version
 
     def write_meta(self, meta: dict[str, Any]) -> None:
-        write_atomic(self.directory / META_FILE, json.dumps(meta, sort_keys=True, indent=1).encode())
+        """Replace the catalog entry durably; on failure the old entry stands whole."""
+        self.log.committer.verify()
+        path = self.directory / META_FILE
+        try:
+            write_atomic(path, json.dumps(meta, sort_keys=True, indent=1).encode())
+        except OSError as exc:
+            self.log.committer.verify()
+            raise StorageError(f"cannot write {path}: {exc}") from None
 
     def close(self) -> None:
         self.log.close()
@@ -104,10 +129,28 @@ class Storage:
         self.worlds_dir = self.data_dir / "worlds"
         try:
             self.worlds_dir.mkdir(parents=True, exist_ok=True)
+            self._identities = [(d, _identity(os.stat(d))) for d in (self.data_dir, self.worlds_dir)]
         except OSError as exc:
             raise StorageError(f"cannot create the data directory {self.worlds_dir}: {exc}") from None
-        self.committer = Committer(sync=sync, window_ms=commit_window_ms, inline=sync_inline)
+        self.committer = Committer(sync=sync, window_ms=commit_window_ms, inline=sync_inline,
+                                   guard=self.moved)
         self._sweep()
+
+    def moved(self) -> SyncError | None:
+        """Why the data directory is no longer the one opened (deleted, replaced), or None."""
+        for path, identity in self._identities:
+            try:
+                if _identity(os.stat(path)) == identity:
+                    continue
+                cause = OSError(errno.ENOENT, "the directory was replaced by another one while the server ran")
+            except OSError as exc:
+                cause = exc
+            return str(path), "the check", cause
+        return None
+
+    def check(self) -> None:
+        """Raise ``WritesDisabled`` if writes are disabled or the data directory moved."""
+        self.committer.verify()
 
     def _sweep(self) -> None:
         """Finish what a crash interrupted: half-created or half-deleted world directories."""
@@ -122,6 +165,16 @@ class Storage:
     def world_ids(self) -> list[str]:
         return sorted(p.parent.name for p in self.worlds_dir.glob("*/" + META_FILE)
                       if not p.parent.name.startswith(_HIDDEN))
+
+    def orphans(self) -> dict[str, str]:
+        """World directories with a log or snapshots but no catalog entry: {world id: directory}."""
+        found = {}
+        for directory in self.worlds_dir.iterdir():
+            if directory.name.startswith(_HIDDEN) or not directory.is_dir() or (directory / META_FILE).exists():
+                continue
+            if any(directory.glob(SEGMENT_PATTERN)) or any(directory.glob(SNAPSHOT_PATTERN)):
+                found[directory.name] = str(directory)
+        return found
 
     def read_meta(self, world_id: str) -> dict[str, Any]:
         path = self._dir(world_id) / META_FILE
@@ -141,18 +194,25 @@ class Storage:
                      version: int = 0) -> WorldStore:
         """A new world at ``version`` (with an initial snapshot when ``voxels`` is given)."""
         final = self._dir(world_id)
+        self.check()
         if final.exists():
             raise InvalidInput(f"world {world_id!r} already exists in {self.worlds_dir}")
         staging = self.worlds_dir / f"{_HIDDEN}new-{world_id}-{uuid.uuid4().hex[:8]}"
-        staging.mkdir()
-        write_atomic(staging / META_FILE, json.dumps(meta, sort_keys=True, indent=1).encode())
-        if voxels is not None:
-            write_snapshot(staging, version, meta["config"], voxels)
-        WorldLog.create_segment(staging, version)
-        fsync_dir(staging)
-        staging.rename(final)
-        fsync_dir(self.worlds_dir)
-        return self._attach(world_id, final, Recovered(version, voxels, last_version=version))
+        try:
+            staging.mkdir()
+            write_atomic(staging / META_FILE, json.dumps(meta, sort_keys=True, indent=1).encode())
+            if voxels is not None:
+                write_snapshot(staging, version, meta["config"], voxels)
+            WorldLog.create_segment(staging, version)
+            fsync_dir(staging)
+            staging.rename(final)
+            staging = final  # from here a failure removes the world's directory itself
+            fsync_dir(self.worlds_dir)
+            return self._attach(world_id, final, Recovered(version, voxels, last_version=version))
+        except OSError as exc:
+            shutil.rmtree(staging, ignore_errors=True)  # what is left of it, if anything, goes at the next start
+            self.check()
+            raise StorageError(f"cannot create world {world_id!r} in {self.worlds_dir}: {exc}") from None
 
     def open_world(self, world_id: str) -> tuple[WorldStore, Recovered]:
         """Recover a stored world; raises ``CorruptData`` when it cannot be trusted."""
@@ -175,16 +235,33 @@ class Storage:
         return store
 
     def delete_world(self, world_id: str, store: WorldStore | None = None) -> None:
-        if store is not None:
-            store.close()
+        """Remove a world: renamed away first (a failure changes nothing), then its log is closed
+        and its files removed."""
         directory = self._dir(world_id)
+        self.check()
         if not directory.exists():
             raise NotFound(f"no stored world {world_id!r}")
         doomed = self.worlds_dir / f"{_HIDDEN}del-{world_id}-{uuid.uuid4().hex[:8]}"
-        directory.rename(doomed)
-        fsync_dir(self.worlds_dir)
-        remove_snapshot_files(doomed)
-        shutil.rmtree(doomed)
+        try:
+            directory.rename(doomed)
+            fsync_dir(self.worlds_dir)
+        except OSError as exc:
+            self.check()
+            raise StorageError(f"cannot delete world {world_id!r} from {self.worlds_dir}: {exc}") from None
+        if store is not None:
+            try:
+                store.close()
+            except WritesDisabled as exc:  # the world is out of the catalog: deleted all the same
+                log.warning("world %s is deleted; closing its log failed: %s", world_id, exc)
+        try:
+            remove_snapshot_files(doomed)
+            shutil.rmtree(doomed)
+        except OSError as exc:  # already out of the catalog; the next start sweeps what is left
+            log.warning("world %s is deleted but %s could not be removed: %s", world_id, doomed, exc)
 
     def close(self) -> None:
         self.committer.close()
+
+
+def _identity(st: os.stat_result) -> tuple[int, int]:
+    return st.st_dev, st.st_ino

@@ -28,15 +28,23 @@ Two ways to sync, chosen per server (``sync_inline``):
 A failed write or sync is never retried: the committer enters a failed state, every waiting
 future and every later append raises ``WritesDisabled`` naming the file and the OS error.
 What reached the disk before the failure is recovered at the next start as usual.
+
+A sync that succeeds is not enough: ``fdatasync`` of a file whose directory was deleted
+succeeds too, and the data is gone at the next start. So after each round of syncs, before
+any future completes, every synced file must still be linked (``st_nlink``) and the
+``guard`` (``Storage``: the data directory is still the one opened) must pass; otherwise
+the committer fails as for a failed sync and the batches are not acknowledged.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+from typing import Callable
 
 from sdfserver.errors import WritesDisabled
 from sdfserver.storage.framing import encode_record, encode_segment_header
@@ -46,6 +54,7 @@ SEGMENT_PATTERN = "wal-*.log"
 SYNC_THREADS = 8
 SEGMENT_LIMIT_BYTES = 16 << 20  # some 160k records of a brush or two (~100 bytes each)
 HANDOVER_TIMEOUT_S = 0.005  # a committer not scheduled by then: go on, the record stays queued
+SyncError = tuple[str, str, OSError]  # (path, what failed, the error)
 
 
 def segment_name(base_version: int) -> str:
@@ -59,8 +68,10 @@ def segment_base(path: Path) -> int:
 class Committer:
     """One thread that makes appended records durable, many at a time."""
 
-    def __init__(self, *, sync: bool = True, window_ms: float = 0.0, inline: bool = False):
+    def __init__(self, *, sync: bool = True, window_ms: float = 0.0, inline: bool = False,
+                 guard: Callable[[], SyncError | None] | None = None):
         self.sync = sync
+        self.guard = guard  # checked after every round of syncs, before anything is acknowledged
         self.inline = inline
         self.window_s = max(0.0, window_ms) / 1e3
         self._cond = threading.Condition()
@@ -92,6 +103,13 @@ class Committer:
         if self._closed:
             raise WritesDisabled("the write-ahead log is closed")
 
+    def verify(self) -> None:
+        """``check``, then the guard: a guard that fails disables writes here and now."""
+        self.check()
+        problem = self.guard() if self.guard is not None else None
+        if problem is not None:
+            raise self.fail(*problem)
+
     def fail(self, path: str, what: str, exc: BaseException) -> WritesDisabled:
         with self._cond:
             if self._failure is None:
@@ -114,11 +132,15 @@ class Committer:
         GIL)."""
         future: Future = Future()
         if not self.sync:
-            future.set_result(None)
+            problem = self._after_sync({fd: path})
+            if problem is not None:
+                future.set_exception(self.fail(*problem))
+            else:
+                future.set_result(None)
             return future
         if self.inline:
             self.check()
-            error = self._sync_one((fd, path))
+            error = self._sync_one((fd, path)) or self._after_sync({fd: path})
             if error is not None:
                 future.set_exception(self.fail(*error))
                 return future
@@ -171,6 +193,8 @@ class Committer:
             else:
                 results = list(self._pool.map(self._sync_one, files.items()))
             errors = [e for e in results if e is not None]
+            if not errors:
+                errors = [e for e in (self._after_sync(files),) if e is not None]
             if errors:
                 failure = self.fail(*errors[0])
                 for _, _, future in batch:
@@ -182,12 +206,28 @@ class Committer:
                     future.set_result(None)
 
     @staticmethod
-    def _sync_one(item: tuple[int, str]) -> tuple[str, str, OSError] | None:
+    def _sync_one(item: tuple[int, str]) -> SyncError | None:
         fd, path = item
         try:
             os.fdatasync(fd)
         except OSError as exc:
             return path, "fdatasync", exc
+        return None
+
+    def _after_sync(self, files: dict[int, str]) -> SyncError | None:
+        """Why records just synced would still be lost at the next start: the guard's cause (the
+        data directory moved), or a log file deleted; None when they are safe."""
+        problem = self.guard() if self.guard is not None else None
+        if problem is not None:
+            return problem
+        for fd, path in files.items():
+            try:
+                if os.fstat(fd).st_nlink > 0:
+                    continue
+            except OSError as exc:
+                return path, "fstat", exc
+            return path, "the check", FileNotFoundError(errno.ENOENT, "the log file was deleted while the "
+                                                        "server ran, so what it holds would be lost")
         return None
 
     def close(self) -> None:
@@ -243,7 +283,10 @@ class WorldLog:
                 raise ValueError(f"log of {self.directory.name}: version {first_version} follows "
                                  f"{self.last_version}; versions must be continuous")
             if self._end >= self.segment_limit:
-                self._rotate_locked(self.last_version)
+                try:
+                    self._rotate_locked(self.last_version)
+                except OSError as exc:
+                    raise self.committer.fail(str(self.directory), "rotation", exc) from None
             view = memoryview(frame)
             try:
                 while view:
@@ -301,7 +344,9 @@ class WorldLog:
     def close(self) -> None:
         with self._lock:
             if self._fd >= 0:
-                if self.committer.failure is None and not self.committer._closed:
-                    self._flush_locked()
-                os.close(self._fd)
-                self._fd = -1
+                try:
+                    if self.committer.failure is None and not self.committer._closed:
+                        self._flush_locked()
+                finally:
+                    os.close(self._fd)
+                    self._fd = -1

@@ -1,4 +1,4 @@
-"""`sdfserver bench --quick` runs end to end and its accuracy table is computed, not assumed; every
+"""`sdfserver bench --quick` runs end to end and its accuracy table is measured against scipy; every
 measurement shows on stderr as it is taken, a stopped run keeps what it measured, and an unknown
 section is refused by name."""
 
@@ -22,6 +22,7 @@ def test_bench_quick_smoke(tmp_path, capsys):
     results = json.loads(out.read_text())
     assert {r["chunk_size"] for r in results["chunks"]} == {8, 16}
     by_alg = {(r["algorithm"], r["world_size"]): r for r in results["accuracy"]}
+    assert {r["reference"] for r in results["accuracy"]} == {"scipy"}  # independent of the algorithms
     assert by_alg[("exact", 64)]["exact_share"] == 1.0
     assert by_alg[("jfa_fim", 64)]["exact_share"] == 1.0
     assert by_alg[("jfa", 64)]["underestimates"] == 0

@@ -11,7 +11,7 @@ import pytest
 
 from sdfserver.errors import NoOpenCLDevice
 from sdfserver.gpu import device as devices
-from sdfserver.gpu import runtimes
+from sdfserver import cpu_runtimes as runtimes
 from sdfserver.gpu.device import DeviceProof, choose_device, describe_devices, label, prove, usable_devices
 
 BROKEN_KERNEL = "__kernel void sdf_proof(__global uint *out, uint k) { out[0] = no_such_name; }\n"
@@ -91,3 +91,21 @@ def test_a_users_own_vendors_setting_is_left_as_it_is(tmp_path):
     assert vendors == str(tmp_path)
     assert "Intel(R) OpenCL" not in listing
     assert not (tmp_path / "cache" / "sdfserver").exists()
+
+
+@pytest.mark.skipif(runtimes.intel_runtime_library() is None, reason="intel-opencl-rt is not installed here")
+def test_kernels_keep_their_argument_info_on_intels_runtime_across_processes(tmp_path):
+    """A program Intel's runtime loads from pyopencl's binary cache has no argument info; pyopencl
+    must build from source there even when a module that imports pyopencl is imported first.
+    The second process would find the first one's binaries if caching were on."""
+    code = ("import sdfserver.algorithms.base\n"  # imports pyopencl before sdfserver.gpu
+            "from sdfserver.gpu import GpuContext\n"
+            "from sdfserver.gpu.programs import scalar_arg_dtypes\n"
+            "gpu = GpuContext.create('Intel')\n"
+            "print(scalar_arg_dtypes(gpu.programs.kernel('edits.cl', 'fill_sphere')) is not None)\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("OCL_ICD_VENDORS", "PYOPENCL_NO_CACHE")}
+    env["XDG_CACHE_HOME"] = str(tmp_path)
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                             check=True, timeout=120).stdout
+        assert out.strip() == "True"

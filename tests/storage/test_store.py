@@ -262,11 +262,10 @@ def test_a_failed_sync_is_never_retried_and_acknowledged(tmp_path, monkeypatch, 
     monkeypatch.undo()
     with pytest.raises(WritesDisabled, match="writes are disabled"):
         store.append(3, b"refused")
-    other = storage.create_world("v", {"config": CONFIG})
-    with pytest.raises(WritesDisabled):
-        other.append(1, b"refused too")
+    with pytest.raises(WritesDisabled):  # nor a new world: it could not take an edit either
+        storage.create_world("v", {"config": CONFIG})
+    assert not (storage.worlds_dir / "v").exists()
     store.close()
-    other.close()
     storage.close()
 
 

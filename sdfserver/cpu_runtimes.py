@@ -15,8 +15,10 @@ look. So before the first OpenCL call in the process:
   visible) plus one naming ``libintelocl.so`` by its absolute path. ``OCL_ICD_VENDORS`` points
   the loader at it; child processes inherit it.
 
-The ICD loader reads ``OCL_ICD_VENDORS`` once, at the first OpenCL call of the process, which is
-why ``sdfserver.gpu`` calls ``register_cpu_runtimes`` when it is imported.
+The ICD loader reads ``OCL_ICD_VENDORS`` once, at the first OpenCL call of the process, and
+pyopencl reads ``PYOPENCL_NO_CACHE`` when it is imported, which is why the ``sdfserver`` package
+calls ``register_cpu_runtimes`` when it is imported, before any of its modules imports pyopencl.
+This module imports nothing of pyopencl.
 """
 
 from __future__ import annotations
@@ -99,7 +101,7 @@ def register_cpu_runtimes() -> str | None:
     # pyopencl keeps binaries of runtimes that cache no builds of their own, like Intel's, but a
     # program Intel's runtime creates from a binary has no kernel argument info, and without it
     # every launch sets its arguments the slow way (sdfserver/gpu/programs.py). pyopencl reads
-    # this when it is imported, which sdfserver.gpu does after this call.
+    # this when it is imported, which sdfserver's modules do after this call.
     os.environ.setdefault("PYOPENCL_NO_CACHE", "1")
     if os.environ.get("OCL_ICD_VENDORS"):
         _registered = os.environ["OCL_ICD_VENDORS"]

@@ -38,11 +38,11 @@ class Settings(BaseSettings):
     log_format: Literal["text", "json"] = Field("text", description="Log line format: 'text' or 'json' "
                                                                     "(one JSON object per line).")
     log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Lowest level logged.")
-    workers: int = Field(
-        2, ge=1, le=64, description="Identical API processes (uvicorn + FastAPI) sharing the listening socket; "
-                                    "each parses HTTP and WebSocket traffic and sends typed requests to the "
-                                    "engine processes. 2 by default: one process's HTTP work caps a server "
-                                    "near a few thousand requests/s (docs/architecture.md, docs/benchmarks.md).")
+    workers: int | None = Field(
+        None, ge=1, le=64, description="Identical API processes (uvicorn + FastAPI) sharing the listening socket; "
+                                       "each parses HTTP and WebSocket traffic and sends typed requests to the "
+                                       "engine processes. Unset: 4, or the number of CPUs if fewer (4 gave the "
+                                       "most batches/s on the H100 host; 6 and 8 gave fewer, docs/benchmarks.md).")
     devices: str = Field(
         "", description="Comma-separated device specs (as `device` takes them), one engine process each; "
                         "worlds are placed on the engine with the most free device memory. Empty: one engine "
@@ -156,3 +156,11 @@ def log_unknown_environment(environ: Mapping[str, str] = os.environ) -> None:
 
 
 __all__ = ["Settings", "log_unknown_environment", "unknown_environment"]
+
+
+DEFAULT_WORKERS = 4
+
+
+def worker_count(settings: "Settings") -> int:
+    """``settings.workers``, or its default: 4, or the number of CPUs if fewer."""
+    return settings.workers or max(1, min(DEFAULT_WORKERS, os.cpu_count() or 1))

@@ -32,7 +32,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from sdfserver.errors import SdfServerError
-from sdfserver.settings import Settings, log_unknown_environment
+from sdfserver.settings import Settings, log_unknown_environment, worker_count
 
 log = logging.getLogger("sdfserver")
 RESTART_QUIET_S = 1.0  # an API process that lived less than this is started again after this long
@@ -150,7 +150,7 @@ class Launcher:
                 return 1
         import sdfserver.api.worker  # noqa: F401  imported once here, inherited by every API process
 
-        self.workers = [self._start_worker() for _ in range(self.settings.workers)]
+        self.workers = [self._start_worker() for _ in range(worker_count(self.settings))]
         self.serving = True
         host, port = self.sock.getsockname()[:2]
         log.info("listening on http://%s:%d (%d API processes, %d engines)", host, port, len(self.workers),

@@ -28,15 +28,22 @@ class Tally:
     read_ms: array.array = field(default_factory=lambda: array.array("d"))
     round_trip_ms: array.array = field(default_factory=lambda: array.array("d"))  # edit + its read
     errors: dict[str, int] = field(default_factory=dict)
+    error_messages: dict[str, str] = field(default_factory=dict)  # the first of each code
     cpu_s: float = 0.0  # the load generator's own CPU time (time.process_time) over the run
 
     @property
     def count(self) -> int:
-        return len(self.edit_ms) + len(self.read_ms) + sum(self.errors.values())
+        return self.answered + sum(self.errors.values())
+
+    @property
+    def answered(self) -> int:
+        """Requests that succeeded."""
+        return len(self.edit_ms) + len(self.read_ms)
 
     def error(self, exc: Exception) -> None:
         key = exc.code if isinstance(exc, ServerError) else type(exc).__name__
         self.errors[key] = self.errors.get(key, 0) + 1
+        self.error_messages.setdefault(key, str(exc)[:300])
 
     def merge(self, other: "Tally") -> None:
         """Add a worker's tally to this one."""
@@ -44,6 +51,8 @@ class Tally:
             getattr(self, name).extend(getattr(other, name))
         for key, n in other.errors.items():
             self.errors[key] = self.errors.get(key, 0) + n
+        for key, message in other.error_messages.items():
+            self.error_messages.setdefault(key, message)
         self.cpu_s += other.cpu_s
 
 

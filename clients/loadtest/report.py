@@ -66,12 +66,13 @@ def report(cfg: Any, tally: Any, elapsed_s: float, world: dict) -> dict:
         "config": {**asdict(cfg), "api_key": "(set)" if cfg.api_key else None},  # never the key itself
         "elapsed_s": elapsed_s,
         "requests": tally.count,
-        "throughput_rps": tally.count / elapsed_s if elapsed_s > 0 else 0.0,
+        "throughput_rps": tally.answered / elapsed_s if elapsed_s > 0 else 0.0,  # answered, not failed
         "edits": latency_summary(tally.edit_ms, elapsed_s),
         "reads": latency_summary(tally.read_ms, elapsed_s),
         "round_trips": latency_summary(tally.round_trip_ms, elapsed_s),  # an edit and its min_version read
         "edit_timeline": edit_timeline(tally),
-        "errors": {"count": error_count, "by_code": dict(sorted(tally.errors.items()))},
+        "errors": {"count": error_count, "by_code": dict(sorted(tally.errors.items())),
+                   "first_message": dict(sorted(tally.error_messages.items()))},
         # The load generator's own cost: if it nears the time a request takes, it measures itself.
         "client_cpu_us_per_request": tally.cpu_s / tally.count * 1e6 if tally.count else None,
     }

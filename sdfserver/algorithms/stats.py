@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from sdfserver.algorithms.base import AlgorithmRun
+from sdfserver.gpu.profiling import event_ms
 
 
 @dataclass
@@ -32,17 +33,14 @@ class AlgorithmStats:
                 "bytes_moved": self.bytes_moved, "bandwidth_gbps": self.bandwidth_gbps}
 
 
-def event_ms(event) -> float:
-    return (event.profile.end - event.profile.start) * 1e-6
-
-
 def summarize(runs: list[tuple[str, AlgorithmRun]]) -> tuple[list[float], dict[str, AlgorithmStats]]:
     """Each launch's kernel time in order, and the runs' figures per algorithm name. The
-    events must be complete (the caller has finished the queue)."""
+    events must be complete (the caller has finished the queue); a launch whose time the
+    driver does not give counts as 0 ms."""
     kernel_ms: list[float] = []
     by_name: dict[str, AlgorithmStats] = {}
     for name, run in runs:
-        each = [event_ms(e) for e in run.events]
+        each = [event_ms(e) or 0.0 for e in run.events]
         kernel_ms.extend(each)
         stats = by_name.setdefault(name, AlgorithmStats())
         stats.regions += 1

@@ -21,6 +21,7 @@ import pyopencl.cltypes as cltypes
 from sdfserver.algorithms.base import int4
 from sdfserver.gpu import GpuContext
 from sdfserver.render.camera import Camera, RenderOptions
+from sdfserver.gpu.profiling import event_ms
 
 FLAG_AO, FLAG_SHADOW, FLAG_STATS = 1, 2, 4
 LOCAL_SIZE = (16, 8)
@@ -31,7 +32,7 @@ KEEP_SIZES = 4
 class Frame:
     pixels: np.ndarray  # (height, width, 4) uint8 RGBA
     field_version: int
-    device_ms: float  # the render kernel's time from its profiling event
+    device_ms: float  # the render kernel's time from its profiling event (0 where there is none)
     wall_ms: float
     reads: np.ndarray | None = None  # (height, width) uint32 field reads per pixel, if asked
     pick: "Pick | None" = None  # the voxel under options.cursor
@@ -125,7 +126,7 @@ class Renderer:
             reads = np.empty((h, w), dtype=np.uint32)
             cl.enqueue_copy(queue, reads, target.reads, wait_for=[event])
         queue.finish()
-        device_ms = (event.profile.end - event.profile.start) * 1e-6
+        device_ms = event_ms(event) or 0.0  # 0 where the driver gives no time
         return Frame(pixels, world.field_version, device_ms, (time.perf_counter() - start) * 1e3, reads,
                      pick)
 

@@ -77,7 +77,7 @@ def _check_client_cpu(result: dict, stdout: str, processes: int) -> None:
 
 def test_short_run_reports_sane_numbers(server_url, tmp_path):
     proc, result = _run(server_url, tmp_path, "--clients", "4", "--duration", "2", "--size", "32", "32", "32")
-    assert result["errors"] == {"count": 0, "by_code": {}}
+    assert result["errors"] == {"count": 0, "by_code": {}, "first_message": {}}
     edits, reads = result["edits"], result["reads"]
     assert edits["count"] > 0 and reads["count"] > 0
     assert abs(edits["count"] - reads["count"]) <= 4  # --read-every 1: one read per edit

@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# One engine process per GPU (`--devices 0,1`) against one: K load generators run at once, each
+# with its own world (placed on the engine with the most free device memory, so the worlds spread
+# over the engines) and C clients; their batches/s are summed. Also a lone client's round trip.
+#
+# On the GPU machine, after `source .whl/activate.sh`, from the checkout's root:
+#   bash tools/multi_engine_scale.sh 0 0,1
+# K, C, DUR, SIZE and WORKERS override 8 generators, 8 clients each, 20 s, 256^3 worlds, 4 API
+# processes. The generators start 0.3 s apart (so each world's placement sees the ones before it):
+# their runs overlap by all but (K - 1) x 0.3 s. Results: $OUT/scale-*.json and a table on stdout.
+set -uo pipefail
+port=8766; K=${K:-8}; C=${C:-8}; DUR=${DUR:-20}; SIZE=${SIZE:-256}; WORKERS=${WORKERS:-4}
+FINAL=${OUT:-/tmp/sdfserver-out}; mkdir -p "$FINAL"
+export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
+load="python3 clients/loadtest --url http://127.0.0.1:$port --size $SIZE $SIZE $SIZE --quiet"
+for devices in "$@"; do
+  tag=${devices//,/+}
+  rm -rf /tmp/sdfserver-scale-data
+  python3 -m sdfserver serve --devices "$devices" --workers "$WORKERS" --port $port \
+    --data-dir /tmp/sdfserver-scale-data > "$FINAL/scale-$tag-server.log" 2>&1 &
+  server=$!
+  for _ in $(seq 480); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
+  timeout 60 $load --clients 1 --duration 8 --read-every 1 --read-size 16 --json "$FINAL/scale-$tag-rtt.json" \
+    > /dev/null 2>&1
+  pids=()
+  for k in $(seq "$K"); do
+    timeout $((DUR + 40)) $load --clients "$C" --duration "$DUR" --read-every 0 \
+      --json "$FINAL/scale-$tag-load$k.json" > /dev/null 2>&1 &
+    pids+=($!)
+    sleep 0.3
+  done
+  wait "${pids[@]}"
+  kill $server; wait $server 2>/dev/null
+done
+python3 - "$FINAL" "$C" "$@" <<'PY'
+import glob, json, sys
+out, clients, runs = sys.argv[1], sys.argv[2], sys.argv[3:]
+print("| devices | lone client edit -> field p50 (ms) | generators x clients | batches/s (sum) | worst p99 (ms) | errors |")
+print("| --- | --- | --- | --- | --- | --- |")
+for devices in runs:
+    tag = devices.replace(",", "+")
+    rtt = json.load(open(f"{out}/scale-{tag}-rtt.json"))["round_trips"]["latency_ms"]["p50"]
+    loads = [json.load(open(p)) for p in sorted(glob.glob(f"{out}/scale-{tag}-load*.json"))]
+    total = sum(r["throughput_rps"] for r in loads)
+    p99 = max(r["edits"]["latency_ms"]["p99"] for r in loads)
+    errors = sum(r["errors"]["count"] for r in loads)
+    print(f"| {devices} | {rtt:.2f} | {len(loads)} x {clients} | {total:,.0f} | {p99:.1f} | {errors} |")
+PY

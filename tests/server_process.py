@@ -105,3 +105,22 @@ class ServerProcess:
 
     def close(self) -> None:
         self.log.close()
+
+
+def server_starter(factory, tmp_path: Path):
+    """The body of a ``start_server`` fixture: yields ``start(*flags, data_dir=None, ready=True,
+    **kw)``, which makes a server with ``factory`` over the test's own data directory (waited
+    for until ready unless ``ready=False``); every server it started is stopped afterwards."""
+    started: list[ServerProcess] = []
+
+    def start(*flags: str, data_dir: Path | None = None, ready: bool = True, **kw) -> ServerProcess:
+        server = factory(data_dir or tmp_path / "data", *flags, **kw)
+        started.append(server)
+        return server.wait_ready() if ready else server
+
+    yield start
+    for server in started:
+        if server.process.poll() is None:
+            server.stop()
+        elif not server.log.closed:
+            server.close()

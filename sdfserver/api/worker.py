@@ -11,6 +11,7 @@ import uvicorn
 
 from sdfserver.api.app import create_app
 from sdfserver.api.engine_client import EngineClient
+from sdfserver.api.hot import HotRoutes
 from sdfserver.engine.proc import EngineAddress, die_with_parent
 from sdfserver.settings import Settings
 
@@ -20,7 +21,7 @@ def worker_main(settings: Settings, sock: socket.socket, engines: Sequence[Engin
     die_with_parent()
     clients = [EngineClient(e.input, e.output) for e in engines]
     app = create_app(settings, clients=clients, freeze_gc=True)
-    config = uvicorn.Config(app, log_config=log_config, log_level=settings.log_level,
+    config = uvicorn.Config(HotRoutes(app), log_config=log_config, log_level=settings.log_level,
                             access_log=settings.access_log, ws_max_size=settings.max_request_bytes,
                             timeout_graceful_shutdown=5, lifespan="on")
     server = uvicorn.Server(config)

@@ -1,0 +1,85 @@
+"""The two routes every game client calls, answered without FastAPI's middleware, routing and
+dependency solving: ``POST /v1/worlds/{id}/edits`` and a well-formed ``GET /v1/worlds/{id}/field``.
+
+Each runs the route's own handler (``routes.post_edits``, ``routes.field_response``) after the
+same key check (``auth.guard``), and a failure is answered by the same translation
+(``errors.error_response``), so the answers are those of the full app; only the way there is
+shorter. Anything else — other routes and methods, a field read whose query the full app would
+have to judge (unknown, repeated or malformed parameters), an upgrade request — goes to the
+FastAPI app. It is an ASGI wrapper over the public interface, so uvicorn serves it as it would
+the app.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+from urllib.parse import parse_qsl
+
+from fastapi import FastAPI
+from starlette.requests import ClientDisconnect, Request
+
+from sdfserver.api import auth, routes
+from sdfserver.api.errors import error_response
+
+EDITS_PATH = re.compile(r"/v1/worlds/([^/]+)/edits")
+FIELD_PATH = re.compile(r"/v1/worlds/([^/]+)/field")
+FIELD_PARAMETERS = {"min", "max", "format", "min_version"}
+FORMATS = ("distance", "packed")
+MAX_VERSION_DIGITS = 18  # a version fits 63 bits; longer ones the full app judges
+
+
+class HotRoutes:
+    def __init__(self, app: FastAPI):
+        self.app = app
+
+    async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
+        if scope["type"] == "http" and not _upgrading(scope):
+            method, path = scope["method"], scope["path"]
+            if method == "POST" and (match := EDITS_PATH.fullmatch(path)):
+                return await self._answer(scope, receive, send, routes.post_edits, match[1])
+            if method == "GET" and (match := FIELD_PATH.fullmatch(path)):
+                query = _field_query(scope["query_string"])
+                if query is not None:
+                    return await self._answer(scope, receive, send, _read_field, match[1], query)
+        await self.app(scope, receive, send)
+
+    async def _answer(self, scope: dict[str, Any], receive: Any, send: Any, handler: Any, *args: Any) -> None:
+        scope["app"] = self.app  # what Starlette sets for request.app
+        request = Request(scope, receive, send)
+        try:
+            await auth.guard(request)
+            response = await handler(request, *args)
+        except ClientDisconnect:
+            return
+        except Exception as exc:  # answered as the app's exception handlers answer it
+            response = error_response(exc)
+        await response(scope, receive, send)
+
+
+def _upgrading(scope: dict[str, Any]) -> bool:
+    return any(key == b"upgrade" for key, _ in scope["headers"])
+
+
+def _field_query(query_string: bytes) -> dict[str, str] | None:
+    """The field read's parameters when each is known, given once and well formed; None leaves
+    the request to the full app, which says what is wrong."""
+    try:
+        pairs = parse_qsl(query_string.decode("latin-1"), keep_blank_values=True, strict_parsing=False)
+    except ValueError:
+        return None
+    query = dict(pairs)
+    if len(query) != len(pairs) or not FIELD_PARAMETERS.issuperset(query):
+        return None
+    if query.get("format", "distance") not in FORMATS:
+        return None
+    min_version = query.get("min_version", "0")
+    if not (min_version.isascii() and min_version.isdigit() and len(min_version) <= MAX_VERSION_DIGITS):
+        return None
+    return query
+
+
+async def _read_field(request: Request, world_id: str, query: dict[str, str]) -> Any:
+    box = routes.box_param(query.get("min"), query.get("max"))
+    return await routes.field_response(request, world_id, box, query.get("format", "distance"),
+                                       int(query.get("min_version", "0")))

@@ -53,8 +53,19 @@ class RateLimited(SdfServerError):
         super().__init__(message)
 
 
+class TooManySubscriptions(SdfServerError):
+    """The engine holds as many WebSocket subscriptions as it may, in total or for one key."""
+
+    code = "too_many_subscriptions"
+
+
 class TooLarge(SdfServerError):
     code = "too_large"
+
+
+class BodyTooLarge(TooLarge):
+    """A request body past its limit, refused before it was read in full: the connection is
+    closed after the answer rather than the rest of the body read and dropped."""
 
 
 class DeviceMemoryExceeded(SdfServerError):

@@ -81,6 +81,38 @@ class Settings(BaseSettings):
                                    "(bounds each subscriber's mailbox).")
     warm_up: bool = Field(True, description="Build the kernels (on a tiny world, and every variant of the "
                                             "exact transform) before the server listens.")
+    # -- connections (sdfserver/api/connections.py), checked before a key or a body is read --
+    max_connections: int = Field(
+        4096, ge=1, description="Open connections (HTTP and WebSocket) the server keeps, shared evenly by its "
+                                "API processes; a connection past its process's share is answered 503 and "
+                                "closed at once. Keep LimitNOFILE well above it (deploy/sdfserver.service).")
+    max_header_bytes: int = Field(
+        65536, ge=1024, le=1 << 24, description="Largest request line plus headers, in bytes: past it the "
+                                                "request is answered 431 and the connection closed, however "
+                                                "much of the header has arrived.")
+    max_header_count: int = Field(100, ge=8, le=10000, description="Most header lines in one request "
+                                                                   "(431 above it).")
+    header_timeout_s: float = Field(
+        10.0, gt=0, le=3600, description="Time a client has to send a request's line and headers, from "
+                                         "connecting or from the request's first byte, in seconds: past it "
+                                         "the request is answered 408 and the connection closed (slow clients "
+                                         "cannot hold connections open by trickling headers).")
+    idle_timeout_s: float = Field(15.0, gt=0, le=3600, description="Time a kept-alive HTTP connection may stay "
+                                                                   "idle between requests, in seconds.")
+    max_subscriptions: int = Field(1024, ge=1, description="WebSocket subscriptions one engine holds at once, "
+                                                           "every client together (429 above it).")
+    max_subscriptions_per_key: int = Field(
+        64, ge=1, description="WebSocket subscriptions one API key (or, on an open server, one client address) "
+                              "may hold at once on one engine (429 above it).")
+    ws_deflate: bool = Field(False, description="Offer WebSocket per-message compression. Off: a compressed "
+                                                "message cannot inflate past what it cost to send, and the "
+                                                "binary msgpack the stream carries gains little from it.")
+    ws_max_queue: int = Field(4, ge=1, le=1024, description="WebSocket messages received and not yet handled "
+                                                            "that one connection may buffer (each up to "
+                                                            "max_request_bytes) before reading from it pauses.")
+    ws_ping_interval_s: float = Field(20.0, ge=0, description="Seconds between WebSocket pings; a peer that "
+                                                              "does not answer one within as long is closed "
+                                                              "(0: no pings).")
     # -- durability (sdfserver/storage) --
     persist: bool = Field(True, description="Keep every world on disk (write-ahead log and snapshots in "
                                             "data_dir) and restore them at start-up; off: worlds live in memory only.")

@@ -20,7 +20,7 @@ from fastapi.responses import Response
 from starlette.requests import ClientDisconnect, HTTPConnection
 
 from sdfserver import wire
-from sdfserver.errors import InvalidInput, TooLarge
+from sdfserver.errors import BodyTooLarge, InvalidInput
 
 MSGPACK = wire.CONTENT_TYPE
 JSON = "application/json"
@@ -57,7 +57,7 @@ def header(connection: HTTPConnection, name: bytes) -> str | None:
 async def read_body(request: Request, limit: int) -> bytes:
     length = header(request, b"content-length")
     if length is not None and length.isdigit() and int(length) > limit:
-        raise TooLarge(f"request body of {length} bytes exceeds the limit of {limit}")
+        raise BodyTooLarge(f"request body of {length} bytes exceeds the limit of {limit}")
     chunks, size, more = [], 0, True
     while more:  # the ASGI messages as they come: request.stream() costs twice as much
         message = await request.receive()
@@ -66,7 +66,7 @@ async def read_body(request: Request, limit: int) -> bytes:
         chunk = message.get("body", b"")
         size += len(chunk)
         if size > limit:
-            raise TooLarge(f"request body exceeds the limit of {limit} bytes")
+            raise BodyTooLarge(f"request body exceeds the limit of {limit} bytes")
         chunks.append(chunk)
         more = message.get("more_body", False)
     return b"".join(chunks)

@@ -22,8 +22,8 @@ from pydantic import ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from sdfserver.errors import (
-    DeviceMemoryExceeded, InvalidInput, KernelBuildError, NotFound, NotReady, RateLimited, SdfServerError,
-    TooLarge, Unauthorized,
+    BodyTooLarge, DeviceMemoryExceeded, InvalidInput, KernelBuildError, NotFound, NotReady, RateLimited, SdfServerError,
+    TooLarge, TooManySubscriptions, Unauthorized,
 )
 from sdfserver.wire import WireError
 
@@ -38,6 +38,7 @@ STATUS: dict[type[SdfServerError], int] = {
     KernelBuildError: 500,
     Unauthorized: 401,
     RateLimited: 429,
+    TooManySubscriptions: 429,
 }
 
 HTTP_CODES = {401: "unauthorized", 404: "not_found", 405: "method_not_allowed", 406: "not_acceptable",
@@ -105,6 +106,8 @@ def error_response(exc: BaseException) -> Response:
         headers = {"Retry-After": str(max(1, round(exc.retry_after_s)))}
     elif isinstance(exc, Unauthorized):
         headers = {"WWW-Authenticate": 'Bearer realm="sdfserver"'}
+    elif isinstance(exc, BodyTooLarge):
+        headers = {"Connection": "close"}
     elif isinstance(exc, StarletteHTTPException) and exc.headers:  # 405's Allow
         headers = dict(exc.headers)
     return JSONResponse(body, status_code=status, headers=headers)

@@ -29,7 +29,7 @@ from sdfserver.api.auth import access_of
 from sdfserver.api.bodies import OCTET, header, respond
 from sdfserver.engine.core import world_config_dict
 from sdfserver.engine.restore import config_from_dict
-from sdfserver.errors import InvalidInput, TooLarge
+from sdfserver.errors import BodyTooLarge, InvalidInput
 from sdfserver.storage import (
     decode_upload, dump_npy, dump_vox, encode_snapshot, load_npy, load_vox, pad_to_chunks,
 )
@@ -116,7 +116,7 @@ async def read_upload(request: Request, max_voxels: int, given: str | None) -> t
             fmt = upload_format(b"".join(chunks)[:SNIFF_BYTES], given)
             limit = upload_limit_bytes(fmt, max_voxels)
         if fmt is not None and max(size, declared) > limit:
-            raise TooLarge(f"a {fmt} upload of {max(size, declared)} bytes exceeds the limit of {limit} bytes "
+            raise BodyTooLarge(f"a {fmt} upload of {max(size, declared)} bytes exceeds the limit of {limit} bytes "
                            f"({max_voxels} voxels, max_request_bytes, in the {fmt} format)")
     return fmt, b"".join(chunks)
 

@@ -10,10 +10,11 @@ from typing import Any, Sequence
 import uvicorn
 
 from sdfserver.api.app import create_app
+from sdfserver.api.connections import uvicorn_options
 from sdfserver.api.engine_client import EngineClient
 from sdfserver.api.hot import HotRoutes
 from sdfserver.engine.proc import EngineAddress, die_with_parent
-from sdfserver.settings import Settings
+from sdfserver.settings import Settings, worker_count
 
 
 def worker_main(settings: Settings, sock: socket.socket, engines: Sequence[EngineAddress], log_config: Any) -> int:
@@ -22,8 +23,8 @@ def worker_main(settings: Settings, sock: socket.socket, engines: Sequence[Engin
     clients = [EngineClient(e.input, e.output) for e in engines]
     app = create_app(settings, clients=clients, freeze_gc=True)
     config = uvicorn.Config(HotRoutes(app), log_config=log_config, log_level=settings.log_level,
-                            access_log=settings.access_log, ws_max_size=settings.max_request_bytes,
-                            timeout_graceful_shutdown=5, lifespan="on")
+                            access_log=settings.access_log, timeout_graceful_shutdown=5, lifespan="on",
+                            **uvicorn_options(settings, worker_count(settings)))
     server = uvicorn.Server(config)
     server.run(sockets=[sock])
     return 0 if server.started else 3  # uvicorn's start-up failure status, as uvicorn.run exits with

@@ -31,6 +31,8 @@ class EngineLimits:
     max_worlds: int = 64
     max_read_voxels: int = 1 << 27
     max_subscription_voxels: int = 1 << 27
+    max_subscriptions: int = 1024  # held by the engine at once, every client together
+    max_subscriptions_per_key: int = 64  # held by one API key (or one client address on an open server)
     max_wait_s: float = 5.0
     slow_step_ms: float = 20.0  # a step this long is logged with its phases
 

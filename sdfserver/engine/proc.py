@@ -60,6 +60,8 @@ def engine_limits(settings: Settings) -> EngineLimits:
     return EngineLimits(edits=settings.edit_limits(), max_world_voxels=settings.max_world_voxels,
                         max_worlds=settings.max_worlds, max_read_voxels=settings.max_read_voxels,
                         max_subscription_voxels=settings.max_subscription_voxels,
+                        max_subscriptions=settings.max_subscriptions,
+                        max_subscriptions_per_key=settings.max_subscriptions_per_key,
                         max_wait_s=settings.max_wait_ms / 1e3)
 
 

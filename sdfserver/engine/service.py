@@ -25,7 +25,7 @@ from sdfserver.engine.access import Doorkeeper
 from sdfserver.engine.core import Engine
 from sdfserver.engine.mailbox import Mailbox, Subscription
 from sdfserver.engine.restore import config_from_dict
-from sdfserver.errors import InvalidInput, SdfServerError
+from sdfserver.errors import InvalidInput, SdfServerError, TooManySubscriptions
 from sdfserver.geometry import Box
 from sdfserver.render import parse_view
 from sdfserver.storage.codec import decode_batch
@@ -53,6 +53,7 @@ class EngineService:
         self.send = send
         self.writes_failure = writes_failure
         self.subscriptions: dict[tuple[bytes, int], Subscription] = {}
+        self._holders: dict[tuple[bytes, int], str] = {}  # each subscription's key (or client address)
         # a subscription with credit may be sent its next update; sending spends it, ``Taken`` returns it
         self._credit: dict[tuple[bytes, int], bool] = {}
         self._credit_lock = threading.Lock()
@@ -79,6 +80,7 @@ class EngineService:
             if key[0] == client:
                 subscription = self.subscriptions.pop(key, None)
                 self._credit.pop(key, None)
+                self._holders.pop(key, None)
                 if subscription is not None:
                     self.engine.unsubscribe(subscription)
 
@@ -199,6 +201,7 @@ class EngineService:
         if m.format not in ("packed", "distance"):
             raise InvalidInput(f"format must be 'distance' or 'packed', got {m.format!r}")
         key = (client, m.subscription)
+        self._check_room(key, m.access)
         old = self.subscriptions.pop(key, None)
         if old is not None:
             self.engine.unsubscribe(old)
@@ -216,13 +219,30 @@ class EngineService:
             if exc is not None and self.subscriptions.get(key) is subscription:
                 self.subscriptions.pop(key, None)
                 self._credit.pop(key, None)
+                self._holders.pop(key, None)
             self._reply(client, m.id, None, exc)
 
         future.add_done_callback(done)
 
+    def _check_room(self, key: tuple[bytes, int], access: msg.Access | None) -> None:
+        """Refuse a new subscription past the engine's limits; replacing one's region is not new."""
+        if key in self.subscriptions:
+            return
+        limits = self.engine.limits
+        if len(self.subscriptions) >= limits.max_subscriptions:
+            raise TooManySubscriptions(f"this engine holds {limits.max_subscriptions} subscriptions, "
+                                       "its limit (max_subscriptions); try again later")
+        holder = "" if access is None else access.key if access.key is not None else f"address {access.client}"
+        held = sum(1 for who in self._holders.values() if who == holder)
+        if held >= limits.max_subscriptions_per_key:
+            raise TooManySubscriptions(f"{holder or 'this client'} holds {limits.max_subscriptions_per_key} "
+                                       "subscriptions, its limit (max_subscriptions_per_key)")
+        self._holders[key] = holder
+
     def _unsubscribe(self, client: bytes, m: msg.Unsubscribe) -> None:
         subscription = self.subscriptions.pop((client, m.subscription), None)
         self._credit.pop((client, m.subscription), None)
+        self._holders.pop((client, m.subscription), None)
         if subscription is not None:
             self.engine.unsubscribe(subscription)
         self._reply(client, m.id)

@@ -47,6 +47,15 @@ class Settings(BaseSettings):
         "", description="Comma-separated device specs (as `device` takes them), one engine process each; "
                         "worlds are placed on the engine with the most free device memory. Empty: one engine "
                         "on `device`.")
+    cluster: str = Field(
+        "", pattern=r"^(|local|auto|ray://.+)$",
+        description="Run the engines as Ray actors (the `ray` extra): 'local' starts a Ray cluster on this "
+                    "machine, 'auto' joins the one running here, 'ray://HOST:PORT' a remote one. Empty: engine "
+                    "processes on this machine (`devices`), no Ray.")
+    engines: int = Field(1, ge=1, le=256, description="With `cluster`: engine actors, each asking Ray for "
+                                                      "`engine_gpus` GPUs.")
+    engine_gpus: float = Field(1.0, ge=0, le=8, description="With `cluster`: the GPUs each engine actor asks Ray "
+                                                            "for; a fraction shares a GPU (0: CPU devices).")
     access_log: bool = Field(False, description="Log every HTTP request (costs throughput).")
     switch_interval_ms: float = Field(
         0.5, gt=0, le=100, description="Longest another thread of an engine process (its input or output "

@@ -21,9 +21,10 @@ from typing import Any, Callable
 
 import msgspec
 import zmq
+from zmq.utils.monitor import recv_monitor_message
 
 from sdfserver.engine import messages as msg
-from sdfserver.errors import InvalidInput
+from sdfserver.errors import InvalidInput, NotReady
 
 log = logging.getLogger("sdfserver")
 ENCODE = msg.REQUEST_ENCODER.encode
@@ -108,6 +109,8 @@ class EngineClient(BaseClient):
         self._dealer: zmq.Socket | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._fd: int | None = None
+        self._monitor: zmq.Socket | None = None
+        self._monitor_fd: int | None = None
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
@@ -128,11 +131,31 @@ class EngineClient(BaseClient):
         self._loop.add_reader(self._fd, self._drain, welcomed)
         self._drain(welcomed)
         await asyncio.wait_for(welcomed, HELLO_TIMEOUT_S)
+        # An engine that goes away (a cluster's engine actor restarting) takes the requests it
+        # held with it: they fail at once, 503, rather than wait for answers that cannot come.
+        # ZeroMQ reconnects by itself when the engine listens again.
+        self._monitor = self._dealer.get_monitor_socket(zmq.EVENT_DISCONNECTED)
+        self._monitor_fd = self._monitor.getsockopt(zmq.FD)
+        self._loop.add_reader(self._monitor_fd, self._watch_connection)
+        self._watch_connection()
+
+    def _watch_connection(self) -> None:
+        while self._monitor.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+            event = recv_monitor_message(self._monitor, zmq.NOBLOCK)
+            if event["event"] == zmq.EVENT_DISCONNECTED:
+                log.warning("engine at %s went away; %d requests fail", self.output_address, len(self._pending))
+                self.fail_all(NotReady(f"the engine at {self.output_address} went away (restarting?); "
+                                       "retry the request"))
 
     async def stop(self) -> None:
         if self._fd is not None and self._loop is not None:
             self._loop.remove_reader(self._fd)
             self._fd = None
+        if self._monitor is not None and self._loop is not None:
+            self._loop.remove_reader(self._monitor_fd)
+            self._dealer.disable_monitor()
+            self._monitor.close(0)
+            self._monitor = None
         for sock in (self._push, self._dealer):
             if sock is not None:
                 sock.close(0)

@@ -123,11 +123,13 @@ class Engines:
         await self._call(world_id, lambda i: msg.Reconfigure(i, world_id, changes, access))
 
     async def describe(self, world_id: str, access: msg.Access | None = None) -> dict[str, Any]:
-        return await self._call(world_id, lambda i: msg.Describe(i, world_id, access))
+        engine = await self.placement.engine_for(world_id)
+        described = await engine.call(msg.Describe(engine.next_id(), world_id, access))
+        return {**described, "engine": list(self.clients).index(engine)}
 
     async def list_worlds(self, access: msg.Access | None = None) -> list[dict[str, Any]]:
         lists = await asyncio.gather(*(e.call(msg.Describe(e.next_id(), None, access)) for e in self.clients))
-        return sorted((w for worlds in lists for w in worlds), key=lambda w: w["id"])
+        return sorted(({**w, "engine": i} for i, worlds in enumerate(lists) for w in worlds), key=lambda w: w["id"])
 
     # -- the hot requests ------------------------------------------------------------------------
 

@@ -61,6 +61,18 @@ async def list_worlds(request: Request) -> Response:
     return respond(request, {"worlds": worlds})
 
 
+@router.get("/engines", summary="The engines: device, process, worlds, free device memory")
+async def list_engines(request: Request) -> Response:
+    engines = engine_of(request)
+    statuses = await engines.status()
+    sees_all = principal_of(request).admin  # world ids are other tenants' business
+    return respond(request, [{"engine": i, "address": getattr(client, "input_address", "in this process"),
+                              "ready": s.ready, "reason": s.reason, "device": s.device, "pid": s.pid,
+                              "free_bytes": s.free_bytes, "worlds": len(s.worlds),
+                              **({"world_ids": sorted(s.worlds)} if sees_all else {})}
+                             for i, (client, s) in enumerate(zip(engines.clients, statuses))])
+
+
 @router.get("/worlds/{world_id}", summary="Describe a world")
 async def describe_world(request: Request, world_id: str) -> Response:
     return respond(request, await engine_of(request).describe(world_id, access_of(request)))

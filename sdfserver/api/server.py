@@ -133,6 +133,42 @@ class Launcher:
         self._stopped = False
 
     def run(self) -> int:
+        if self.settings.cluster:
+            failure = self._start_cluster()
+            if failure is not None:
+                print(f"sdfserver serve: {failure}", file=sys.stderr)
+                return 1
+        else:
+            failure = self._start_engines()
+            if failure is not None:
+                print(f"sdfserver serve: {failure}", file=sys.stderr)
+                return 1
+        import sdfserver.api.worker  # noqa: F401  imported once here, inherited by every API process
+
+        self.workers = [self._start_worker() for _ in range(worker_count(self.settings))]
+        self.serving = True
+        host, port = self.sock.getsockname()[:2]
+        log.info("listening on http://%s:%d (%d API processes, %d engines%s)", host, port, len(self.workers),
+                 len(self.addresses), f", Ray cluster {self.settings.cluster}" if self.settings.cluster else "")
+        return self._watch()
+
+    def _start_cluster(self) -> str | None:
+        """The cluster process (sdfserver/cluster/manager.py), watched as an engine process is:
+        it tells the engine actors' addresses once every one serves."""
+        from sdfserver.cluster.manager import cluster_main
+
+        receiver, sender = self.context.Pipe(duplex=False)
+        process = self.context.Process(target=_exit_with, args=(cluster_main, self.settings, sender),
+                                       name="sdfserver-cluster")
+        process.start()
+        sender.close()
+        self.engines.append((process, receiver))
+        ready, said = self._wait_ready(process, receiver)
+        if ready:
+            self.addresses = said
+        return None if ready else said
+
+    def _start_engines(self) -> str | None:
         from sdfserver.engine.proc import engine_main
 
         for address in self.addresses:
@@ -144,29 +180,22 @@ class Launcher:
             sender.close()
             self.engines.append((process, receiver))
         for process, pipe in self.engines:  # listen only once every engine has shown it can serve
-            failure = self._wait_ready(process, pipe)
-            if failure is not None:
-                print(f"sdfserver serve: {failure}", file=sys.stderr)
-                return 1
-        import sdfserver.api.worker  # noqa: F401  imported once here, inherited by every API process
+            ready, said = self._wait_ready(process, pipe)
+            if not ready:
+                return said
+        return None
 
-        self.workers = [self._start_worker() for _ in range(worker_count(self.settings))]
-        self.serving = True
-        host, port = self.sock.getsockname()[:2]
-        log.info("listening on http://%s:%d (%d API processes, %d engines)", host, port, len(self.workers),
-                 len(self.engines))
-        return self._watch()
-
-    def _wait_ready(self, process: Any, pipe: Any) -> str | None:
+    def _wait_ready(self, process: Any, pipe: Any) -> tuple[bool, Any]:
+        """(True, what the child said with "ready") or (False, why it cannot serve)."""
         while True:
             if pipe.poll(0.1):
                 try:
-                    kind, text = pipe.recv()
+                    kind, said = pipe.recv()
                 except EOFError:
-                    return f"the engine process exited with status {process.exitcode}"
-                return None if kind == "ready" else text
+                    return False, f"the {_role(process)} process exited with status {process.exitcode}"
+                return kind == "ready", said
             if not process.is_alive() and not pipe.poll(0):
-                return f"the engine process exited with status {process.exitcode}"
+                return False, f"the {_role(process)} process exited with status {process.exitcode}"
 
     def _start_worker(self) -> tuple[Any, float]:
         from sdfserver.api.worker import worker_main
@@ -220,7 +249,12 @@ def _death_of(process: Any, pipe: Any) -> str:
                 return text
     except (EOFError, OSError):
         pass
-    return f"the engine process exited with status {process.exitcode}"
+    return f"the {_role(process)} process exited with status {process.exitcode}"
+
+
+def _role(process: Any) -> str:
+    """"engine" or "cluster", from the child's name (sdfserver-engine-<i>, sdfserver-cluster)."""
+    return process.name.removeprefix("sdfserver-").split("-")[0]
 
 
 def _exit_with(main: Any, *args: Any) -> None:

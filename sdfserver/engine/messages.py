@@ -203,6 +203,8 @@ class EngineStatus(msgspec.Struct, array_like=True):
     device: str
     free_bytes: int  # device memory the engine may still use
     writes_disabled: str | None = None  # the log's failure, when writes are refused
+    pid: int = 0  # the engine's process
+    worlds: list[str] = []  # the ids of the worlds it holds
 
 
 class Failure(msgspec.Struct, array_like=True):

@@ -25,6 +25,7 @@ import queue
 import signal
 import sys
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -43,7 +44,8 @@ from sdfserver.settings import Settings
 
 log = logging.getLogger("sdfserver.engine")
 DEVICE_ADVICE = "`sdfserver devices` lists the usable OpenCL devices and --device picks one"
-IDLE_POLL_S = 0.05  # how often an idle output thread looks for API processes saying hello
+IDLE_POLL_S = 0.05
+UNREACHABLE_GRACE_S = 10.0  # how long answers wait for an API process that is not connected  # how often an idle output thread looks for API processes saying hello
 
 
 @dataclass(frozen=True)
@@ -99,6 +101,7 @@ class EngineTransport:
         self.service: EngineService = service_of(self.send)
         self.address = address
         self._stopping = False
+        self._undelivered: dict[bytes, tuple[float, list[bytes]]] = {}  # client -> (since, payloads)
         self._input = self.context.socket(zmq.PULL)
         self._input.setsockopt(zmq.RCVHWM, 0)
         self._input.bind(address.input)
@@ -141,6 +144,8 @@ class EngineTransport:
     def _write_once(self) -> None:
         """Wait for an answer, take every other one waiting, send them: one batch per API process."""
         self._welcome()
+        if self._undelivered:
+            self._send_undelivered()
         try:
             first = self.outputs.get(timeout=IDLE_POLL_S)
         except queue.Empty:
@@ -163,12 +168,33 @@ class EngineTransport:
             except queue.Empty:
                 break
         for client, items in batches.items():
+            payload = encoded(items)
+            if client in self._undelivered:  # after what waits for it, in order
+                self._undelivered[client][1].append(payload)
+                continue
             try:
-                self._output.send_multipart([client, encoded(items)])
-            except zmq.ZMQError as exc:  # that API process is gone
+                self._output.send_multipart([client, payload])
+            except zmq.ZMQError as exc:
                 if exc.errno != zmq.EHOSTUNREACH:
                     raise
-                self.service.forget(client)
+                self._undelivered[client] = (time.monotonic(), [payload])
+
+    def _send_undelivered(self) -> None:
+        """Answers for an API process not connected: not yet again, when this engine was just
+        restarted (a cluster's engine actor) and the API process's socket is reconnecting, or
+        never again, when it is gone (its subscriptions are dropped after the grace)."""
+        for client, (since, payloads) in list(self._undelivered.items()):
+            try:
+                while payloads:
+                    self._output.send_multipart([client, payloads[0]])
+                    payloads.pop(0)
+                del self._undelivered[client]
+            except zmq.ZMQError as exc:
+                if exc.errno != zmq.EHOSTUNREACH:
+                    raise
+                if time.monotonic() - since > UNREACHABLE_GRACE_S:
+                    del self._undelivered[client]
+                    self.service.forget(client)
 
     def _welcome(self) -> None:
         """Answer the hello of API processes: from then on the ROUTER can reach them."""
@@ -197,17 +223,25 @@ def encoded(items: list[Any]) -> bytes:
 
 def engine_main(settings: Settings, address: EngineAddress, engines: int, conn: Any) -> int:
     """The engine process's body (after fork); its exit status."""
+    die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides what Ctrl-C stops
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    return serve_engine(settings, address, engines, conn, stop)
+
+
+def serve_engine(settings: Settings, address: EngineAddress, engines: int, conn: Any,
+                 stop: threading.Event) -> int:
+    """An engine on ``address`` until ``stop`` is set: restored, warmed up, its transport started;
+    ``conn.send`` is told ("ready", device), ("failed", why) or ("died", why). The engine
+    process's body, and a cluster's engine actor's (sdfserver/cluster)."""
     from sdfserver.engine.restore import restore_worlds
     from sdfserver.gpu import GpuContext
     from sdfserver.storage.lock import lock_data_dir
 
-    die_with_parent()
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides what Ctrl-C stops
     # the input and output threads share the GIL with the engine thread: when the engine
     # blocks (on the device, a read, a log write) it waits up to this long to get it back
     sys.setswitchinterval(settings.switch_interval_ms / 1e3)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     journal = lock = engine = None
     try:
         try:

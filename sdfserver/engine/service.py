@@ -11,6 +11,7 @@ news, and the output side takes whatever it holds when it sends.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from concurrent.futures import Future
@@ -266,7 +267,8 @@ class EngineService:
         gpu = engine.gpu
         free = max(0, gpu.memory_budget_bytes - sum(w.device_bytes for w in list(engine.worlds.values())))
         self._reply(client, m.id, msg.EngineStatus(engine.ready, None if engine.ready else engine.not_ready_reason(),
-                                                   gpu.device_name, free, self.writes_failure()))
+                                                   gpu.device_name, free, self.writes_failure(), os.getpid(),
+                                                   list(engine.worlds)))
 
     def _metrics(self, client: bytes, m: msg.MetricsText) -> None:
         self._reply(client, m.id, generate_latest(self.engine.metrics.registry).decode())

@@ -1,0 +1,152 @@
+"""`sdfserver serve --cluster local`: engines as Ray actors on a local Ray cluster (one per
+module), on the CPU device; a real server on loopback, its engine actors killed under load."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import httpx
+import numpy as np
+import pytest
+
+from references import apply_edits, oracle_distance
+from server_process import ServerProcess
+
+pytest.importorskip("ray")
+SIZE = (24, 16, 24)
+CAP = 12
+FLAGS = ["--cluster", "local", "--engines", "2", "--engine-gpus", "0", "--workers", "1", "--no-warm-up",
+         "--memory-budget-bytes", str(64 << 20)]
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    process = ServerProcess(tmp_path_factory.mktemp("cluster") / "data", *FLAGS)
+    try:
+        yield process.wait_ready(timeout_s=240)
+    finally:
+        process.stop(timeout_s=60)
+
+
+def engines(server) -> list[dict]:
+    r = httpx.get(server.url + "/v1/engines", timeout=30)
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def new_world(server) -> str:
+    r = httpx.post(server.url + "/v1/worlds", json={"size": list(SIZE), "chunk_size": 8, "max_distance": CAP},
+                   timeout=30)
+    assert r.status_code == 201, r.text
+    return r.json()["id"]
+
+
+def random_batch(rng: np.random.Generator) -> list[dict]:
+    ops = []
+    for _ in range(int(rng.integers(1, 3))):
+        colour = int(rng.integers(0, 256)) if rng.random() < 0.7 else 0  # some remove voxels
+        if rng.random() < 0.5:
+            lo = [int(rng.integers(-2, s)) for s in SIZE]
+            ops.append({"op": "box", "min": lo, "max": [v + int(rng.integers(1, 7)) for v in lo], "colour": colour})
+        else:
+            ops.append({"op": "sphere", "center": [float(rng.uniform(0, s)) for s in SIZE],
+                        "radius": float(rng.uniform(1, 5)), "colour": colour})
+    return ops
+
+
+def read(server, world: str, what: str) -> np.ndarray:
+    r = httpx.get(f"{server.url}/v1/worlds/{world}/{what}", headers={"accept": "application/octet-stream"},
+                  timeout=30)
+    assert r.status_code == 200, r.text
+    shape = tuple(int(v) for v in r.headers["x-sdf-shape"].split(","))
+    return np.frombuffer(r.content, np.uint8).reshape(shape)
+
+
+def test_the_embedded_server_never_imports_ray():
+    code = ("import sys, sdfserver, sdfserver.api.server, sdfserver.api.app, sdfserver.api.worker, "
+            "sdfserver.engine.proc; assert 'ray' not in sys.modules, 'ray imported'")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+def test_worlds_spread_over_the_engine_actors_and_say_where_they_are(server):
+    worlds = [new_world(server) for _ in range(4)]
+    listed = engines(server)
+    assert [e["engine"] for e in listed] == [0, 1]
+    assert all(e["ready"] and e["address"].startswith("tcp://") for e in listed)
+    assert len({e["pid"] for e in listed} | {server.process.pid}) == 3  # actors, not the launcher
+    holders = {w: e["engine"] for e in listed for w in e["world_ids"]}
+    for world in worlds:
+        described = httpx.get(f"{server.url}/v1/worlds/{world}", timeout=30).json()
+        assert described["engine"] == holders[world]
+    assert {holders[w] for w in worlds} == {0, 1}  # new worlds go where most memory is free
+
+
+def test_a_killed_engine_actor_comes_back_with_every_acknowledged_batch(server):
+    rng = np.random.default_rng()
+    worlds = [new_world(server) for _ in range(2)]
+    listed = engines(server)
+    victim = next(e for e in listed if worlds[0] in e["world_ids"])
+    acked: dict[str, list[list[dict]]] = {w: [] for w in worlds}
+    killed = threading.Event()
+    stop = threading.Event()
+    errors: list[str] = []
+
+    def writer(world: str, seed: int) -> None:
+        batches = np.random.default_rng(seed)
+        with httpx.Client(base_url=server.url, timeout=30) as http:
+            while not stop.is_set():
+                batch = random_batch(batches)
+                for attempt in range(100):  # an unanswered attempt may have been applied: the same batch
+                    try:                    # again right after it leaves the same voxels
+                        r = http.post(f"/v1/worlds/{world}/edits", json={"edits": batch})
+                    except httpx.TransportError as exc:
+                        errors.append(type(exc).__name__)
+                        time.sleep(0.1)
+                        continue
+                    if r.status_code == 200:
+                        acked[world].append(batch)
+                        break
+                    errors.append(f"{r.status_code} {r.text[:80]}")
+                    assert r.status_code == 503, r.text
+                    time.sleep(0.1)
+
+    threads = [threading.Thread(target=writer, args=(w, int(rng.integers(1 << 30)))) for w in worlds]
+    for t in threads:
+        t.start()
+    try:
+        deadline = time.monotonic() + 60
+        while len(acked[worlds[0]]) < 10 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        os.kill(victim["pid"], signal.SIGKILL)
+        killed_at, before = time.monotonic(), len(acked[worlds[0]])
+        while len(acked[worlds[0]]) < before + 10 and time.monotonic() < killed_at + 120:
+            time.sleep(0.05)
+        back_after_s = time.monotonic() - killed_at
+    finally:
+        stop.set()
+        for t in threads:
+            t.join(timeout=120)
+    assert len(acked[worlds[0]]) >= before + 10, f"the world did not serve again in {back_after_s:.1f} s: {errors}"
+    restarted = next(e for e in engines(server) if e["engine"] == victim["engine"])
+    assert restarted["pid"] != victim["pid"] and worlds[0] in restarted["world_ids"]
+    for world in worlds:
+        expected = np.zeros(SIZE[::-1], np.uint8)
+        for batch in acked[world]:
+            apply_edits(expected, batch)
+        np.testing.assert_array_equal(read(server, world, "voxels"), expected)
+        np.testing.assert_array_equal(read(server, world, "field"), oracle_distance(expected, CAP))
+
+
+def test_engines_asking_for_gpus_the_cluster_lacks_stop_the_server_with_why(tmp_path):
+    process = ServerProcess(tmp_path / "data", "--cluster", "local", "--engines", "2", "--engine-gpus", "8",
+                            "--no-warm-up")
+    try:
+        assert process.process.wait(timeout=120) == 1
+        assert "2 engines x 8 GPUs need 16 GPUs; the Ray cluster has" in process.output()
+    finally:
+        process.stop()

@@ -16,6 +16,13 @@ from sdfserver.geometry import Box, Vec3
 CHUNK_SIZES = (8, 16, 32, 64, 128)
 MAX_SIDE_VOX = 2048  # exact.cl: at most 128 segments of 16 elements per line
 BORDERS = ("exact", "padded")
+STORAGES = ("dense", "sparse")
+# A sparse world stores only the bricks (chunks) that are neither all air at the cap nor all solid
+# of one colour, so its sides are bounded by its brick table, not by one buffer: x and z up to
+# 65536 voxels, y up to 4096. What an edit recomputes is still a dense scratch box, whose sides
+# exact.cl bounds by MAX_SIDE_VOX.
+MAX_SPARSE_SIDE_XZ_VOX = 65536
+MAX_SPARSE_SIDE_Y_VOX = 4096
 # The most voxels a world can have: past 2^31, so every world-sized number is 64-bit,
 # on the host and in the kernels (kernels/include/sdf_common.h).
 MAX_WORLD_VOXELS = MAX_SIDE_VOX ** 3
@@ -49,6 +56,9 @@ class WorldConfig:
     # "padded": the dissertation's §4.2.1 — each chunk computed alone, everything outside it
     # solid; an edit recomputes only the chunks it touches. Not for algorithm "exact".
     borders: str = "exact"
+    # "dense": one buffer of every voxel. "sparse": a brick table and pools of stored bricks
+    # (sdfserver/sparse/); borders exact, no focus.
+    storage: str = "dense"
 
     def validated(self) -> "WorldConfig":
         # The registry imports the kernels' host side; only validation needs it.
@@ -59,13 +69,23 @@ class WorldConfig:
             raise InvalidInput(f"size must be three integers [sx, sy, sz], got {size!r}")
         if self.chunk_size not in CHUNK_SIZES:
             raise InvalidInput(f"chunk_size must be one of {CHUNK_SIZES}, got {self.chunk_size!r}")
+        if self.storage not in STORAGES:
+            raise InvalidInput(f"storage must be one of {list(STORAGES)}, got {self.storage!r}")
         for v in size:
             if v <= 0 or v % self.chunk_size:
                 raise InvalidInput(
                     f"size {list(size)} must be positive whole multiples of chunk_size {self.chunk_size}"
                 )
-            if v > MAX_SIDE_VOX:
-                raise InvalidInput(f"each side must be at most {MAX_SIDE_VOX} voxels, got {list(size)}")
+        if self.storage == "dense" and max(size) > MAX_SIDE_VOX:
+            raise InvalidInput(f"each side must be at most {MAX_SIDE_VOX} voxels, got {list(size)} "
+                               f"(storage 'sparse' allows {MAX_SPARSE_SIDE_XZ_VOX} along x and z, "
+                               f"{MAX_SPARSE_SIDE_Y_VOX} along y)")
+        if self.storage == "sparse":
+            if max(size[0], size[2]) > MAX_SPARSE_SIDE_XZ_VOX or size[1] > MAX_SPARSE_SIDE_Y_VOX:
+                raise InvalidInput(f"a sparse world's sides must be at most {MAX_SPARSE_SIDE_XZ_VOX} along x and "
+                                   f"z and {MAX_SPARSE_SIDE_Y_VOX} along y, got {list(size)}")
+            if self.focus is not None or self.borders != "exact":
+                raise InvalidInput("a sparse world has exact borders and no focus")
         if not _is_int(self.max_distance) or not 1 <= self.max_distance <= 255:
             raise InvalidInput(f"max_distance must be an integer 1..255, got {self.max_distance!r}")
         algorithm, lod_algorithm = get_algorithm(self.algorithm), get_algorithm(self.lod_algorithm)
@@ -104,4 +124,5 @@ def padded_algorithms() -> list[str]:
     return sorted(n for n, a in ALGORITHMS.items() if getattr(a, "supports_padding", False))
 
 
-__all__ = ["BORDERS", "CHUNK_SIZES", "MAX_SIDE_VOX", "MAX_WORLD_VOXELS", "Focus", "WorldConfig"]
+__all__ = ["BORDERS", "CHUNK_SIZES", "MAX_SIDE_VOX", "MAX_SPARSE_SIDE_XZ_VOX", "MAX_SPARSE_SIDE_Y_VOX",
+           "MAX_WORLD_VOXELS", "STORAGES", "Focus", "WorldConfig"]

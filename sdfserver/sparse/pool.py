@@ -1,0 +1,94 @@
+"""A sparse world's brick pools on the device: one uchar and one ushort buffer of ``capacity``
+bricks (voxels, packed field: 3 bytes a stored voxel), and the free slots.
+
+The pools grow geometrically inside the memory budget: a larger pair is allocated (checked
+first: DeviceMemoryExceeded and nothing changed when it does not fit), the stored bricks copied
+over, the old pair released. A growth copies every stored brick once, so its cost follows the
+stored bricks, not the world; doubling keeps that to a constant per brick over time. Slots are
+reserved before a batch is accepted (``reserve``), so a recompute never runs out halfway."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from sdfserver import bulk
+from sdfserver.errors import DeviceMemoryExceeded
+from sdfserver.gpu import GpuContext
+
+BYTES_PER_STORED_VOXEL = 3  # voxel uchar + field ushort
+FIRST_CAPACITY_BRICKS = 64
+
+
+class BrickPool:
+    def __init__(self, gpu: GpuContext, brick_vox: int):
+        self.gpu = gpu
+        self.brick_voxels = brick_vox ** 3
+        self.capacity = 0
+        self.voxels: cl.Buffer | None = None
+        self.field: cl.Buffer | None = None
+        self.free: list[int] = []  # slots not holding a brick, taken from the end
+
+    @property
+    def stored(self) -> int:
+        return self.capacity - len(self.free)
+
+    @property
+    def device_bytes(self) -> int:
+        return self.capacity * self.brick_voxels * BYTES_PER_STORED_VOXEL
+
+    def _sizes(self, capacity: int) -> list[int]:
+        return [capacity * self.brick_voxels, 2 * capacity * self.brick_voxels]
+
+    def reserve(self, bricks: int) -> None:
+        """Make room for ``bricks`` more stored bricks, growing the pools if need be; raises
+        DeviceMemoryExceeded, with nothing changed, when they cannot fit in the budget."""
+        needed = self.stored + bricks
+        if needed <= self.capacity:
+            return
+        wanted = max(needed, 2 * self.capacity, FIRST_CAPACITY_BRICKS)
+        try:  # the old pair stays allocated while the stored bricks are copied
+            self.gpu.check_fits(self._sizes(wanted), "the grown brick pools")
+        except DeviceMemoryExceeded:
+            wanted = needed
+            self.gpu.check_fits(self._sizes(wanted), f"{bricks} more stored bricks")
+        self._grow(wanted)
+
+    def _grow(self, capacity: int) -> None:
+        sizes = self._sizes(capacity)
+        voxels = self.gpu.allocate(sizes[0])
+        try:
+            field = self.gpu.allocate(sizes[1])
+        except BaseException:
+            self.gpu.release(voxels, sizes[0])
+            raise
+        old = self._sizes(self.capacity)
+        if self.capacity:
+            count = self.capacity * self.brick_voxels
+            bulk.copy(self.gpu, voxels, self.voxels, np.uint8, count)
+            bulk.copy(self.gpu, field, self.field, np.uint16, count)
+            self.gpu.queue.finish()  # the copies read the old pair
+            self.gpu.release(self.voxels, old[0])
+            self.gpu.release(self.field, old[1])
+        # Lowest slots last, taken first: stored bricks stay packed at the start of the pools.
+        self.free[:0] = range(capacity - 1, self.capacity - 1, -1)
+        self.voxels, self.field, self.capacity = voxels, field, capacity
+
+    def take(self, count: int) -> np.ndarray:
+        if count > len(self.free):
+            raise RuntimeError(f"{count} slots taken with {len(self.free)} free: a batch was not reserved")
+        taken = self.free[len(self.free) - count:]
+        del self.free[len(self.free) - count:]
+        return np.asarray(taken[::-1], dtype=np.int32)
+
+    def give(self, slots: np.ndarray) -> None:
+        self.free.extend(slots[::-1].tolist())
+
+    def release(self) -> None:
+        if self.capacity:
+            self.gpu.queue.finish()
+            sizes = self._sizes(self.capacity)
+            self.gpu.release(self.voxels, sizes[0])
+            self.gpu.release(self.field, sizes[1])
+        self.voxels = self.field = None
+        self.capacity, self.free = 0, []

@@ -207,7 +207,7 @@ class SparseWorld:
                 if inside.any():
                     enqueue_brushes(self.gpu, s.voxels, dims, brushes, origin)
                     brushes = []
-                    enqueue_voxels(self.gpu, s.voxels, dims, box.shape_xyz, VoxelsEdit(edit.voxels[inside]), origin)
+                    enqueue_voxels(self.gpu, s.voxels, dims, self.config.size, VoxelsEdit(edit.voxels[inside]), origin)
                 continue
             clipped = boxes[0].intersect(region)
             if clipped.empty:

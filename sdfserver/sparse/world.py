@@ -45,7 +45,9 @@ from sdfserver.world import BRUSHES_PER_LAUNCH, EditPlan, RecomputeResult
 from sdfserver.world_config import MAX_SIDE_VOX, WorldConfig
 
 SHELL_X_VOX = 8  # the shell's width along x: RegionJob widens work boxes to multiples of 8
-SCRATCH_BYTES_PER_VOXEL = 5  # voxels, field, two work boxes: what a dense world of its size holds
+# A dense world puts more than 32 regions of a step into one box around them all; in a sparse
+# world edits far apart would make that box larger than the world's memory, so it keeps more.
+MAX_REGIONS = 512
 
 
 class SparseWorld:
@@ -146,7 +148,7 @@ class SparseWorld:
                    (hi[0] + SHELL_X_VOX, hi[1] + 1, hi[2] + 1)).intersect(self.world_box)
 
     def dirty_regions(self) -> list[Box]:
-        return self.dirty.regions(self.config)
+        return self.dirty.regions(self.config, MAX_REGIONS)
 
     @property
     def dirty_chunk_count(self) -> int:
@@ -161,7 +163,7 @@ class SparseWorld:
         boxes = [edit_bounds(e, self.config.size, self.brick) for e in edits]
         every = DirtySet()
         every.add(self.dirty.boxes + self.reserved + [b for per_edit in boxes for b in per_edit])
-        regions = every.regions(self.config)
+        regions = every.regions(self.config, MAX_REGIONS)
         implicit, largest = 0, 0
         for region in regions:  # one loop over regions
             scratch = self.scratch_box(region)

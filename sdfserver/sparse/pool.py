@@ -92,3 +92,31 @@ class BrickPool:
             self.gpu.release(self.field, sizes[1])
         self.voxels = self.field = None
         self.capacity, self.free = 0, []
+
+    def shrink(self) -> bool:
+        """Give back the unused end of the pools when every stored brick sits before it (after a
+        generator filled them in order): the pools are copied to a pair of ``stored`` bricks.
+        Returns whether they shrank (not when the copy would not fit beside them)."""
+        stored = self.stored
+        if stored == self.capacity or sorted(self.free) != list(range(stored, self.capacity)):
+            return False
+        try:
+            self.gpu.check_fits(self._sizes(max(1, stored)), "the shrunk brick pools")
+        except DeviceMemoryExceeded:
+            return False
+        old_capacity, old_free = self.capacity, self.free
+        self.free = []
+        self.capacity = stored
+        sizes = self._sizes(stored)
+        voxels = self.gpu.allocate(sizes[0])
+        field = self.gpu.allocate(sizes[1])
+        count = stored * self.brick_voxels
+        bulk.copy(self.gpu, voxels, self.voxels, np.uint8, count)
+        bulk.copy(self.gpu, field, self.field, np.uint16, count)
+        self.gpu.queue.finish()
+        old = self._sizes(old_capacity)
+        self.gpu.release(self.voxels, old[0])
+        self.gpu.release(self.field, old[1])
+        self.voxels, self.field = voxels, field
+        del old_free
+        return True

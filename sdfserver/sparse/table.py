@@ -6,7 +6,8 @@ two uniform kinds take no device memory (kernels/bricks.cl reads the same codes)
 
 A flat table over a 65536 x 4096 x 65536 world of 32-voxel bricks would hold 2^33 entries, so
 the table has two levels: blocks of ``BLOCK_BRICKS``^3 codes, kept in a dict by block
-coordinates, and a block that is all air is not kept. Looking up a box of bricks loops over the
+coordinates; a block that is all air is not kept, and one whose bricks all share a code (the
+solid rock under a terrain) is kept as that one code. Looking up a box of bricks loops over the
 blocks it meets (one loop over blocks, never over bricks or voxels)."""
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ def colour_of(code: np.ndarray | int):
 class BrickTable:
     def __init__(self, bricks: Vec3):
         self.bricks = bricks  # (bx, by, bz) bricks a side
-        self.blocks: dict[Vec3, np.ndarray] = {}  # block (x, y, z) -> codes (z, y, x)
+        self.blocks: dict[Vec3, np.ndarray | int] = {}  # block (x, y, z) -> codes (z, y, x) or one code
 
     def _blocks_meeting(self, box: Box) -> Iterator[tuple[Vec3, tuple[slice, ...], tuple[slice, ...]]]:
         """For each block meeting ``box`` (brick coordinates): its key, the block's part in the
@@ -54,21 +55,27 @@ class BrickTable:
         out = np.full(box.shape_zyx, AIR, dtype=np.int32)
         for key, in_block, in_box in self._blocks_meeting(box):
             block = self.blocks.get(key)
-            if block is not None:
+            if isinstance(block, int):
+                out[in_box] = block
+            elif block is not None:
                 out[in_box] = block[in_block]
         return out
 
     def set(self, box: Box, codes: np.ndarray) -> None:
         for key, in_block, in_box in self._blocks_meeting(box):
-            block = self.blocks.get(key)
+            block = self.blocks.get(key, AIR)
             part = codes[in_box]
-            if block is None:
-                if (part == AIR).all():
+            if isinstance(block, int):
+                if (part == block).all():
                     continue
-                block = self.blocks[key] = np.full((BLOCK_BRICKS,) * 3, AIR, dtype=np.int32)
+                block = np.full((BLOCK_BRICKS,) * 3, block, dtype=np.int32)
             block[in_block] = part
-            if (block == AIR).all():
-                del self.blocks[key]
+            if (block == block.flat[0]).all():
+                block = int(block.flat[0])
+            if isinstance(block, int) and block == AIR:
+                self.blocks.pop(key, None)
+            else:
+                self.blocks[key] = block
 
     def items(self) -> Iterator[tuple[Box, np.ndarray]]:
         """Every kept block as (its box of bricks clipped to the world, its codes): a snapshot's
@@ -77,4 +84,7 @@ class BrickTable:
         world = Box.of_size(self.bricks)
         for key, block in self.blocks.items():
             box = Box(tuple(k * b for k in key), tuple(k * b + b for k in key)).intersect(world)
-            yield box, block[box.slices_zyx(tuple(k * b for k in key))]
+            if isinstance(block, int):
+                yield box, np.full(box.shape_zyx, block, dtype=np.int32)
+            else:
+                yield box, block[box.slices_zyx(tuple(k * b for k in key))]

@@ -1,0 +1,143 @@
+"""A generated terrain for a sparse world (``POST /v1/worlds`` with ``generate: {kind: "terrain",
+...}``): kernels/terrain.cl says what the ground is; here is how it is built without ever
+holding the world densely.
+
+1. ``terrain_columns``: per brick column, the lowest and highest surface height.
+2. Per brick column, the band of bricks that may be neither all stone nor all air at the cap:
+   from below the deepest cave or dirt, to the cap above the highest surface within the cap's
+   reach of its neighbours. Bricks below are solid stone, bricks above air at the cap: both
+   implicit, written into the brick table only. Their sum bounds the stored bricks, and the pools
+   are reserved for it before anything else is allocated (DeviceMemoryExceeded, 507).
+3. Tile by tile (``TILE_VOX`` wide along x and z, the band's height): the tile and a halo of the
+   cap are generated into the scratch box, the world's algorithm runs on it in halo mode (its
+   field exact from voxels alone), and the tile's bricks are classified and scattered exactly as
+   after an edit. One loop over tiles.
+4. The pools shrink to the bricks stored, the scratch box is released.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pyopencl as cl
+
+from sdfserver.algorithms import RegionJob, WorldBuffers, get_algorithm
+from sdfserver.algorithms.base import grid, int4
+from sdfserver.errors import InvalidInput
+from sdfserver.geometry import Box
+from sdfserver.sparse import kernels
+from sdfserver.sparse.table import AIR, solid_code
+
+STONE = 0x92  # kernels/terrain.cl
+DIRT_DEPTH = 6
+TILE_VOX = 512
+
+
+@dataclass(frozen=True)
+class TerrainParams:
+    seed: int = 0
+    base: float | None = None  # surface height around which the terrain rolls; default 0.4 of the height
+    amplitude: float | None = None  # the surface lies within base ± amplitude; default 0.15 of the height
+    overhang: float = 8.0  # how far 3-D noise moves the surface, up or down (overhangs, arches)
+    cave_depth: float = 40.0  # caves lie at most this far below the surface
+
+    def validated(self, size_y: int) -> "TerrainParams":
+        base = 0.4 * size_y if self.base is None else self.base
+        amplitude = 0.15 * size_y if self.amplitude is None else self.amplitude
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed < 1 << 32:
+            raise InvalidInput(f"terrain seed must be an integer 0..2^32-1, got {self.seed!r}")
+        for name, v, lo, hi in (("base", base, 0, size_y), ("amplitude", amplitude, 0, size_y),
+                                ("overhang", self.overhang, 0, 64), ("cave_depth", self.cave_depth, 0, 256)):
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) or not lo <= v <= hi:
+                raise InvalidInput(f"terrain {name} must be a number {lo}..{hi}, got {v!r}")
+        return TerrainParams(self.seed, float(base), float(amplitude), float(self.overhang), float(self.cave_depth))
+
+
+def _neighbourhood_max(a: np.ndarray, reach: int) -> np.ndarray:
+    """Each entry's maximum over the (2 reach + 1)^2 entries around it (a loop over offsets)."""
+    padded = np.pad(a, reach, mode="edge")
+    out = a.copy()
+    for dz in range(2 * reach + 1):
+        for dx in range(2 * reach + 1):
+            np.maximum(out, padded[dz:dz + a.shape[0], dx:dx + a.shape[1]], out=out)
+    return out
+
+
+def brick_bands(world, params: TerrainParams) -> tuple[np.ndarray, np.ndarray]:
+    """Per brick column (z, x): the first brick that may be stored and the one past the last."""
+    gpu, cfg, brick = world.gpu, world.config, world.brick
+    cx, _, cz = cfg.chunks
+    bounds = np.empty((cz, cx, 2), dtype=np.int32)
+    buffer = cl.Buffer(gpu.context, cl.mem_flags.WRITE_ONLY, size=bounds.nbytes)
+    try:
+        gsize, lsize = grid((cx, cz, 1), (8, 8, 1))
+        gpu.programs.kernel("terrain.cl", "terrain_columns")(
+            gpu.queue, gsize, lsize, buffer, np.int32(cx), np.int32(cz), np.int32(brick), np.uint32(params.seed),
+            np.float32(params.base), np.float32(params.amplitude))
+        cl.enqueue_copy(gpu.queue, bounds, buffer, is_blocking=True)
+    finally:
+        buffer.release()
+    reach = -(-cfg.max_distance // brick)
+    top = _neighbourhood_max(bounds[..., 1], reach) + math.ceil(params.overhang) + cfg.max_distance + 1
+    bottom = bounds[..., 0] - math.ceil(params.overhang) - math.ceil(max(params.cave_depth, DIRT_DEPTH)) - 1
+    by = cfg.chunks[1]
+    lo = np.clip(bottom // brick, 0, by)
+    hi = np.clip(-(-top // brick), 0, by)
+    return lo, np.maximum(lo, hi)
+
+
+def generate_terrain(world, params: TerrainParams) -> None:
+    """Fill an empty sparse world with terrain (module docstring)."""
+    params = params.validated(world.config.size[1])
+    cfg, gpu, brick, cap = world.config, world.gpu, world.brick, world.config.max_distance
+    lo, hi = brick_bands(world, params)
+    tile = max(1, TILE_VOX // brick)
+    tiles = []
+    for tz in range(0, lo.shape[0], tile):  # tiles are few (one loop); their boxes first, to reserve
+        for tx in range(0, lo.shape[1], tile):
+            y0, y1 = int(lo[tz:tz + tile, tx:tx + tile].min()), int(hi[tz:tz + tile, tx:tx + tile].max())
+            columns = Box((tx, 0, tz), (min(tx + tile, lo.shape[1]), cfg.chunks[1], min(tz + tile, lo.shape[0])))
+            tiles.append((columns, y0, y1))
+    halo_x = -(-cap // 8) * 8
+    scratch = [_halo_box(world, Box((c.lo[0] * brick, y0 * brick, c.lo[2] * brick),
+                                    (c.hi[0] * brick, y1 * brick, c.hi[2] * brick)), halo_x, cap)
+               for c, y0, y1 in tiles if y1 > y0]
+    world.pool.reserve(int((hi - lo).sum()))  # raises, nothing allocated, when they cannot fit
+    world._ensure_scratch(max((s.volume for s in scratch), default=0))
+    algorithm = get_algorithm(cfg.algorithm)
+    for columns, y0, y1 in tiles:
+        if y0 > 0:
+            world.table.set(Box(columns.lo, (columns.hi[0], y0, columns.hi[2])),
+                            np.full((columns.shape_zyx[0], y0, columns.shape_zyx[2]), solid_code(STONE), np.int32))
+        if y1 > y0:
+            region = Box((columns.lo[0] * brick, y0 * brick, columns.lo[2] * brick),
+                         (columns.hi[0] * brick, y1 * brick, columns.hi[2] * brick))
+            _build_tile(world, algorithm, region, _halo_box(world, region, halo_x, cap), params)
+    gpu.queue.finish()
+    world.pool.shrink()
+    world._release_scratch()
+
+
+def _halo_box(world, region: Box, halo_x: int, cap: int) -> Box:
+    return Box((region.lo[0] - halo_x, region.lo[1] - cap, region.lo[2] - cap),
+               (region.hi[0] + halo_x, region.hi[1] + cap, region.hi[2] + cap)).intersect(world.world_box)
+
+
+def _build_tile(world, algorithm, region: Box, box: Box, params: TerrainParams) -> None:
+    gpu, s, brick, cap = world.gpu, world.scratch, world.brick, world.config.max_distance
+    gsize, lsize = grid(box.shape_xyz)
+    gpu.programs.kernel("terrain.cl", "terrain_voxels")(
+        gpu.queue, gsize, lsize, s.voxels, int4(box.shape_xyz), int4(box.lo), np.uint32(params.seed),
+        np.float32(params.base), np.float32(params.amplitude), np.float32(params.overhang),
+        np.float32(params.cave_depth))
+    local = Box(tuple(r - b for r, b in zip(region.lo, box.lo)), tuple(r - b for r, b in zip(region.hi, box.lo)))
+    view = WorldBuffers(box.shape_xyz, s.voxels, s.field, s.work, s.work2)
+    algorithm.run(gpu, RegionJob.halo_region(view, local, cap))
+    mixed, first = kernels.classify(gpu, s.voxels, s.field, box.shape_xyz, local, cap, brick)
+    codes = np.where(first == 0, AIR, solid_code(first)).astype(np.int32)
+    codes[mixed] = world.pool.take(int(mixed.sum()))
+    bricks = region.chunk_range(brick)
+    kernels.scatter(gpu, world.pool, s.voxels, s.field, box, region, bricks, codes, brick)
+    world.table.set(bricks, codes)

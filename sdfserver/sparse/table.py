@@ -35,6 +35,7 @@ class BrickTable:
     def __init__(self, bricks: Vec3):
         self.bricks = bricks  # (bx, by, bz) bricks a side
         self.blocks: dict[Vec3, np.ndarray | int] = {}  # block (x, y, z) -> codes (z, y, x) or one code
+        self.generation = 0  # counts changes: the device mirror uploads again when it moved
 
     def _blocks_meeting(self, box: Box) -> Iterator[tuple[Vec3, tuple[slice, ...], tuple[slice, ...]]]:
         """For each block meeting ``box`` (brick coordinates): its key, the block's part in the
@@ -62,6 +63,7 @@ class BrickTable:
         return out
 
     def set(self, box: Box, codes: np.ndarray) -> None:
+        self.generation += 1
         for key, in_block, in_box in self._blocks_meeting(box):
             block = self.blocks.get(key, AIR)
             part = codes[in_box]

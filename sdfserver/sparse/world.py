@@ -39,6 +39,7 @@ from sdfserver.errors import DeviceMemoryExceeded, InvalidInput, TooLarge
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
 from sdfserver.sparse import kernels
+from sdfserver.sparse.device_table import DeviceTable
 from sdfserver.sparse.pool import BYTES_PER_STORED_VOXEL, BrickPool
 from sdfserver.sparse.table import AIR, BrickTable, solid_code
 from sdfserver.world import BRUSHES_PER_LAUNCH, EditPlan, RecomputeResult
@@ -77,6 +78,7 @@ class SparseWorld:
         self.field_version = 0
         self.last_recompute: RecomputeResult | None = None
         self.buffers = None  # no world-sized buffers: readers gather (read_field, read_voxels)
+        self.device_table = DeviceTable(gpu, self.table)
 
     # -- memory ------------------------------------------------------------------------------
 
@@ -119,6 +121,15 @@ class SparseWorld:
     def release(self) -> None:
         self._release_scratch()
         self.pool.release()
+        self.device_table.release()
+
+    def field_source(self) -> tuple[dict[str, int], tuple]:
+        """How kernels that walk the field themselves (render.cl) reach it: their build defines
+        and the arguments FIELD_ARGS stands for."""
+        top, blocks = self.device_table.current()
+        field = self.pool.field if self.pool.field is not None else top  # no stored brick: never read
+        return {"SPARSE_FIELD": 1}, (field, top, blocks, int4(self.device_table.top_n), np.int32(self.brick),
+                                     np.int32(self.config.max_distance))
 
     @property
     def device_bytes(self) -> int:

@@ -40,6 +40,33 @@ class Focus:
         return Box(lo, tuple(l + s for l, s in zip(lo, self.size)))
 
 
+@dataclass(frozen=True)
+class TerrainSpec:
+    """A generated terrain (sdfserver/sparse/terrain.py, kernels/terrain.cl), for sparse worlds."""
+
+    seed: int = 0
+    base: float | None = None  # the height the surface rolls around; default 0.4 of the world's height
+    amplitude: float | None = None  # the surface lies within base ± amplitude; default 0.15 of the height
+    overhang: float = 8.0  # how far 3-D noise moves the surface up or down (overhangs, arches)
+    cave_depth: float = 40.0  # caves lie at most this far below the surface
+    kind: str = "terrain"
+
+    def validated(self, size_y: int) -> "TerrainSpec":
+        base = 0.4 * size_y if self.base is None else self.base
+        amplitude = 0.15 * size_y if self.amplitude is None else self.amplitude
+        if self.kind != "terrain":
+            raise InvalidInput(f"generate kind must be 'terrain', got {self.kind!r}")
+        if not _is_int(self.seed) or not 0 <= self.seed < 1 << 32:
+            raise InvalidInput(f"terrain seed must be an integer 0..2^32-1, got {self.seed!r}")
+        for name, v, lo, hi in (("base", base, 0, size_y), ("amplitude", amplitude, 0, size_y),
+                                ("overhang", self.overhang, 0, 64), ("cave_depth", self.cave_depth, 0, 256)):
+            if not isinstance(v, (int, float, np.integer, np.floating)) or isinstance(v, bool) \
+                    or not np.isfinite(v) or not lo <= v <= hi:
+                raise InvalidInput(f"terrain {name} must be a number {lo}..{hi}, got {v!r}")
+        return TerrainSpec(int(self.seed), float(base), float(amplitude), float(self.overhang),
+                           float(self.cave_depth))
+
+
 def _is_int(v) -> bool:
     return not isinstance(v, bool) and isinstance(v, (int, np.integer))
 
@@ -59,6 +86,7 @@ class WorldConfig:
     # "dense": one buffer of every voxel. "sparse": a brick table and pools of stored bricks
     # (sdfserver/sparse/); borders exact, no focus.
     storage: str = "dense"
+    generate: TerrainSpec | None = None  # sparse only: the world starts as this terrain, not as air
 
     def validated(self) -> "WorldConfig":
         # The registry imports the kernels' host side; only validation needs it.
@@ -86,6 +114,13 @@ class WorldConfig:
                                    f"z and {MAX_SPARSE_SIDE_Y_VOX} along y, got {list(size)}")
             if self.focus is not None or self.borders != "exact":
                 raise InvalidInput("a sparse world has exact borders and no focus")
+        generate = self.generate
+        if generate is not None:
+            if self.storage != "sparse":
+                raise InvalidInput("generate is for storage 'sparse'")
+            if not isinstance(generate, TerrainSpec):
+                raise InvalidInput(f"generate must be a terrain, got {generate!r}")
+            generate = generate.validated(size[1])
         if not _is_int(self.max_distance) or not 1 <= self.max_distance <= 255:
             raise InvalidInput(f"max_distance must be an integer 1..255, got {self.max_distance!r}")
         algorithm, lod_algorithm = get_algorithm(self.algorithm), get_algorithm(self.lod_algorithm)
@@ -103,7 +138,7 @@ class WorldConfig:
                     raise InvalidInput(f"focus {name} must be three integers (chunks), got {v!r}")
             if any(s <= 0 for s in self.focus.size):
                 raise InvalidInput(f"focus size must be positive, got {list(self.focus.size)}")
-        return replace(self, size=tuple(int(v) for v in size))
+        return replace(self, size=tuple(int(v) for v in size), generate=generate)
 
     @property
     def chunks(self) -> Vec3:
@@ -125,4 +160,4 @@ def padded_algorithms() -> list[str]:
 
 
 __all__ = ["BORDERS", "CHUNK_SIZES", "MAX_SIDE_VOX", "MAX_SPARSE_SIDE_XZ_VOX", "MAX_SPARSE_SIDE_Y_VOX",
-           "MAX_WORLD_VOXELS", "STORAGES", "Focus", "WorldConfig"]
+           "MAX_WORLD_VOXELS", "STORAGES", "Focus", "TerrainSpec", "WorldConfig"]

@@ -36,7 +36,8 @@ from sdfserver.errors import DeviceMemoryExceeded
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
 from sdfserver.render import Camera, RenderOptions, Renderer
-from sdfserver.sparse.terrain import TerrainParams, generate_terrain
+from sdfserver.sparse.terrain import generate_terrain
+from sdfserver.world_config import TerrainSpec
 from sdfserver.sparse.world import SparseWorld
 from sdfserver.world import World, WorldConfig
 
@@ -128,7 +129,7 @@ def run_size(gpu, size, cap: int, args, rng, first: bool) -> dict:
     try:
         start = time.perf_counter()
         try:
-            generate_terrain(world, TerrainParams(seed=args.seed))
+            generate_terrain(world, TerrainSpec(seed=args.seed))
         except DeviceMemoryExceeded as exc:
             return {**entry, "refused": str(exc)}
         entry["build_s"] = time.perf_counter() - start

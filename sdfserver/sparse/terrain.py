@@ -18,41 +18,21 @@ holding the world densely.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pyopencl as cl
 
 from sdfserver.algorithms import RegionJob, WorldBuffers, get_algorithm
 from sdfserver.algorithms.base import grid, int4
-from sdfserver.errors import InvalidInput
+from sdfserver.errors import DeviceMemoryExceeded
 from sdfserver.geometry import Box
 from sdfserver.sparse import kernels
 from sdfserver.sparse.table import AIR, solid_code
+from sdfserver.world_config import TerrainSpec
 
 STONE = 0x92  # kernels/terrain.cl
 DIRT_DEPTH = 6
 TILE_VOX = 512
-
-
-@dataclass(frozen=True)
-class TerrainParams:
-    seed: int = 0
-    base: float | None = None  # surface height around which the terrain rolls; default 0.4 of the height
-    amplitude: float | None = None  # the surface lies within base ± amplitude; default 0.15 of the height
-    overhang: float = 8.0  # how far 3-D noise moves the surface, up or down (overhangs, arches)
-    cave_depth: float = 40.0  # caves lie at most this far below the surface
-
-    def validated(self, size_y: int) -> "TerrainParams":
-        base = 0.4 * size_y if self.base is None else self.base
-        amplitude = 0.15 * size_y if self.amplitude is None else self.amplitude
-        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or not 0 <= self.seed < 1 << 32:
-            raise InvalidInput(f"terrain seed must be an integer 0..2^32-1, got {self.seed!r}")
-        for name, v, lo, hi in (("base", base, 0, size_y), ("amplitude", amplitude, 0, size_y),
-                                ("overhang", self.overhang, 0, 64), ("cave_depth", self.cave_depth, 0, 256)):
-            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) or not lo <= v <= hi:
-                raise InvalidInput(f"terrain {name} must be a number {lo}..{hi}, got {v!r}")
-        return TerrainParams(self.seed, float(base), float(amplitude), float(self.overhang), float(self.cave_depth))
 
 
 def _neighbourhood_max(a: np.ndarray, reach: int) -> np.ndarray:
@@ -65,7 +45,7 @@ def _neighbourhood_max(a: np.ndarray, reach: int) -> np.ndarray:
     return out
 
 
-def brick_bands(world, params: TerrainParams) -> tuple[np.ndarray, np.ndarray]:
+def brick_bands(world, params: TerrainSpec) -> tuple[np.ndarray, np.ndarray]:
     """Per brick column (z, x): the first brick that may be stored and the one past the last."""
     gpu, cfg, brick = world.gpu, world.config, world.brick
     cx, _, cz = cfg.chunks
@@ -88,36 +68,50 @@ def brick_bands(world, params: TerrainParams) -> tuple[np.ndarray, np.ndarray]:
     return lo, np.maximum(lo, hi)
 
 
-def generate_terrain(world, params: TerrainParams) -> None:
+def generate_terrain(world, params: TerrainSpec) -> None:
     """Fill an empty sparse world with terrain (module docstring)."""
     params = params.validated(world.config.size[1])
-    cfg, gpu, brick, cap = world.config, world.gpu, world.brick, world.config.max_distance
+    cfg, gpu, brick = world.config, world.gpu, world.brick
     lo, hi = brick_bands(world, params)
-    tile = max(1, TILE_VOX // brick)
-    tiles = []
-    for tz in range(0, lo.shape[0], tile):  # tiles are few (one loop); their boxes first, to reserve
-        for tx in range(0, lo.shape[1], tile):
-            y0, y1 = int(lo[tz:tz + tile, tx:tx + tile].min()), int(hi[tz:tz + tile, tx:tx + tile].max())
-            columns = Box((tx, 0, tz), (min(tx + tile, lo.shape[1]), cfg.chunks[1], min(tz + tile, lo.shape[0])))
-            tiles.append((columns, y0, y1))
-    halo_x = -(-cap // 8) * 8
-    scratch = [_halo_box(world, Box((c.lo[0] * brick, y0 * brick, c.lo[2] * brick),
-                                    (c.hi[0] * brick, y1 * brick, c.hi[2] * brick)), halo_x, cap)
-               for c, y0, y1 in tiles if y1 > y0]
     world.pool.reserve(int((hi - lo).sum()))  # raises, nothing allocated, when they cannot fit
-    world._ensure_scratch(max((s.volume for s in scratch), default=0))
+    tile = max(1, TILE_VOX // brick)
+    while True:  # the widest tiles whose scratch box fits beside the pools
+        tiles = _tiles(world, lo, hi, tile)
+        try:
+            world._ensure_scratch(max((s.volume for _, _, _, s in tiles), default=0))
+            break
+        except DeviceMemoryExceeded:
+            if tile == 1:
+                raise  # the world that called releases its pools
+            tile //= 2
     algorithm = get_algorithm(cfg.algorithm)
-    for columns, y0, y1 in tiles:
+    for columns, y0, y1, box in tiles:  # one loop over tiles
         if y0 > 0:
             world.table.set(Box(columns.lo, (columns.hi[0], y0, columns.hi[2])),
                             np.full((columns.shape_zyx[0], y0, columns.shape_zyx[2]), solid_code(STONE), np.int32))
         if y1 > y0:
             region = Box((columns.lo[0] * brick, y0 * brick, columns.lo[2] * brick),
                          (columns.hi[0] * brick, y1 * brick, columns.hi[2] * brick))
-            _build_tile(world, algorithm, region, _halo_box(world, region, halo_x, cap), params)
+            _build_tile(world, algorithm, region, box, params)
     gpu.queue.finish()
     world.pool.shrink()
     world._release_scratch()
+
+
+def _tiles(world, lo: np.ndarray, hi: np.ndarray, tile: int) -> list[tuple[Box, int, int, Box]]:
+    """Tiles of ``tile`` brick columns a side: (their columns, first brick, brick past the last,
+    the scratch box of their band and its halo)."""
+    brick, cap, (_, by, _) = world.brick, world.config.max_distance, world.config.chunks
+    halo_x = -(-cap // 8) * 8  # the work box's rows stay aligned to 8
+    tiles = []
+    for tz in range(0, lo.shape[0], tile):
+        for tx in range(0, lo.shape[1], tile):
+            y0, y1 = int(lo[tz:tz + tile, tx:tx + tile].min()), int(hi[tz:tz + tile, tx:tx + tile].max())
+            columns = Box((tx, 0, tz), (min(tx + tile, lo.shape[1]), by, min(tz + tile, lo.shape[0])))
+            region = Box((columns.lo[0] * brick, y0 * brick, columns.lo[2] * brick),
+                         (columns.hi[0] * brick, y1 * brick, columns.hi[2] * brick))
+            tiles.append((columns, y0, y1, _halo_box(world, region, halo_x, cap) if y1 > y0 else region))
+    return tiles
 
 
 def _halo_box(world, region: Box, halo_x: int, cap: int) -> Box:
@@ -125,7 +119,7 @@ def _halo_box(world, region: Box, halo_x: int, cap: int) -> Box:
                (region.hi[0] + halo_x, region.hi[1] + cap, region.hi[2] + cap)).intersect(world.world_box)
 
 
-def _build_tile(world, algorithm, region: Box, box: Box, params: TerrainParams) -> None:
+def _build_tile(world, algorithm, region: Box, box: Box, params: TerrainSpec) -> None:
     gpu, s, brick, cap = world.gpu, world.scratch, world.brick, world.config.max_distance
     gsize, lsize = grid(box.shape_xyz)
     gpu.programs.kernel("terrain.cl", "terrain_voxels")(

@@ -79,6 +79,14 @@ class SparseWorld:
         self.last_recompute: RecomputeResult | None = None
         self.buffers = None  # no world-sized buffers: readers gather (read_field, read_voxels)
         self.device_table = DeviceTable(gpu, self.table)
+        if config.generate is not None:
+            from sdfserver.sparse.terrain import generate_terrain  # it builds on this class
+
+            try:
+                generate_terrain(self, config.generate)
+            except BaseException:
+                self.release()
+                raise
 
     # -- memory ------------------------------------------------------------------------------
 
@@ -145,6 +153,15 @@ class SparseWorld:
         stored."""
         stored = self.pool.stored * self.brick ** 3
         return self.device_bytes / stored if stored else None
+
+    def reconfigure(self, **changes) -> None:
+        raise InvalidInput("a sparse world's algorithm, cap and borders are fixed at creation")
+
+    def load_voxels(self, voxels: np.ndarray) -> int:
+        raise InvalidInput("a sparse world cannot load a whole voxel array; create it with generate, or edit it")
+
+    def mark_all_dirty(self) -> None:
+        raise InvalidInput("a sparse world recomputes the regions its edits touch, never the whole world")
 
     # -- geometry -------------------------------------------------------------------------------
 

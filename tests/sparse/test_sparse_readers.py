@@ -10,7 +10,8 @@ import pytest
 from sdfserver.edits import parse_edits
 from sdfserver.engine.query import query_points
 from sdfserver.render import Camera, RenderOptions, Renderer
-from sdfserver.sparse.terrain import TerrainParams, generate_terrain
+from sdfserver.sparse.terrain import generate_terrain
+from sdfserver.world_config import TerrainSpec
 from sdfserver.sparse.world import SparseWorld
 from sdfserver.world import World, WorldConfig
 
@@ -61,7 +62,7 @@ def test_point_queries_equal_the_dense_worlds(world_pair, rng):
 def test_a_terrain_renders_from_above(gpu):
     world = SparseWorld(gpu, WorldConfig((256, 128, 256), 32, 15, storage="sparse"))
     try:
-        generate_terrain(world, TerrainParams(seed=3))
+        generate_terrain(world, TerrainSpec(seed=3))
         camera = Camera.look_at((-60.0, 160.0, -60.0), (128.0, 40.0, 128.0), width=128, height=96).validated()
         frame = Renderer(gpu).render(world, camera, RenderOptions(ambient_occlusion=True, shadows=True))
         ground = (frame.pixels[..., :3] != [0x9C, 0xC8, 0xF0]).any(axis=-1)

@@ -1,11 +1,14 @@
 """A sparse world's brick pools on the device: one uchar and one ushort buffer of ``capacity``
 bricks (voxels, packed field: 3 bytes a stored voxel), and the free slots.
 
-The pools grow geometrically inside the memory budget: a larger pair is allocated (checked
-first: DeviceMemoryExceeded and nothing changed when it does not fit), the stored bricks copied
-over, the old pair released. A growth copies every stored brick once, so its cost follows the
-stored bricks, not the world; doubling keeps that to a constant per brick over time. Slots are
-reserved before a batch is accepted (``reserve``), so a recompute never runs out halfway."""
+The pools grow geometrically inside the memory budget: a pair half again as large (or as large
+as fits) is allocated (checked first: DeviceMemoryExceeded and nothing changed when it does not
+fit), the stored bricks copied over, the old pair released. A growth copies every stored brick
+once, so its cost follows the stored bricks, not the world, and growing by a fraction keeps that
+to a constant per brick over time; an edit that makes the pools grow waits for that copy. Each
+pool is one buffer, so the device's largest buffer (a quarter of its memory on NVIDIA's OpenCL)
+bounds the field pool. Slots are reserved before a batch is accepted (``reserve``), so a
+recompute never runs out halfway."""
 
 from __future__ import annotations
 
@@ -18,6 +21,9 @@ from sdfserver.gpu import GpuContext
 
 BYTES_PER_STORED_VOXEL = 3  # voxel uchar + field ushort
 FIRST_CAPACITY_BRICKS = 64
+# What a shrink keeps free, of the stored bricks: edits after a generator rarely grow the pools
+# (a growth copies them), at 0.375 bytes a stored voxel.
+SHRINK_HEADROOM = 0.125
 
 
 class BrickPool:
@@ -46,12 +52,16 @@ class BrickPool:
         needed = self.stored + bricks
         if needed <= self.capacity:
             return
-        wanted = max(needed, 2 * self.capacity, FIRST_CAPACITY_BRICKS)
-        try:  # the old pair stays allocated while the stored bricks are copied
-            self.gpu.check_fits(self._sizes(wanted), "the grown brick pools")
-        except DeviceMemoryExceeded:
-            wanted = needed
-            self.gpu.check_fits(self._sizes(wanted), f"{bricks} more stored bricks")
+        # Half again as many, or as many as fit (the old pair stays allocated while the stored
+        # bricks are copied, and the field buffer is the larger): never just what is needed, or
+        # a full pool would be copied again at every edit.
+        free = self.gpu.memory_budget_bytes - self.gpu.allocated_bytes
+        fitting = min(free // (BYTES_PER_STORED_VOXEL * self.brick_voxels),
+                      self.gpu.max_allocation_bytes // (2 * self.brick_voxels))
+        wanted = min(max(needed, self.capacity + self.capacity // 2, FIRST_CAPACITY_BRICKS), fitting)
+        if wanted < needed:
+            self.gpu.check_fits(self._sizes(needed), f"{bricks} more stored bricks")  # says why
+            raise DeviceMemoryExceeded(f"{bricks} more stored bricks do not fit")
         self._grow(wanted)
 
     def _grow(self, capacity: int) -> None:
@@ -93,21 +103,23 @@ class BrickPool:
         self.voxels = self.field = None
         self.capacity, self.free = 0, []
 
-    def shrink(self) -> bool:
+    def shrink(self, headroom: float = SHRINK_HEADROOM) -> bool:
         """Give back the unused end of the pools when every stored brick sits before it (after a
-        generator filled them in order): the pools are copied to a pair of ``stored`` bricks.
-        Returns whether they shrank (not when the copy would not fit beside them)."""
+        generator filled them in order), keeping ``headroom`` of the stored bricks free for the
+        edits to come: the pools are copied to a smaller pair. Returns whether they shrank (not
+        when the copy would not fit beside them)."""
         stored = self.stored
-        if stored == self.capacity or sorted(self.free) != list(range(stored, self.capacity)):
+        capacity = max(FIRST_CAPACITY_BRICKS, stored + int(stored * headroom))
+        if capacity >= self.capacity or sorted(self.free) != list(range(stored, self.capacity)):
             return False
         try:
-            self.gpu.check_fits(self._sizes(max(1, stored)), "the shrunk brick pools")
+            self.gpu.check_fits(self._sizes(capacity), "the shrunk brick pools")
         except DeviceMemoryExceeded:
             return False
         old_capacity, old_free = self.capacity, self.free
-        self.free = []
-        self.capacity = stored
-        sizes = self._sizes(stored)
+        self.free = list(range(capacity - 1, stored - 1, -1))
+        self.capacity = capacity
+        sizes = self._sizes(capacity)
         voxels = self.gpu.allocate(sizes[0])
         field = self.gpu.allocate(sizes[1])
         count = stored * self.brick_voxels

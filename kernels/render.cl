@@ -22,9 +22,11 @@
  *
  * Ties between axes in the DDA (a ray through an edge) go to x, then y, then z.
  *
- * Where the field lives is field_source.h's (FIELD_ARGS, field_at): a dense world's buffer or
- * a sparse world's bricks. An implicit air brick reads as the cap everywhere, so a ray crosses
- * it in steps of the cap with one read each; the marcher itself is the same for both.
+ * Where the field lives is field_source.h's (FIELD_ARGS, field_step): a dense world's buffer or
+ * a sparse world's bricks. The marcher is the same for both; in a sparse world's implicit air
+ * bricks and blocks field_step lets a ray step further than the cap (field_source.h says why).
+ * A shadow ray steps by the distance alone: its softness is the least distance over the points
+ * it reads, so reading at the same points keeps frames the same either way.
  */
 #include "sdf_common.h"
 
@@ -73,7 +75,7 @@ inline void clip_axis(float o, float d, int n, int axis, float *t0, float *t1, i
     *t1 = fmin(*t1, hi);
 }
 
-inline march_result march(FIELD_ARGS, int4 dims, float3 o, float3 d)
+inline march_result march(FIELD_ARGS, int4 dims, float3 o, float3 d, int long_steps)
 {
     march_result r;
     r.hit = 0;
@@ -110,7 +112,8 @@ inline march_result march(FIELD_ARGS, int4 dims, float3 o, float3 d)
     /* Each pass takes at least one step, and a ray crosses at most sx + sy + sz voxels. */
     const int max_passes = dims.x + dims.y + dims.z + 3;
     for (int pass = 0; pass < max_passes; ++pass) {
-        const ushort f = field_at(FIELD_PASS, v, dims);
+        uint steps;  /* face-steps known to be clear: the distance, or more across empty bricks */
+        const ushort f = field_step(FIELD_PASS, v, dims, &steps);
         const uint dist = f >> 8;
         r.reads++;
         if (dist == 0) {
@@ -120,7 +123,9 @@ inline march_result march(FIELD_ARGS, int4 dims, float3 o, float3 d)
             return r;
         }
         r.shade = fmin(r.shade, (float)dist / fmax(t, 1e-3f));
-        for (uint k = 0; k < dist; ++k) {
+        if (!long_steps)
+            steps = dist;
+        for (uint k = 0; k < steps; ++k) {
             const int axis = argmin3(t_max);
             if (axis == 0) { v.x += r.step.x; t = t_max.x; t_max.x += t_delta.x; }
             else if (axis == 1) { v.y += r.step.y; t = t_max.y; t_max.y += t_delta.y; }
@@ -170,7 +175,7 @@ inline float shadow(FIELD_ARGS, int4 dims, int3 v, int3 normal, float3 light)
     const int3 a = v + normal;
     if (!in_world(a, dims))
         return 1.0f;
-    const march_result s = march(FIELD_PASS, dims, convert_float3(a) + 0.5f, light);
+    const march_result s = march(FIELD_PASS, dims, convert_float3(a) + 0.5f, light, 0);
     if (s.hit)
         return 0.55f;
     return 0.55f + 0.45f * clamp(s.shade * 4.0f, 0.0f, 1.0f);
@@ -190,7 +195,7 @@ __kernel void render(FIELD_ARGS, int4 dims,
     const float u = ((float)px + 0.5f) / (float)width * 2.0f - 1.0f;
     const float w = 1.0f - ((float)py + 0.5f) / (float)height * 2.0f;
     const float3 d = cam_forward.xyz + u * cam_right.xyz + w * cam_up.xyz;
-    const march_result r = march(FIELD_PASS, dims, cam_origin.xyz, d);
+    const march_result r = march(FIELD_PASS, dims, cam_origin.xyz, d, 1);
     const size_t pixel = (size_t)py * (size_t)width + (size_t)px;
     if (flags & RENDER_STATS)
         reads[pixel] = r.reads;
@@ -225,7 +230,7 @@ __kernel void pick(FIELD_ARGS, int4 dims, float4 origin, float4 direction,
 {
     if (get_global_id(0) != 0)
         return;
-    const march_result r = march(FIELD_PASS, dims, origin.xyz, direction.xyz);
+    const march_result r = march(FIELD_PASS, dims, origin.xyz, direction.xyz, 1);
     int3 normal = (int3)(0);
     if (r.face == 0) normal.x = -r.step.x;
     if (r.face == 1) normal.y = -r.step.y;

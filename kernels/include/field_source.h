@@ -7,6 +7,13 @@
  * device (codes as in bricks.cl; sdfserver/sparse/device_table.py): `top` holds, per block of
  * TABLE_BLOCK^3 bricks, the block's one code (< 0: AIR or a solid colour) or the index of its
  * codes in `blocks`; implicit bricks read as their value.
+ *
+ * field_step also gives how many face-steps a ray may take from v without passing a solid.
+ * Dense: the distance read. Sparse, in an implicit air brick (or a block of them): every voxel
+ * of that box is at least the cap from every solid, and a shortest path from v to a solid leaves
+ * the box through a voxel of its boundary layer, so the cap plus v's distance to that layer
+ * (along its nearest axis) is still no more than the truth: a ray crosses empty space in steps
+ * longer than the cap.
  */
 #ifndef FIELD_SOURCE_H
 #define FIELD_SOURCE_H
@@ -21,26 +28,55 @@
 #define FIELD_ARGS __global const ushort *field, __global const int *top, __global const int *blocks, \
                    int4 top_n, int brick, int cap
 #define FIELD_PASS field, top, blocks, top_n, brick, cap
-inline ushort field_at(FIELD_ARGS, int3 v, int4 dims)
+
+/* Face-steps from v (inside the cube of `side` at `lo`) to the cube's boundary layer. */
+inline uint steps_to_boundary(int3 v, int3 lo, int side)
 {
-    const int bx = v.x / brick, by = v.y / brick, bz = v.z / brick;
-    const int t = top[box_index(bx / TABLE_BLOCK, by / TABLE_BLOCK, bz / TABLE_BLOCK, top_n)];
-    const int code = t < 0 ? t : blocks[(size_t)t * (TABLE_BLOCK * TABLE_BLOCK * TABLE_BLOCK)
-        + (size_t)(((bz % TABLE_BLOCK) * TABLE_BLOCK + by % TABLE_BLOCK) * TABLE_BLOCK + bx % TABLE_BLOCK)];
-    if (code >= 0) {
-        const size_t b = (size_t)brick;
-        return field[(((size_t)code * b + (size_t)(v.z % brick)) * b + (size_t)(v.y % brick)) * b
-                     + (size_t)(v.x % brick)];
+    const int3 a = v - lo, m = min(a, (int3)(side - 1) - a);
+    return (uint)min(m.x, min(m.y, m.z));
+}
+
+inline ushort field_step(FIELD_ARGS, int3 v, int4 dims, uint *step)
+{
+    const int3 b = v / brick, k = b / TABLE_BLOCK;
+    const int t = top[box_index(k.x, k.y, k.z, top_n)];
+    int code = t;
+    if (t == -1) {
+        *step = (uint)cap + steps_to_boundary(v, k * (TABLE_BLOCK * brick), TABLE_BLOCK * brick);
+        return pack_field((uint)cap, 0);
     }
-    return code == -1 ? pack_field((uint)cap, 0) : (ushort)(-2 - code);
+    if (t >= 0)
+        code = blocks[(size_t)t * (TABLE_BLOCK * TABLE_BLOCK * TABLE_BLOCK)
+            + (size_t)(((b.z % TABLE_BLOCK) * TABLE_BLOCK + b.y % TABLE_BLOCK) * TABLE_BLOCK + b.x % TABLE_BLOCK)];
+    if (code >= 0) {
+        const size_t s = (size_t)brick;
+        const ushort f = field[(((size_t)code * s + (size_t)(v.z % brick)) * s + (size_t)(v.y % brick)) * s
+                               + (size_t)(v.x % brick)];
+        *step = f >> 8;
+        return f;
+    }
+    if (code == -1) {
+        *step = (uint)cap + steps_to_boundary(v, b * brick, brick);
+        return pack_field((uint)cap, 0);
+    }
+    *step = 0;
+    return (ushort)(-2 - code);
 }
 #else
 #define FIELD_ARGS __global const ushort *field
 #define FIELD_PASS field
-inline ushort field_at(FIELD_ARGS, int3 v, int4 dims)
+inline ushort field_step(FIELD_ARGS, int3 v, int4 dims, uint *step)
 {
-    return field[world_index(v.x, v.y, v.z, dims)];
+    const ushort f = field[world_index(v.x, v.y, v.z, dims)];
+    *step = f >> 8;
+    return f;
 }
 #endif
+
+inline ushort field_at(FIELD_ARGS, int3 v, int4 dims)
+{
+    uint step;
+    return field_step(FIELD_PASS, v, dims, &step);
+}
 
 #endif

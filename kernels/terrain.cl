@@ -90,13 +90,14 @@ __kernel void terrain_voxels(__global uchar *voxels, int4 dims, int4 origin, uin
         terrain_voxel(origin.x + x, origin.y + y, origin.z + z, seed, base, amplitude, overhang, cave_depth);
 }
 
-/* Per brick column (bx, bz) of the world: the lowest and highest surface height of its
- * brick x brick columns, floor and ceiling. One work-item per brick column. */
-__kernel void terrain_columns(__global int2 *bounds, int columns_x, int columns_z, int brick, uint seed,
-                              float base, float amplitude)
+/* Per brick column (bx, first_z + bz) of the world, for columns_z rows from first_z: the lowest
+ * and highest surface height of its brick x brick columns, floor and ceiling. One work-item per
+ * brick column. */
+__kernel void terrain_columns(__global int2 *bounds, int columns_x, int first_z, int columns_z, int brick,
+                              uint seed, float base, float amplitude)
 {
-    const int bx = get_global_id(0), bz = get_global_id(1);
-    if (bx >= columns_x || bz >= columns_z)
+    const int bx = get_global_id(0), row = get_global_id(1), bz = first_z + row;
+    if (bx >= columns_x || row >= columns_z)
         return;
     float lo = INFINITY, hi = -INFINITY;
     for (int dz = 0; dz < brick; ++dz)
@@ -105,5 +106,5 @@ __kernel void terrain_columns(__global int2 *bounds, int columns_x, int columns_
             lo = fmin(lo, h);
             hi = fmax(hi, h);
         }
-    bounds[(size_t)bz * columns_x + bx] = (int2)((int)floor(lo), (int)ceil(hi));
+    bounds[(size_t)row * columns_x + bx] = (int2)((int)floor(lo), (int)ceil(hi));
 }

@@ -64,6 +64,10 @@ class BrickPool:
             raise DeviceMemoryExceeded(f"{bricks} more stored bricks do not fit")
         self._grow(wanted)
 
+    def check_room(self, bricks: int) -> None:
+        """Raise DeviceMemoryExceeded unless pools of ``bricks`` more could be allocated now."""
+        self.gpu.check_fits(self._sizes(self.stored + bricks), f"{bricks} stored bricks")
+
     def _grow(self, capacity: int) -> None:
         sizes = self._sizes(capacity)
         voxels = self.gpu.allocate(sizes[0])

@@ -33,6 +33,7 @@ from sdfserver.world_config import TerrainSpec
 STONE = 0x92  # kernels/terrain.cl
 DIRT_DEPTH = 6
 TILE_VOX = 512
+STRIP_COLUMNS = 1 << 14  # brick columns bounded per launch
 
 
 def _neighbourhood_max(a: np.ndarray, reach: int) -> np.ndarray:
@@ -46,24 +47,36 @@ def _neighbourhood_max(a: np.ndarray, reach: int) -> np.ndarray:
 
 
 def brick_bands(world, params: TerrainSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Per brick column (z, x): the first brick that may be stored and the one past the last."""
+    """Per brick column (z, x): the first brick that may be stored and the one past the last.
+
+    Strips of brick columns in turn (one loop over strips): once the bands found so far — each
+    column's own, before its neighbours widen it — cannot fit the pools, DeviceMemoryExceeded,
+    so a world too large to store costs the strips that fill the memory, not its whole area."""
     gpu, cfg, brick = world.gpu, world.config, world.brick
-    cx, _, cz = cfg.chunks
+    cx, by, cz = cfg.chunks
+    rows = max(1, STRIP_COLUMNS // cx)
     bounds = np.empty((cz, cx, 2), dtype=np.int32)
-    buffer = cl.Buffer(gpu.context, cl.mem_flags.WRITE_ONLY, size=bounds.nbytes)
+    below = math.ceil(params.overhang) + math.ceil(max(params.cave_depth, DIRT_DEPTH)) + 1
+    above = math.ceil(params.overhang) + cfg.max_distance + 1
+    buffer = cl.Buffer(gpu.context, cl.mem_flags.WRITE_ONLY, size=rows * cx * 8)
+    least = 0
     try:
-        gsize, lsize = grid((cx, cz, 1), (8, 8, 1))
-        gpu.programs.kernel("terrain.cl", "terrain_columns")(
-            gpu.queue, gsize, lsize, buffer, np.int32(cx), np.int32(cz), np.int32(brick), np.uint32(params.seed),
-            np.float32(params.base), np.float32(params.amplitude))
-        cl.enqueue_copy(gpu.queue, bounds, buffer, is_blocking=True)
+        for z0 in range(0, cz, rows):
+            n = min(rows, cz - z0)
+            gsize, lsize = grid((cx, n, 1), (8, 8, 1))
+            gpu.programs.kernel("terrain.cl", "terrain_columns")(
+                gpu.queue, gsize, lsize, buffer, np.int32(cx), np.int32(z0), np.int32(n), np.int32(brick),
+                np.uint32(params.seed), np.float32(params.base), np.float32(params.amplitude))
+            cl.enqueue_copy(gpu.queue, bounds[z0:z0 + n], buffer, is_blocking=True)
+            strip = bounds[z0:z0 + n]
+            lo = np.clip((strip[..., 0] - below) // brick, 0, by)
+            least += int((np.clip(-(-(strip[..., 1] + above) // brick), 0, by) - lo).clip(0).sum())
+            world.pool.check_room(least)
     finally:
         buffer.release()
     reach = -(-cfg.max_distance // brick)
-    top = _neighbourhood_max(bounds[..., 1], reach) + math.ceil(params.overhang) + cfg.max_distance + 1
-    bottom = bounds[..., 0] - math.ceil(params.overhang) - math.ceil(max(params.cave_depth, DIRT_DEPTH)) - 1
-    by = cfg.chunks[1]
-    lo = np.clip(bottom // brick, 0, by)
+    top = _neighbourhood_max(bounds[..., 1], reach) + above
+    lo = np.clip((bounds[..., 0] - below) // brick, 0, by)
     hi = np.clip(-(-top // brick), 0, by)
     return lo, np.maximum(lo, hi)
 

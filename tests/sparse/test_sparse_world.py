@@ -139,3 +139,18 @@ def test_a_region_wider_than_one_scratch_box_is_refused(gpu):
         assert world.version == 0 and not world.dirty
     finally:
         world.release()
+
+
+def test_a_terrain_too_large_to_store_is_refused_early_and_holds_nothing(gpu):
+    """A 65536 x 256 x 65536 terrain's surface band needs far more than the budget: refused (507)
+    after bounding a strip of its columns, not all 2^32 of them, with nothing left allocated."""
+    import time
+
+    from sdfserver.world_config import TerrainSpec
+
+    small = GpuContext(gpu.device, memory_budget_bytes=256 << 20)
+    started = time.perf_counter()
+    with pytest.raises(DeviceMemoryExceeded):
+        SparseWorld(small, WorldConfig((65536, 256, 65536), 32, 15, storage="sparse", generate=TerrainSpec(seed=2)))
+    assert time.perf_counter() - started < 60
+    assert small.allocated_bytes == 0

@@ -11,9 +11,11 @@ from sdfserver.world_config import WorldConfig
 AnyWorld = World | SparseWorld
 
 
-def make_world(gpu: GpuContext, config: WorldConfig, limits: EditLimits = EditLimits()) -> AnyWorld:
-    """Validate ``config`` and build its world (a generated one's terrain included)."""
+def make_world(gpu: GpuContext, config: WorldConfig, limits: EditLimits = EditLimits(),
+               generate: bool = True) -> AnyWorld:
+    """Validate ``config`` and build its world (a generated one's terrain included, unless
+    ``generate`` is False: a snapshot about to replace it)."""
     config = config.validated()
     if config.storage == "sparse":
-        return SparseWorld(gpu, config, limits)
+        return SparseWorld(gpu, config, limits, generate)
     return World(gpu, config, limits)

@@ -256,9 +256,7 @@ class Engine(EngineLifetime, CommandCalls):
             self.metrics.observe_recompute(world.config.algorithm, result)
             self.last_recompute_ms[world_id] = result.wall_ms
             results[world_id] = result
-            # A sparse world is rebuilt from its creation record and its whole log (no snapshot format
-            # for stored bricks yet; docs/algorithms.md).
-            if self.journal is not None and world.config.storage == "dense" and self.journal.wants_snapshot(world_id):
+            if self.journal is not None and self.journal.wants_snapshot(world_id):
                 self._snapshot(world_id, world)
         return results
 

@@ -97,7 +97,8 @@ def restore_worlds(engine: Engine, storage: Storage, journal: StorageJournal) ->
             continue
         world = None
         try:
-            world = make_world(engine.gpu, config_from_dict(meta["config"]), REPLAY_LIMITS)
+            world = make_world(engine.gpu, config_from_dict(meta["config"]), REPLAY_LIMITS,
+                               generate=recovered.voxels is None)
             if recovered.voxels is not None:
                 world.load_voxels(recovered.voxels)
             world.version = recovered.snapshot_version

@@ -29,6 +29,7 @@ import time
 import numpy as np
 import pyopencl as cl
 
+from sdfserver import bulk
 from sdfserver.algorithms import RegionJob, WorldBuffers, get_algorithm
 from sdfserver.algorithms.base import WORK_PLANE_PAD, int4
 from sdfserver.algorithms.stats import summarize
@@ -52,7 +53,9 @@ MAX_REGIONS = 512
 
 
 class SparseWorld:
-    def __init__(self, gpu: GpuContext, config: WorldConfig, limits: EditLimits = EditLimits()):
+    def __init__(self, gpu: GpuContext, config: WorldConfig, limits: EditLimits = EditLimits(),
+                 generate: bool = True):
+        """``generate``: build ``config.generate``'s terrain (not when a snapshot replaces it)."""
         self.config = config = config.validated()
         if config.storage != "sparse":
             raise ValueError("SparseWorld is for storage 'sparse'")
@@ -79,7 +82,7 @@ class SparseWorld:
         self.last_recompute: RecomputeResult | None = None
         self.buffers = None  # no world-sized buffers: readers gather (read_field, read_voxels)
         self.device_table = DeviceTable(gpu, self.table)
-        if config.generate is not None:
+        if config.generate is not None and generate:
             from sdfserver.sparse.terrain import generate_terrain  # it builds on this class
 
             try:
@@ -157,8 +160,56 @@ class SparseWorld:
     def reconfigure(self, **changes) -> None:
         raise InvalidInput("a sparse world's algorithm, cap and borders are fixed at creation")
 
-    def load_voxels(self, voxels: np.ndarray) -> int:
-        raise InvalidInput("a sparse world cannot load a whole voxel array; create it with generate, or edit it")
+    def load_voxels(self, content) -> int:
+        """Replace the whole world with a snapshot's bricks (restore); raises InvalidInput for
+        anything else (imports make dense worlds)."""
+        from sdfserver.storage.sparse_snapshot import SparseContent
+
+        if not isinstance(content, SparseContent) or content.brick != self.brick:
+            raise InvalidInput("a sparse world loads only its own snapshot's bricks")
+        count = int(content.voxels.shape[0])
+        self.pool.release()
+        self.table.blocks.clear()
+        self.table.generation += 1
+        self.pool.reserve(count)
+        slots = self.pool.take(count)  # the lowest slots, in order: slot i holds brick i
+        if count:
+            bulk.write(self.gpu, self.pool.voxels, np.ascontiguousarray(content.voxels))
+            bulk.write(self.gpu, self.pool.field, np.ascontiguousarray(content.field))
+            self.gpu.queue.finish()
+        for key, block in content.blocks.items():  # one loop over kept blocks
+            self.table.blocks[key] = block if isinstance(block, int) else np.where(
+                block >= 0, slots[np.maximum(block, 0)], block).astype(np.int32)
+        self.dirty.clear()
+        self.version += 1
+        return self.version
+
+    def copy_voxels_out(self):
+        """The world as it is now, for a snapshot, without waiting for the device: a
+        SparseContent (the brick table and a copy of the pools) to read only after calling the
+        returned ``wait`` (any thread may; ``bulk.download_later``)."""
+        from sdfserver.storage.sparse_snapshot import SparseContent
+
+        n, b = self.pool.capacity, self.brick
+        voxels = np.empty((n, b, b, b), dtype=np.uint8)
+        field = np.empty((n, b, b, b), dtype=np.uint16)
+        blocks = {k: v if isinstance(v, int) else v.copy() for k, v in self.table.blocks.items()}
+        if not n:
+            return SparseContent(b, blocks, voxels, field), lambda: None
+        wait_voxels = bulk.download_later(self.gpu, self.pool.voxels, voxels)
+        try:
+            wait_field = bulk.download_later(self.gpu, self.pool.field, field)
+        except BaseException:
+            wait_voxels()
+            raise
+
+        def wait() -> None:
+            try:
+                wait_voxels()
+            finally:
+                wait_field()
+
+        return SparseContent(b, blocks, voxels, field), wait
 
     def mark_all_dirty(self) -> None:
         raise InvalidInput("a sparse world recomputes the regions its edits touch, never the whole world")

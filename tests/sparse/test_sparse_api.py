@@ -13,7 +13,8 @@ from server_process import ServerProcess
 
 from sdfserver import wire
 
-FLAGS = ["--memory-budget-bytes", str(256 << 20), "--max-read-voxels", str(1 << 20), "--workers", "1"]
+FLAGS = ["--memory-budget-bytes", str(256 << 20), "--max-read-voxels", str(1 << 20), "--workers", "1",
+         "--snapshot-every-batches", "2", "--snapshot-min-interval-s", "0"]
 SIZE, BRICK, CAP = [65536, 256, 65536], 32, 7
 
 
@@ -113,6 +114,10 @@ def test_a_generated_terrain_renders_and_a_restart_rebuilds_it(server, data_dir)
         r = http.post(f"/v1/worlds/{wid}/edits", json={"edits": [{"op": "sphere", "center": [256, 60, 256],
                                                                     "radius": 9, "colour": 0}]})
         assert r.status_code == 200
+        for centre in ([100, 60, 100], [400, 60, 400]):  # two more batches: a snapshot, then one after it
+            r = http.post(f"/v1/worlds/{wid}/edits", json={"edits": [{"op": "sphere", "center": centre,
+                                                                        "radius": 6, "colour": 0xE0}]})
+            assert r.status_code == 200
         box = ([224, 32, 224], [288, 96, 288])
         before = read(http, wid, "field", *box)
         view = {"position": [-50, 180, -50], "target": [256, 40, 256], "width": 160, "height": 120,
@@ -120,11 +125,16 @@ def test_a_generated_terrain_renders_and_a_restart_rebuilds_it(server, data_dir)
         r = http.post(f"/v1/worlds/{wid}/render", json=view)
         assert r.status_code == 200, r.text
         assert r.content[:4] == b"\x89PNG"
+        near = ([64, 32, 64], [128, 96, 128])
+        before_near = read(http, wid, "field", *near)
     server.stop()
+    snapshots = [p for p in data_dir.rglob("*.sdfsnap") if wid in str(p)]
+    assert snapshots and b'"format": 2' in snapshots[0].read_bytes()[:4096]  # a sparse world's own format
     restarted = ServerProcess(data_dir, *FLAGS).wait_ready()
     try:
         with httpx.Client(base_url=restarted.url, timeout=120) as http:
             assert np.array_equal(read(http, wid, "field", *box), before)
-            assert http.get(f"/v1/worlds/{wid}").json()["version"] == 1
+            assert np.array_equal(read(http, wid, "field", *near), before_near)
+            assert http.get(f"/v1/worlds/{wid}").json()["version"] == 3
     finally:
         restarted.stop()

@@ -3,7 +3,8 @@
  *
  * A brick code (int) says where a brick lives:
  *   code >= 0          slot in the pools: brick^3 voxels (z, y, x inside the brick) at
- *                      code * brick^3 in pool_voxels and pool_field;
+ *                      (code % seg) * brick^3 in segment code / seg of the pools (POOL_ARGS:
+ *                      up to 4 segments, each a voxels and a field buffer of seg bricks);
  *   BRICK_AIR (-1)     every voxel air, every distance at the cap (nothing stored);
  *   code <= -2         every voxel solid of colour -2 - code, distance 0 (nothing stored).
  * Codes for a box of bricks are laid out (z, y, x) with extent codes_n, brick coordinates
@@ -11,6 +12,20 @@
 #include "sdf_common.h"
 
 #define BRICK_AIR (-1)
+#define POOL_ARGS __global uchar *pv0, __global uchar *pv1, __global uchar *pv2, __global uchar *pv3, \
+                  __global ushort *pf0, __global ushort *pf1, __global ushort *pf2, __global ushort *pf3, int seg
+
+inline __global uchar *voxel_segment(int code, POOL_ARGS)
+{
+    const int k = code / seg;
+    return k == 0 ? pv0 : k == 1 ? pv1 : k == 2 ? pv2 : pv3;
+}
+
+inline __global ushort *field_segment(int code, POOL_ARGS)
+{
+    const int k = code / seg;
+    return k == 0 ? pf0 : k == 1 ? pf1 : k == 2 ? pf2 : pf3;
+}
 
 inline size_t brick_voxel_index(int code, int brick, int wx, int wy, int wz)
 {
@@ -25,8 +40,7 @@ inline int brick_code(__global const int *codes, int4 codes_lo, int4 codes_n, in
 
 /* Fill the scratch box (extent dims, world origin `origin`) from bricks: stored ones copied,
  * implicit ones written as their value. One work-item per scratch voxel. */
-__kernel void gather_bricks(__global const uchar *pool_voxels, __global const ushort *pool_field,
-                            __global const int *codes, int4 codes_lo, int4 codes_n, int brick,
+__kernel void gather_bricks(POOL_ARGS, __global const int *codes, int4 codes_lo, int4 codes_n, int brick,
                             __global uchar *voxels, __global ushort *field, int4 dims, int4 origin, int cap)
 {
     const int x = get_global_id(0), y = get_global_id(1), z = get_global_id(2);
@@ -36,9 +50,9 @@ __kernel void gather_bricks(__global const uchar *pool_voxels, __global const us
     const int code = brick_code(codes, codes_lo, codes_n, brick, wx, wy, wz);
     const size_t i = world_index(x, y, z, dims);
     if (code >= 0) {
-        const size_t j = brick_voxel_index(code, brick, wx, wy, wz);
-        voxels[i] = pool_voxels[j];
-        field[i] = pool_field[j];
+        const size_t j = brick_voxel_index(code % seg, brick, wx, wy, wz);
+        voxels[i] = voxel_segment(code, pv0, pv1, pv2, pv3, pf0, pf1, pf2, pf3, seg)[j];
+        field[i] = field_segment(code, pv0, pv1, pv2, pv3, pf0, pf1, pf2, pf3, seg)[j];
     } else if (code == BRICK_AIR) {
         voxels[i] = 0;
         field[i] = pack_field((uint)cap, 0);
@@ -76,7 +90,7 @@ __kernel void classify_bricks(__global const uchar *voxels, __global const ushor
 /* Write the scratch box's stored bricks of box r (codes over r's bricks) back to their slots. */
 __kernel void scatter_bricks(__global const uchar *voxels, __global const ushort *field, int4 dims, int4 origin,
                              int4 r_lo, int4 r_n, __global const int *codes, int4 codes_lo, int4 codes_n, int brick,
-                             __global uchar *pool_voxels, __global ushort *pool_field)
+                             POOL_ARGS)
 {
     const int x = get_global_id(0), y = get_global_id(1), z = get_global_id(2);
     if (x >= r_n.x || y >= r_n.y || z >= r_n.z)
@@ -87,7 +101,7 @@ __kernel void scatter_bricks(__global const uchar *voxels, __global const ushort
     if (code < 0)
         return;
     const size_t i = world_index(sx, sy, sz, dims);
-    const size_t j = brick_voxel_index(code, brick, wx, wy, wz);
-    pool_voxels[j] = voxels[i];
-    pool_field[j] = field[i];
+    const size_t j = brick_voxel_index(code % seg, brick, wx, wy, wz);
+    voxel_segment(code, pv0, pv1, pv2, pv3, pf0, pf1, pf2, pf3, seg)[j] = voxels[i];
+    field_segment(code, pv0, pv1, pv2, pv3, pf0, pf1, pf2, pf3, seg)[j] = field[i];
 }

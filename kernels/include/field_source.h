@@ -3,8 +3,8 @@
  * field_at(FIELD_PASS, v, dims) reads voxel v (inside the world).
  *
  * SPARSE_FIELD 0 (the default): a dense world's one field buffer.
- * SPARSE_FIELD 1: a sparse world's brick pool and its two-level brick table mirrored on the
- * device (codes as in bricks.cl; sdfserver/sparse/device_table.py): `top` holds, per block of
+ * SPARSE_FIELD 1: a sparse world's field pool (up to 4 segments of `seg` bricks: a slot's segment
+ * is slot / seg) and its two-level brick table mirrored on the device (codes as in bricks.cl; sdfserver/sparse/device_table.py): `top` holds, per block of
  * TABLE_BLOCK^3 bricks, the block's one code (< 0: AIR or a solid colour) or the index of its
  * codes in `blocks`; implicit bricks read as their value.
  *
@@ -25,9 +25,10 @@
 #define TABLE_BLOCK 16
 
 #if SPARSE_FIELD
-#define FIELD_ARGS __global const ushort *field, __global const int *top, __global const int *blocks, \
+#define FIELD_ARGS __global const ushort *field, __global const ushort *field1, __global const ushort *field2, \
+                   __global const ushort *field3, int seg, __global const int *top, __global const int *blocks, \
                    int4 top_n, int brick, int cap
-#define FIELD_PASS field, top, blocks, top_n, brick, cap
+#define FIELD_PASS field, field1, field2, field3, seg, top, blocks, top_n, brick, cap
 
 /* Face-steps from v (inside the cube of `side` at `lo`) to the cube's boundary layer. */
 inline uint steps_to_boundary(int3 v, int3 lo, int side)
@@ -50,8 +51,10 @@ inline ushort field_step(FIELD_ARGS, int3 v, int4 dims, uint *step)
             + (size_t)(((b.z % TABLE_BLOCK) * TABLE_BLOCK + b.y % TABLE_BLOCK) * TABLE_BLOCK + b.x % TABLE_BLOCK)];
     if (code >= 0) {
         const size_t s = (size_t)brick;
-        const ushort f = field[(((size_t)code * s + (size_t)(v.z % brick)) * s + (size_t)(v.y % brick)) * s
-                               + (size_t)(v.x % brick)];
+        const int k = code / seg;
+        __global const ushort *pool = k == 0 ? field : k == 1 ? field1 : k == 2 ? field2 : field3;
+        const ushort f = pool[(((size_t)(code % seg) * s + (size_t)(v.z % brick)) * s + (size_t)(v.y % brick)) * s
+                              + (size_t)(v.x % brick)];
         *step = f >> 8;
         return f;
     }

@@ -20,17 +20,22 @@ class _Codes:
         self.buffer = gpu.upload(np.ascontiguousarray(codes, dtype=np.int32))
 
 
+def _pool_args(pool: BrickPool, voxels: cl.Buffer, field: cl.Buffer) -> tuple:
+    """POOL_ARGS: every segment's voxels and field buffers and the bricks a segment holds; with
+    no segment, ``voxels`` and ``field`` stand in (no code names a slot then, so none is read)."""
+    if not pool.segments:
+        return (voxels,) * 4 + (field,) * 4 + (np.int32(pool.segment_bricks),)
+    return (*pool.kernel_buffers("voxels"), *pool.kernel_buffers("field"), np.int32(pool.segment_bricks))
+
+
 def gather(gpu: GpuContext, pool: BrickPool, bricks: Box, codes: np.ndarray, voxels: cl.Buffer,
            field: cl.Buffer, box: Box, cap: int, brick: int) -> None:
     """Fill ``voxels`` and ``field`` (dense, extent ``box``) with the world's box ``box``;
     ``codes`` covers ``bricks``, the bricks ``box`` meets."""
     c = _Codes(gpu, bricks, codes)
     gsize, lsize = grid(box.shape_xyz)
-    empty = pool.voxels is None  # a world with no stored brick: no pool to read, none is read
-    pool_voxels = voxels if empty else pool.voxels
-    pool_field = field if empty else pool.field
     gpu.programs.kernel("bricks.cl", "gather_bricks")(
-        gpu.queue, gsize, lsize, pool_voxels, pool_field, c.buffer, c.lo, c.n, np.int32(brick),
+        gpu.queue, gsize, lsize, *_pool_args(pool, voxels, field), c.buffer, c.lo, c.n, np.int32(brick),
         voxels, field, int4(box.shape_xyz), int4(box.lo), np.int32(cap))
     c.buffer.release()  # freed by OpenCL once the launch has run
 
@@ -70,5 +75,5 @@ def scatter(gpu: GpuContext, pool: BrickPool, voxels: cl.Buffer, field: cl.Buffe
     gsize, lsize = grid(local.shape_xyz)
     gpu.programs.kernel("bricks.cl", "scatter_bricks")(
         gpu.queue, gsize, lsize, voxels, field, int4(box.shape_xyz), int4(box.lo), int4(local.lo),
-        int4(local.shape_xyz), c.buffer, c.lo, c.n, np.int32(brick), pool.voxels, pool.field)
+        int4(local.shape_xyz), c.buffer, c.lo, c.n, np.int32(brick), *_pool_args(pool, voxels, field))
     c.buffer.release()

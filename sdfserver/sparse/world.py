@@ -54,8 +54,10 @@ MAX_REGIONS = 512
 
 class SparseWorld:
     def __init__(self, gpu: GpuContext, config: WorldConfig, limits: EditLimits = EditLimits(),
-                 generate: bool = True):
-        """``generate``: build ``config.generate``'s terrain (not when a snapshot replaces it)."""
+                 generate: bool = True, segment_bricks: int | None = None):
+        """``generate``: build ``config.generate``'s terrain (not when a snapshot replaces it).
+        ``segment_bricks``: bricks a pool segment holds (default: what the device's largest
+        buffer holds; smaller in tests, to cross segments)."""
         self.config = config = config.validated()
         if config.storage != "sparse":
             raise ValueError("SparseWorld is for storage 'sparse'")
@@ -71,7 +73,7 @@ class SparseWorld:
         gpu.check_fits(self._scratch_sizes(smallest[0] * smallest[1] * smallest[2], smallest[2]),
                        f"a sparse {'x'.join(map(str, config.size))} world's scratch box")
         self.table = BrickTable(config.chunks)
-        self.pool = BrickPool(gpu, self.brick)
+        self.pool = BrickPool(gpu, self.brick, segment_bricks)
         self.scratch: WorldBuffers | None = None
         self._scratch_sizes_held: list[int] = []
         self.dirty = DirtySet()
@@ -138,8 +140,9 @@ class SparseWorld:
         """How kernels that walk the field themselves (render.cl) reach it: their build defines
         and the arguments FIELD_ARGS stands for."""
         top, blocks = self.device_table.current()
-        field = self.pool.field if self.pool.field is not None else top  # no stored brick: never read
-        return {"SPARSE_FIELD": 1}, (field, top, blocks, int4(self.device_table.top_n), np.int32(self.brick),
+        fields = self.pool.kernel_buffers("field") or (top,) * 4  # no stored brick: none is read
+        return {"SPARSE_FIELD": 1}, (*fields, np.int32(self.pool.segment_bricks), top, blocks,
+                                     int4(self.device_table.top_n), np.int32(self.brick),
                                      np.int32(self.config.max_distance))
 
     @property
@@ -172,11 +175,14 @@ class SparseWorld:
         self.table.blocks.clear()
         self.table.generation += 1
         self.pool.reserve(count)
-        slots = self.pool.take(count)  # the lowest slots, in order: slot i holds brick i
-        if count:
-            bulk.write(self.gpu, self.pool.voxels, np.ascontiguousarray(content.voxels))
-            bulk.write(self.gpu, self.pool.field, np.ascontiguousarray(content.field))
-            self.gpu.queue.finish()
+        slots = self.pool.take(count)  # the lowest slots in order: every segment but the last is full
+        if not np.array_equal(slots, np.arange(count)):
+            raise RuntimeError("a fresh pool's slots are not numbered from 0")
+        for k, segment in enumerate(self.pool.segments):  # one loop over segments
+            rows = slice(k * self.pool.segment_bricks, min(count, k * self.pool.segment_bricks + segment.capacity))
+            if rows.stop > rows.start:
+                bulk.write(self.gpu, segment.voxels, np.ascontiguousarray(content.voxels[rows]))
+                bulk.write(self.gpu, segment.field, np.ascontiguousarray(content.field[rows]))
         for key, block in content.blocks.items():  # one loop over kept blocks
             self.table.blocks[key] = block if isinstance(block, int) else np.where(
                 block >= 0, slots[np.maximum(block, 0)], block).astype(np.int32)
@@ -194,20 +200,20 @@ class SparseWorld:
         voxels = np.empty((n, b, b, b), dtype=np.uint8)
         field = np.empty((n, b, b, b), dtype=np.uint16)
         blocks = {k: v if isinstance(v, int) else v.copy() for k, v in self.table.blocks.items()}
-        if not n:
-            return SparseContent(b, blocks, voxels, field), lambda: None
-        wait_voxels = bulk.download_later(self.gpu, self.pool.voxels, voxels)
-        try:
-            wait_field = bulk.download_later(self.gpu, self.pool.field, field)
+        waits = []
+        try:  # every segment but the last is full, so slots index the arrays' rows
+            for k, segment in enumerate(self.pool.segments):  # one loop over segments
+                rows = slice(k * self.pool.segment_bricks, k * self.pool.segment_bricks + segment.capacity)
+                waits.append(bulk.download_later(self.gpu, segment.voxels, voxels[rows]))
+                waits.append(bulk.download_later(self.gpu, segment.field, field[rows]))
         except BaseException:
-            wait_voxels()
+            for w in waits:
+                w()
             raise
 
         def wait() -> None:
-            try:
-                wait_voxels()
-            finally:
-                wait_field()
+            for w in waits:  # each releases its staging buffer
+                w()
 
         return SparseContent(b, blocks, voxels, field), wait
 

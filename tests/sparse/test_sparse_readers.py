@@ -23,7 +23,8 @@ SIZE, BRICK, CAP = (96, 64, 128), 16, 9
 @pytest.fixture
 def world_pair(gpu, rng):
     dense = World(gpu, WorldConfig(SIZE, BRICK, CAP))
-    sparse = SparseWorld(gpu, WorldConfig(SIZE, BRICK, CAP, storage="sparse"))
+    # Pool segments of 48 bricks: readers cross segments (the first batch reserves all 192 bricks).
+    sparse = SparseWorld(gpu, WorldConfig(SIZE, BRICK, CAP, storage="sparse"), segment_bricks=48)
     floor = [{"op": "box", "min": [0, 0, 0], "max": [96, 20, 128], "colour": 0x92}]  # whole solid bricks
     for batch in [floor] + [random_batch(rng, SIZE, BRICK) for _ in range(4)]:
         for world in (dense, sparse):
@@ -31,6 +32,7 @@ def world_pair(gpu, rng):
             world.recompute()
     assert any(isinstance(b, int) or (b <= -2).any() for b in sparse.table.blocks.values())  # solid bricks
     assert (sparse.table.get(sparse.world_box.chunk_range(BRICK)) == -1).any()  # and air ones
+    assert len(sparse.pool.segments) >= 2
     yield dense, sparse
     dense.release()
     sparse.release()

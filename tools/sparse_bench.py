@@ -3,8 +3,8 @@
     python tools/sparse_bench.py --out sparse_bench.json
     python tools/sparse_bench.py --sizes 512x128x512 --caps 15 --brushes 10 --frames 3 --out s.json  # CPU
 
-For each cap (default 15 and 31) and each size in turn (default 8192x1024x8192, then larger
-ones while they fit and time is left): create a sparse world (chunk 32), generate a terrain
+For each cap (default 15 and 31) and each size in turn (default 8192x1024x8192, then 12288 and 16384
+along x and z while they fit and time is left): create a sparse world (chunk 32), generate a terrain
 (``sdfserver.sparse.terrain``) and time it (the queue finished); report stored bricks, bytes
 per stored voxel (device bytes over stored voxels), the world's device bytes and the context's
 allocated bytes. On the first size of each cap, also: ``--brushes`` radius-8 sphere brushes at
@@ -172,7 +172,7 @@ def dense_reference(gpu, args, rng) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", required=True)
-    parser.add_argument("--sizes", default="8192x1024x8192,16384x1024x16384,32768x1024x32768")
+    parser.add_argument("--sizes", default="8192x1024x8192,12288x1024x12288,16384x1024x16384")
     parser.add_argument("--caps", default="15,31")
     parser.add_argument("--brushes", type=int, default=50)
     parser.add_argument("--frames", type=int, default=20)

@@ -111,11 +111,9 @@ inline march_result march(FIELD_ARGS, int4 dims, float3 o, float3 d, int long_st
     float t = t0;
     /* Each pass takes at least one step, and a ray crosses at most sx + sy + sz voxels. */
     const int max_passes = dims.x + dims.y + dims.z + 3;
-    field_cache cache;
-    field_cache_init(&cache);
     for (int pass = 0; pass < max_passes; ++pass) {
         uint steps;  /* face-steps known to be clear: the distance, or more across empty bricks */
-        const ushort f = field_step(FIELD_PASS, v, dims, &steps, &cache);
+        const ushort f = field_step(FIELD_PASS, v, dims, &steps);
         const uint dist = f >> 8;
         r.reads++;
         if (dist == 0) {

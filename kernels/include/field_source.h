@@ -8,8 +8,7 @@
  * TABLE_BLOCK^3 bricks, the block's one code (< 0: AIR or a solid colour) or the index of its
  * codes in `blocks`; implicit bricks read as their value.
  *
- * field_step keeps the last brick read and its code in a field_cache, so a ray's reads within
- * one brick skip the table. It also gives how many face-steps a ray may take from v without passing a solid.
+ * field_step also gives how many face-steps a ray may take from v without passing a solid.
  * Dense: the distance read. Sparse, in an implicit air brick (or a block of them): every voxel
  * of that box is at least the cap from every solid, and a shortest path from v to a solid leaves
  * the box through a voxel of its boundary layer, so the cap plus v's distance to that layer
@@ -38,34 +37,18 @@ inline uint steps_to_boundary(int3 v, int3 lo, int side)
     return (uint)min(m.x, min(m.y, m.z));
 }
 
-#define AIR_BLOCK (-1000)  /* a cached code: the brick lies in a block that is all air at the cap */
-
-/* The brick a ray read last and its code: consecutive reads in one brick skip the table. */
-typedef struct {
-    int3 brick;
-    int code;
-} field_cache;
-
-inline void field_cache_init(field_cache *c)
+inline ushort field_step(FIELD_ARGS, int3 v, int4 dims, uint *step)
 {
-    c->brick = (int3)(-1);
-    c->code = 0;
-}
-
-inline ushort field_step(FIELD_ARGS, int3 v, int4 dims, uint *step, field_cache *cache)
-{
-    const int3 b = v / brick;
-    int code = cache->code;
-    if (b.x != cache->brick.x || b.y != cache->brick.y || b.z != cache->brick.z) {
-        const int3 k = b / TABLE_BLOCK;
-        const int t = top[box_index(k.x, k.y, k.z, top_n)];
-        code = t == -1 ? AIR_BLOCK : t;
-        if (t >= 0)
-            code = blocks[(size_t)t * (TABLE_BLOCK * TABLE_BLOCK * TABLE_BLOCK)
-                + (size_t)(((b.z % TABLE_BLOCK) * TABLE_BLOCK + b.y % TABLE_BLOCK) * TABLE_BLOCK + b.x % TABLE_BLOCK)];
-        cache->brick = b;
-        cache->code = code;
+    const int3 b = v / brick, k = b / TABLE_BLOCK;
+    const int t = top[box_index(k.x, k.y, k.z, top_n)];
+    int code = t;
+    if (t == -1) {
+        *step = (uint)cap + steps_to_boundary(v, k * (TABLE_BLOCK * brick), TABLE_BLOCK * brick);
+        return pack_field((uint)cap, 0);
     }
+    if (t >= 0)
+        code = blocks[(size_t)t * (TABLE_BLOCK * TABLE_BLOCK * TABLE_BLOCK)
+            + (size_t)(((b.z % TABLE_BLOCK) * TABLE_BLOCK + b.y % TABLE_BLOCK) * TABLE_BLOCK + b.x % TABLE_BLOCK)];
     if (code >= 0) {
         const size_t s = (size_t)brick;
         const int k = code / seg;
@@ -74,11 +57,6 @@ inline ushort field_step(FIELD_ARGS, int3 v, int4 dims, uint *step, field_cache 
                               + (size_t)(v.x % brick)];
         *step = f >> 8;
         return f;
-    }
-    if (code == AIR_BLOCK) {
-        const int side = TABLE_BLOCK * brick;
-        *step = (uint)cap + steps_to_boundary(v, (v / side) * side, side);
-        return pack_field((uint)cap, 0);
     }
     if (code == -1) {
         *step = (uint)cap + steps_to_boundary(v, b * brick, brick);
@@ -90,16 +68,7 @@ inline ushort field_step(FIELD_ARGS, int3 v, int4 dims, uint *step, field_cache 
 #else
 #define FIELD_ARGS __global const ushort *field
 #define FIELD_PASS field
-typedef struct {
-    int unused;
-} field_cache;
-
-inline void field_cache_init(field_cache *c)
-{
-    c->unused = 0;
-}
-
-inline ushort field_step(FIELD_ARGS, int3 v, int4 dims, uint *step, field_cache *cache)
+inline ushort field_step(FIELD_ARGS, int3 v, int4 dims, uint *step)
 {
     const ushort f = field[world_index(v.x, v.y, v.z, dims)];
     *step = f >> 8;
@@ -110,9 +79,7 @@ inline ushort field_step(FIELD_ARGS, int3 v, int4 dims, uint *step, field_cache 
 inline ushort field_at(FIELD_ARGS, int3 v, int4 dims)
 {
     uint step;
-    field_cache cache;
-    field_cache_init(&cache);
-    return field_step(FIELD_PASS, v, dims, &step, &cache);
+    return field_step(FIELD_PASS, v, dims, &step);
 }
 
 #endif

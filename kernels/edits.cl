@@ -1,29 +1,32 @@
 /* Voxel edits applied on the device. Every edit is pre-validated and clipped
- * to the world on the host; these kernels only write. */
+ * to the world on the host; these kernels only write. Coordinates are the world's; the buffer
+ * written holds the box of extent dims at world coordinates `origin` (0 for a dense world, a
+ * scratch box's corner for a sparse one), so a brush decides which voxels it covers the same
+ * way whichever buffer it writes. */
 #include "sdf_common.h"
 
 /* list[i] = (x, y, z, colour); the host removed duplicate positions. */
-__kernel void set_voxels(__global uchar *voxels, int4 dims, __global const ushort4 *list, int n)
+__kernel void set_voxels(__global uchar *voxels, int4 dims, int4 origin, __global const ushort4 *list, int n)
 {
     const int i = get_global_id(0);
     if (i >= n)
         return;
     const ushort4 v = list[i];
-    voxels[world_index(v.x, v.y, v.z, dims)] = (uchar)v.w;
+    voxels[world_index(v.x - origin.x, v.y - origin.y, v.z - origin.z, dims)] = (uchar)v.w;
 }
 
 /* Launched over the clipped box extent n, starting at lo. */
-__kernel void fill_box(__global uchar *voxels, int4 dims, int4 lo, int4 n, uint colour)
+__kernel void fill_box(__global uchar *voxels, int4 dims, int4 origin, int4 lo, int4 n, uint colour)
 {
     const int x = get_global_id(0), y = get_global_id(1), z = get_global_id(2);
     if (x >= n.x || y >= n.y || z >= n.z)
         return;
-    voxels[world_index(lo.x + x, lo.y + y, lo.z + z, dims)] = (uchar)colour;
+    voxels[world_index(lo.x + x - origin.x, lo.y + y - origin.y, lo.z + z - origin.z, dims)] = (uchar)colour;
 }
 
 /* Voxel p is inside when |p - center|^2 <= radius^2, p taken at integer
  * coordinates. Launched over the clipped bounding box. */
-__kernel void fill_sphere(__global uchar *voxels, int4 dims, int4 lo, int4 n,
+__kernel void fill_sphere(__global uchar *voxels, int4 dims, int4 origin, int4 lo, int4 n,
                           float4 center, float radius_sq, uint colour)
 {
     const int x = get_global_id(0), y = get_global_id(1), z = get_global_id(2);
@@ -32,7 +35,7 @@ __kernel void fill_sphere(__global uchar *voxels, int4 dims, int4 lo, int4 n,
     const float3 p = (float3)((float)(lo.x + x), (float)(lo.y + y), (float)(lo.z + z));
     const float3 d = p - center.xyz;
     if (dot(d, d) <= radius_sq)
-        voxels[world_index(lo.x + x, lo.y + y, lo.z + z, dims)] = (uchar)colour;
+        voxels[world_index(lo.x + x - origin.x, lo.y + y - origin.y, lo.z + z - origin.z, dims)] = (uchar)colour;
 }
 
 /* Several box and sphere edits in one launch, in the order given; where two overlap, the later
@@ -52,7 +55,7 @@ inline int brush_covers(__global const int4 *brushes, int j, int x, int y, int z
     return dot(d, d) <= sphere.w;
 }
 
-__kernel void fill_brushes(__global uchar *voxels, int4 dims, __global const int4 *brushes, int count, uint total)
+__kernel void fill_brushes(__global uchar *voxels, int4 dims, int4 origin, __global const int4 *brushes, int count, uint total)
 {
     const uint gid = get_global_id(0);
     if (gid >= total)
@@ -75,5 +78,5 @@ __kernel void fill_brushes(__global uchar *voxels, int4 dims, __global const int
     for (int j = a + 1; j < count; ++j)
         if (brush_covers(brushes, j, x, y, z))
             return;  /* a later brush writes this voxel */
-    voxels[world_index(x, y, z, dims)] = (uchar)lo.w;
+    voxels[world_index(x - origin.x, y - origin.y, z - origin.z, dims)] = (uchar)lo.w;
 }

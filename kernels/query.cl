@@ -6,16 +6,15 @@
  * axis (one-sided at the world's faces), normalised to unit length; it is zero
  * where the field is flat, e.g. everywhere at the cap. */
 #include "sdf_common.h"
+#include "field_source.h"
 
-inline float distance_at(__global const ushort *field, int x, int y, int z, int4 dims)
+inline float distance_at(FIELD_ARGS, int x, int y, int z, int4 dims)
 {
-    x = clamp(x, 0, dims.x - 1);
-    y = clamp(y, 0, dims.y - 1);
-    z = clamp(z, 0, dims.z - 1);
-    return (float)(field[world_index(x, y, z, dims)] >> 8);
+    const int3 v = (int3)(clamp(x, 0, dims.x - 1), clamp(y, 0, dims.y - 1), clamp(z, 0, dims.z - 1));
+    return (float)(field_at(FIELD_PASS, v, dims) >> 8);
 }
 
-inline float central(__global const ushort *field, int4 p, int4 step, int4 dims)
+inline float central(FIELD_ARGS, int4 p, int4 step, int4 dims)
 {
     const int4 lo = p - step, hi = p + step;
     const int lo_in = lo.x >= 0 && lo.y >= 0 && lo.z >= 0;
@@ -23,20 +22,20 @@ inline float central(__global const ushort *field, int4 p, int4 step, int4 dims)
     const float span = (float)(lo_in + hi_in);
     if (span == 0.0f)
         return 0.0f;
-    return (distance_at(field, hi.x, hi.y, hi.z, dims) - distance_at(field, lo.x, lo.y, lo.z, dims)) / span;
+    return (distance_at(FIELD_PASS, hi.x, hi.y, hi.z, dims) - distance_at(FIELD_PASS, lo.x, lo.y, lo.z, dims)) / span;
 }
 
-__kernel void query_points(__global const ushort *field, int4 dims, __global const int4 *points, int n,
+__kernel void query_points(FIELD_ARGS, int4 dims, __global const int4 *points, int n,
                            __global ushort *packed_out, __global float4 *gradient_out)
 {
     const int i = get_global_id(0);
     if (i >= n)
         return;
     const int4 p = points[i];
-    packed_out[i] = field[world_index(p.x, p.y, p.z, dims)];
-    float3 g = (float3)(central(field, p, (int4)(1, 0, 0, 0), dims),
-                        central(field, p, (int4)(0, 1, 0, 0), dims),
-                        central(field, p, (int4)(0, 0, 1, 0), dims));
+    packed_out[i] = field_at(FIELD_PASS, p.xyz, dims);
+    float3 g = (float3)(central(FIELD_PASS, p, (int4)(1, 0, 0, 0), dims),
+                        central(FIELD_PASS, p, (int4)(0, 1, 0, 0), dims),
+                        central(FIELD_PASS, p, (int4)(0, 0, 1, 0), dims));
     const float len = length(g);
     g = len > 0.0f ? g / len : (float3)(0.0f);
     gradient_out[i] = (float4)(g, 0.0f);

@@ -21,8 +21,16 @@
  * (a second DDA march), both floating point.
  *
  * Ties between axes in the DDA (a ray through an edge) go to x, then y, then z.
+ *
+ * Where the field lives is field_source.h's (FIELD_ARGS, field_step): a dense world's buffer or
+ * a sparse world's bricks. The marcher is the same for both; in a sparse world's implicit air
+ * bricks and blocks field_step lets a ray step further than the cap (field_source.h says why).
+ * A shadow ray steps by the distance alone: its softness is the least distance over the points
+ * it reads, so reading at the same points keeps frames the same either way.
  */
 #include "sdf_common.h"
+
+#include "field_source.h"
 
 #define RENDER_AO 1
 #define RENDER_SHADOW 2
@@ -67,7 +75,7 @@ inline void clip_axis(float o, float d, int n, int axis, float *t0, float *t1, i
     *t1 = fmin(*t1, hi);
 }
 
-inline march_result march(__global const ushort *field, int4 dims, float3 o, float3 d)
+inline march_result march(FIELD_ARGS, int4 dims, float3 o, float3 d, int long_steps)
 {
     march_result r;
     r.hit = 0;
@@ -104,7 +112,8 @@ inline march_result march(__global const ushort *field, int4 dims, float3 o, flo
     /* Each pass takes at least one step, and a ray crosses at most sx + sy + sz voxels. */
     const int max_passes = dims.x + dims.y + dims.z + 3;
     for (int pass = 0; pass < max_passes; ++pass) {
-        const ushort f = field[world_index(v.x, v.y, v.z, dims)];
+        uint steps;  /* face-steps known to be clear: the distance, or more across empty bricks */
+        const ushort f = field_step(FIELD_PASS, v, dims, &steps);
         const uint dist = f >> 8;
         r.reads++;
         if (dist == 0) {
@@ -114,7 +123,9 @@ inline march_result march(__global const ushort *field, int4 dims, float3 o, flo
             return r;
         }
         r.shade = fmin(r.shade, (float)dist / fmax(t, 1e-3f));
-        for (uint k = 0; k < dist; ++k) {
+        if (!long_steps)
+            steps = dist;
+        for (uint k = 0; k < steps; ++k) {
             const int axis = argmin3(t_max);
             if (axis == 0) { v.x += r.step.x; t = t_max.x; t_max.x += t_delta.x; }
             else if (axis == 1) { v.y += r.step.y; t = t_max.y; t_max.y += t_delta.y; }
@@ -145,26 +156,26 @@ inline uint3 rgb332_to_888(uint c)
 
 /* 1 - occlusion, from distances k = 2..4 voxels out along the face normal: in the open
  * the distance there is k; a nearby wall or crease makes it smaller. */
-inline float ambient(__global const ushort *field, int4 dims, int3 v, int3 normal)
+inline float ambient(FIELD_ARGS, int4 dims, int3 v, int3 normal)
 {
     float occ = 0.0f;
     for (int k = 2; k <= 4; ++k) {
         const int3 a = v + normal * k;
         if (!in_world(a, dims))
             continue;
-        const uint dist = min((uint)(field[world_index(a.x, a.y, a.z, dims)] >> 8), (uint)k);
+        const uint dist = min((uint)(field_at(FIELD_PASS, a, dims) >> 8), (uint)k);
         occ += (float)(k - (int)dist) / (float)k;
     }
     return 1.0f - 0.45f * occ / 3.0f;
 }
 
 /* Light reaching the face of voxel v with this normal, marching from the air voxel in front. */
-inline float shadow(__global const ushort *field, int4 dims, int3 v, int3 normal, float3 light)
+inline float shadow(FIELD_ARGS, int4 dims, int3 v, int3 normal, float3 light)
 {
     const int3 a = v + normal;
     if (!in_world(a, dims))
         return 1.0f;
-    const march_result s = march(field, dims, convert_float3(a) + 0.5f, light);
+    const march_result s = march(FIELD_PASS, dims, convert_float3(a) + 0.5f, light, 0);
     if (s.hit)
         return 0.55f;
     return 0.55f + 0.45f * clamp(s.shade * 4.0f, 0.0f, 1.0f);
@@ -173,7 +184,7 @@ inline float shadow(__global const ushort *field, int4 dims, int3 v, int3 normal
 /* cam_origin: camera position (voxels). cam_forward: unit view direction; cam_right and
  * cam_up: scaled so that pixel centre (u, v) in [-1, 1] looks along forward + u*right + v*up.
  * highlight: xyz a voxel, w its radius squared (tinted brush preview); w < 0: none. */
-__kernel void render(__global const ushort *field, int4 dims,
+__kernel void render(FIELD_ARGS, int4 dims,
                      float4 cam_origin, float4 cam_forward, float4 cam_right, float4 cam_up,
                      int width, int height, uint sky_rgb, uint flags, float4 light,
                      int4 highlight, __global uchar4 *out, __global uint *reads)
@@ -184,7 +195,7 @@ __kernel void render(__global const ushort *field, int4 dims,
     const float u = ((float)px + 0.5f) / (float)width * 2.0f - 1.0f;
     const float w = 1.0f - ((float)py + 0.5f) / (float)height * 2.0f;
     const float3 d = cam_forward.xyz + u * cam_right.xyz + w * cam_up.xyz;
-    const march_result r = march(field, dims, cam_origin.xyz, d);
+    const march_result r = march(FIELD_PASS, dims, cam_origin.xyz, d, 1);
     const size_t pixel = (size_t)py * (size_t)width + (size_t)px;
     if (flags & RENDER_STATS)
         reads[pixel] = r.reads;
@@ -200,9 +211,9 @@ __kernel void render(__global const ushort *field, int4 dims,
         if (r.face == 2) normal.z = -r.step.z;
         float light_factor = 1.0f;
         if (r.face >= 0 && (flags & RENDER_AO))
-            light_factor *= ambient(field, dims, r.voxel, normal);
+            light_factor *= ambient(FIELD_PASS, dims, r.voxel, normal);
         if (r.face >= 0 && (flags & RENDER_SHADOW))
-            light_factor *= shadow(field, dims, r.voxel, normal, light.xyz);
+            light_factor *= shadow(FIELD_PASS, dims, r.voxel, normal, light.xyz);
         rgb = convert_uint3_sat_rte(convert_float3(rgb) * light_factor);
     }
     if (highlight.w >= 0) {
@@ -214,12 +225,12 @@ __kernel void render(__global const ushort *field, int4 dims,
 }
 
 /* One ray (a click): out[0] = (hit voxel, hit), out[1] = (normal of the entered face, face). */
-__kernel void pick(__global const ushort *field, int4 dims, float4 origin, float4 direction,
+__kernel void pick(FIELD_ARGS, int4 dims, float4 origin, float4 direction,
                    __global int4 *out)
 {
     if (get_global_id(0) != 0)
         return;
-    const march_result r = march(field, dims, origin.xyz, direction.xyz);
+    const march_result r = march(FIELD_PASS, dims, origin.xyz, direction.xyz, 1);
     int3 normal = (int3)(0);
     if (r.face == 0) normal.x = -r.step.x;
     if (r.face == 1) normal.y = -r.step.y;

@@ -3,7 +3,9 @@
 A voxels edit is a list of (x, y, z, colour) rows (later duplicates win); box and sphere edits
 go one alone through its own kernel, or several together through ``fill_brushes``, their
 records packed into one small buffer (a launch costs the host more than a brush costs the
-device)."""
+device). Edits keep world coordinates; ``origin`` is the world position of the buffer's first
+voxel (a dense world's buffer starts at 0, a sparse world's scratch box elsewhere), so a sphere
+covers the same voxels whichever buffer it is written into."""
 
 from __future__ import annotations
 
@@ -13,26 +15,30 @@ import pyopencl as cl
 from sdfserver.algorithms.base import float4, grid, int4
 from sdfserver.edits import BoxEdit, Edit, SphereEdit, VoxelsEdit
 from sdfserver.geometry import Box, Vec3
+
+WORLD_ORIGIN = bytes(16)  # int4(0, 0, 0): a dense world's buffer starts at the world's corner
 from sdfserver.gpu import GpuContext
 
 
-def enqueue_voxels(gpu: GpuContext, voxels: cl.Buffer, dims: np.ndarray, size: Vec3, e: VoxelsEdit) -> None:
+def enqueue_voxels(gpu: GpuContext, voxels: cl.Buffer, dims: bytes, size: Vec3, e: VoxelsEdit,
+                   origin: bytes = WORLD_ORIGIN) -> None:
     # Later duplicates win: keep the last occurrence of each position.
     flat = np.ravel_multi_index(e.voxels[::-1, 2::-1].T, size[::-1])
     _, first = np.unique(flat, return_index=True)
     rows = e.voxels[::-1][first].astype(np.uint16)
     list_buf = gpu.upload(rows)
     n = len(rows)
-    gpu.programs.kernel("edits.cl", "set_voxels")(gpu.queue, (-(-n // 64) * 64,), (64,), voxels, dims, list_buf,
+    gpu.programs.kernel("edits.cl", "set_voxels")(gpu.queue, (-(-n // 64) * 64,), (64,), voxels, dims, origin, list_buf,
                                                   np.int32(n))
     list_buf.release()  # OpenCL frees it only once the queued kernel has finished
 
 
-def enqueue_brushes(gpu: GpuContext, voxels: cl.Buffer, dims: np.ndarray, brushes: list[tuple[Edit, Box]]) -> None:
+def enqueue_brushes(gpu: GpuContext, voxels: cl.Buffer, dims: bytes, brushes: list[tuple[Edit, Box]],
+                    origin: bytes = WORLD_ORIGIN) -> None:
     """Box and sphere edits, each with its clipped box: one alone with its own kernel, several
     with fill_brushes (their records in one small buffer)."""
     if len(brushes) == 1:
-        enqueue_brush(gpu, voxels, dims, *brushes[0])
+        enqueue_brush(gpu, voxels, dims, *brushes[0], origin)
         return
     if not brushes:
         return
@@ -52,17 +58,18 @@ def enqueue_brushes(gpu: GpuContext, voxels: cl.Buffer, dims: np.ndarray, brushe
     local = 64
     with gpu.uploads.staged(records) as record_buf:
         gpu.programs.kernel("edits.cl", "fill_brushes")(
-            gpu.queue, (-(-first // local) * local,), (local,), voxels, dims,
+            gpu.queue, (-(-first // local) * local,), (local,), voxels, dims, origin,
             record_buf, np.int32(len(brushes)), np.uint32(first))
 
 
-def enqueue_brush(gpu: GpuContext, voxels: cl.Buffer, dims: np.ndarray, e: Edit, box: Box) -> None:
+def enqueue_brush(gpu: GpuContext, voxels: cl.Buffer, dims: bytes, e: Edit, box: Box,
+                  origin: bytes = WORLD_ORIGIN) -> None:
     q, kernels = gpu.queue, gpu.programs
     gsize, lsize = grid(box.shape_xyz)
     if isinstance(e, BoxEdit):
-        kernels.kernel("edits.cl", "fill_box")(q, gsize, lsize, voxels, dims, int4(box.lo), int4(box.shape_xyz),
+        kernels.kernel("edits.cl", "fill_box")(q, gsize, lsize, voxels, dims, origin, int4(box.lo), int4(box.shape_xyz),
                                                np.uint32(e.colour))
     elif isinstance(e, SphereEdit):
         center = float4(e.center)
-        kernels.kernel("edits.cl", "fill_sphere")(q, gsize, lsize, voxels, dims, int4(box.lo), int4(box.shape_xyz),
+        kernels.kernel("edits.cl", "fill_sphere")(q, gsize, lsize, voxels, dims, origin, int4(box.lo), int4(box.shape_xyz),
                                                   center, np.float32(e.radius * e.radius), np.uint32(e.colour))

@@ -32,9 +32,10 @@ class DirtySet:
         self.boxes.clear()
         self.all = False
 
-    def regions(self, config: WorldConfig) -> list[Box]:
+    def regions(self, config: WorldConfig, max_regions: int = 32) -> list[Box]:
         """The regions a recompute rewrites: each box grown by the cap, snapped to chunks,
-        clipped to the world, touching ones merged."""
+        clipped to the world, touching ones merged (past ``max_regions``, one box around them
+        all: geometry.merge_regions)."""
         if self.all:
             return [Box.of_size(config.size)]
         cap, cs, (sx, sy, sz) = config.max_distance, config.chunk_size, config.size
@@ -49,7 +50,7 @@ class DirtySet:
             hi = (max(lo[0], min(sx, -(-(x1 + cap) // cs) * cs)), max(lo[1], min(sy, -(-(y1 + cap) // cs) * cs)),
                   max(lo[2], min(sz, -(-(z1 + cap) // cs) * cs)))
             grown[lo, hi] = None
-        return merge_regions(Box(lo, hi) for lo, hi in grown)
+        return merge_regions((Box(lo, hi) for lo, hi in grown), max_regions)
 
     def chunk_count(self, config: WorldConfig) -> int:
         if self.all:

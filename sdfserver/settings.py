@@ -74,10 +74,11 @@ class Settings(BaseSettings):
         256.0, gt=0, description="Largest sphere radius an edit may use, in voxels (422 above it).")
     max_world_voxels: int = Field(
         1 << 30, ge=512, le=MAX_WORLD_VOXELS,
-        description="Largest world, in voxels (sx*sy*sz); larger worlds get 413. At most 2048^3 (2048 voxels a "
-                    "side); whatever it allows, a world whose buffers (5 bytes a voxel) do not fit the device's "
+        description="Largest dense world, in voxels (sx*sy*sz); larger ones get 413. At most 2048^3 (2048 voxels "
+                    "a side); whatever it allows, a world whose buffers (5 bytes a voxel) do not fit the device's "
                     "free memory budget or its largest single buffer is refused with 507 before anything is "
-                    "allocated.")
+                    "allocated. Sparse worlds (storage sparse) are bounded by their sides and by the memory their "
+                    "stored bricks take, not by this.")
     max_worlds: int = Field(64, ge=1, description="Most worlds that may live in the server at once (413 above it).")
     max_read_voxels: int = Field(
         1 << 27, ge=1, description="Largest box one field or voxel read may cover, in voxels (413 above it).")

@@ -154,6 +154,11 @@ class World:
     def device_bytes(self) -> int:
         return sum(self._sizes)
 
+    def field_source(self) -> tuple[dict[str, int], tuple]:
+        """How kernels that walk the field themselves (render.cl's FIELD_ARGS) reach it: no
+        build defines, and the one field buffer (a sparse world passes its brick table)."""
+        return {}, (self.buffers.field,)
+
     # -- edits ----------------------------------------------------------------------------------
 
     def plan_edits(self, edits: list[Edit]) -> "EditPlan":

@@ -6,13 +6,14 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, StrictInt, StrictStr
 
-from sdfserver.world_config import MAX_SIDE_VOX
+from sdfserver.world_config import MAX_SIDE_VOX, MAX_SPARSE_SIDE_XZ_VOX
 
 # Every number is bounded here, at the door: what passes fits the log, msgpack and the device.
 INT32_MIN, INT32_MAX = -(1 << 31), (1 << 31) - 1
 Int32 = Annotated[StrictInt, Field(ge=INT32_MIN, le=INT32_MAX)]
 Int3 = Annotated[list[Int32], Field(min_length=3, max_length=3, description="[x, y, z]")]
-Side = Annotated[StrictInt, Field(ge=1, le=MAX_SIDE_VOX)]
+# Dense worlds stop at MAX_SIDE_VOX a side, sparse ones further (WorldConfig says which, with a 422).
+Side = Annotated[StrictInt, Field(ge=1, le=MAX_SPARSE_SIDE_XZ_VOX)]
 ChunkCount = Annotated[StrictInt, Field(ge=1, le=INT32_MAX)]
 Point3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
 Algorithm = Annotated[StrictStr, Field(description="exact, brute, fim, jfa, jfa+1, jfa+2 or jfa_fim")]
@@ -29,6 +30,18 @@ class FocusBody(Strict):
         description="Focus extent, in chunks.")
 
 
+Number = Annotated[FiniteFloat, Field(ge=0, le=1 << 16)]
+
+
+class GenerateBody(Strict):
+    kind: Literal["terrain"] = Field(description="terrain: a heightmap with overhangs, caves and colours.")
+    seed: Annotated[StrictInt, Field(ge=0, le=(1 << 32) - 1)] = 0
+    base: Number | None = Field(None, description="Height the surface rolls around (default 0.4 of the world's).")
+    amplitude: Number | None = Field(None, description="The surface lies within base ± amplitude (default 0.15 of the height).")
+    overhang: Number = Field(8.0, description="How far 3-D noise moves the surface up or down, 0..64.")
+    cave_depth: Number = Field(40.0, description="Caves lie at most this far below the surface, 0..256.")
+
+
 class CreateWorldBody(Strict):
     size: Annotated[list[Side], Field(min_length=3, max_length=3)] = Field(
         description="World size in voxels, each a multiple of chunk_size.")
@@ -38,6 +51,10 @@ class CreateWorldBody(Strict):
     lod_algorithm: Algorithm = "jfa"
     focus: FocusBody | None = Field(None, description="Where `algorithm` runs; elsewhere `lod_algorithm`.")
     borders: Borders = "exact"
+    storage: Literal["dense", "sparse"] = Field(
+        "dense", description=f"dense: every voxel on the device (sides up to {MAX_SIDE_VOX}). sparse: only bricks "
+        "that are neither all air at the cap nor all one solid colour (sides up to 65536 along x and z, 4096 along y).")
+    generate: GenerateBody | None = Field(None, description="Sparse worlds only: start as this terrain, not as air.")
 
 
 class PatchWorldBody(Strict):

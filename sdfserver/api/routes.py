@@ -23,6 +23,7 @@ from sdfserver.errors import InvalidEdit, InvalidInput, TooLarge
 from sdfserver.geometry import Box
 from sdfserver.storage.codec import encode_batch
 from sdfserver.world import Focus, WorldConfig
+from sdfserver.world_config import TerrainSpec
 
 router = APIRouter(prefix="/v1")
 LITTLE_ENDIAN = {name: np.dtype(name).newbyteorder("<") for name in ("uint8", "uint16")}  # reads' wire dtypes
@@ -46,7 +47,8 @@ async def create_world(request: Request) -> Response:
     body = CreateWorldBody.model_validate(await decode_body(request))
     config = WorldConfig(size=tuple(body.size), chunk_size=body.chunk_size, max_distance=body.max_distance,
                          algorithm=body.algorithm, lod_algorithm=body.lod_algorithm, focus=_focus(body.focus),
-                         borders=body.borders)
+                         borders=body.borders, storage=body.storage,
+                         generate=None if body.generate is None else TerrainSpec(**body.generate.model_dump()))
     described = await engine_of(request).create_world(world_config_dict(config), access_of(request),
                                                       max_owned=max_owned(request))
     response = respond(request, described, status_code=201)

@@ -53,8 +53,9 @@ def query_points(world: World, points: np.ndarray) -> QueryResult:
     packed_buf = cl.Buffer(gpu.context, cl.mem_flags.WRITE_ONLY, size=2 * n)
     gradient_buf = cl.Buffer(gpu.context, cl.mem_flags.WRITE_ONLY, size=16 * n)
     try:
-        gpu.programs.kernel("query.cl", "query_points")(
-            gpu.queue, (-(-n // 64) * 64,), (64,), world.buffers.field, int4(world.config.size),
+        defines, field = world.field_source()
+        gpu.programs.kernel("query.cl", "query_points", **defines)(
+            gpu.queue, (-(-n // 64) * 64,), (64,), *field, int4(world.config.size),
             points_buf, np.int32(n), packed_buf, gradient_buf)
         packed = np.empty(n, dtype=np.uint16)
         gradients = np.empty((n, 4), dtype=np.float32)

@@ -26,6 +26,8 @@ from sdfserver.errors import CorruptData, SdfServerError
 from sdfserver.storage import Storage, decode_batch
 from sdfserver.storage.journal import StorageJournal
 from sdfserver.world import Focus, World, WorldConfig
+from sdfserver.world_config import TerrainSpec
+from sdfserver.world_factory import make_world
 
 log = logging.getLogger("sdfserver.restore")
 REPLAY_GROUP = 1024  # batches planned before a group's launches; a step under load brings ~30
@@ -53,7 +55,8 @@ def config_from_dict(d: dict) -> WorldConfig:
     return WorldConfig(size=size, chunk_size=chunk_size, max_distance=d["max_distance"],
                        algorithm=d["algorithm"], lod_algorithm=d.get("lod_algorithm", "jfa"),
                        borders=d.get("borders", "exact"),  # older logs and snapshots predate it
-                       focus=_focus(d.get("focus"), size, chunk_size))
+                       focus=_focus(d.get("focus"), size, chunk_size), storage=d.get("storage", "dense"),
+                       generate=None if d.get("generate") is None else TerrainSpec(**d["generate"]))
 
 
 def _focus(focus: dict | None, size: tuple, chunk_size: int) -> Focus | None:
@@ -94,7 +97,8 @@ def restore_worlds(engine: Engine, storage: Storage, journal: StorageJournal) ->
             continue
         world = None
         try:
-            world = World(engine.gpu, config_from_dict(meta["config"]).validated(), REPLAY_LIMITS)
+            world = make_world(engine.gpu, config_from_dict(meta["config"]), REPLAY_LIMITS,
+                               generate=recovered.voxels is None)
             if recovered.voxels is not None:
                 world.load_voxels(recovered.voxels)
             world.version = recovered.snapshot_version
@@ -130,6 +134,8 @@ def _replay(world: World, records: list[tuple[int, bytes]], directory: Path) -> 
             except SdfServerError as exc:
                 raise CorruptData(where, None, f"logged batch does not apply: {exc}") from None
         world.apply_plans(plans)
+        if world.config.storage == "sparse":  # its pending edits make one scratch box: keep them few
+            world.recompute()
 
 
 def _refuse(engine: Engine, report: RestoreReport, world_id: str, exc: BaseException) -> None:

@@ -15,6 +15,7 @@ from sdfserver.engine.metrics import EngineMetrics
 from sdfserver.errors import InvalidInput, NotFound, StorageError, TooLarge
 from sdfserver.gpu import GpuContext
 from sdfserver.world import World, WorldConfig
+from sdfserver.world_factory import make_world
 
 
 def world_config_dict(config: WorldConfig) -> dict[str, Any]:
@@ -62,7 +63,8 @@ class WorldTable:
         """A new world (journaled); its id."""
         config = command.config.validated()
         sx, sy, sz = config.size
-        if sx * sy * sz > self.limits.max_world_voxels:
+        # A sparse world's memory follows its stored bricks, checked against the budget as they come.
+        if config.storage == "dense" and sx * sy * sz > self.limits.max_world_voxels:
             raise TooLarge(f"a {sx}x{sy}x{sz} world has {sx * sy * sz} voxels; the limit is "
                            f"{self.limits.max_world_voxels}")
         if len(self.worlds) >= self.limits.max_worlds:
@@ -72,7 +74,9 @@ class WorldTable:
             if command.world_id:
                 raise InvalidInput(f"world {world_id!r} already exists")
             world_id = new_world_id()
-        world = World(self.gpu, config, self.limits.edits)
+        if command.voxels is not None and config.storage != "dense":
+            raise InvalidInput("an import makes a dense world; a sparse world starts empty or generated")
+        world = make_world(self.gpu, config, self.limits.edits)
         try:
             if command.voxels is not None:
                 world.load_voxels(command.voxels)
@@ -120,6 +124,8 @@ class WorldTable:
             "last_recompute_ms": self.last_recompute_ms.get(world_id),
             "last_recompute": describe_recompute(world.last_recompute),
             "device_bytes": world.device_bytes,
+            **({"stored_bricks": world.stored_bricks, "bytes_per_stored_voxel": world.bytes_per_stored_voxel}
+               if world.config.storage == "sparse" else {}),
             "owner": self.owners.get(world_id),
         }
 

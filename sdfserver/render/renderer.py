@@ -1,7 +1,7 @@
 """Renderer: draws frames of a world with ``kernels/render.cl`` and answers picks.
 
 The renderer belongs to the thread that owns the GpuContext (the engine thread
-in the server): ``render`` reads ``world.buffers.field`` between steps, so a
+in the server): ``render`` reads the world's field (``world.field_source()``) between steps, so a
 frame shows the field of exactly one version, ``frame.field_version``. Output
 buffers are allocated through the GpuContext once per frame size and reused;
 a few recent sizes are kept (several clients with different windows).
@@ -112,9 +112,10 @@ class Renderer:
             highlight = int4(centre, int(math.floor(options.highlight_radius ** 2)))
         gsize = tuple(-(-n // l) * l for n, l in zip((w, h), LOCAL_SIZE))
         queue = self.gpu.queue
-        event = self.gpu.programs.kernel("render.cl", "render")(
+        defines, field = world.field_source()
+        event = self.gpu.programs.kernel("render.cl", "render", **defines)(
             queue, gsize, LOCAL_SIZE,
-            world.buffers.field, int4(world.config.size),
+            *field, int4(world.config.size),
             _float4(origin), _float4(forward), _float4(right), _float4(up),
             np.int32(w), np.int32(h), np.uint32(options.sky_rgb), np.uint32(flags), _float4(light),
             highlight, target.pixels, target.reads,
@@ -133,8 +134,9 @@ class Renderer:
     def pick(self, world, camera: Camera, px: float, py: float) -> Pick | None:
         """The voxel under pixel coordinates ``(px, py)`` (a pixel's centre is ``+0.5``), or None."""
         origin, direction = camera.ray(px, py)
-        self.gpu.programs.kernel("render.cl", "pick")(
-            self.gpu.queue, (1,), None, world.buffers.field, int4(world.config.size),
+        defines, field = world.field_source()
+        self.gpu.programs.kernel("render.cl", "pick", **defines)(
+            self.gpu.queue, (1,), None, *field, int4(world.config.size),
             _float4(origin), _float4(direction), self._pick_out,
         )
         out = np.empty((2, 4), dtype=np.int32)

@@ -4,6 +4,9 @@ Layout (one format for both)::
 
     b"SDFSNAP1" | u32 header length | header (UTF-8 JSON) | body
 
+A sparse world's snapshot is format 2: its body is its brick table and stored bricks
+(``sparse_snapshot.py``), with ``blocks_bytes`` and ``bricks`` in the header.
+
 The header holds ``format`` (1), ``version`` (the world version the voxels reflect),
 ``config`` (the world's configuration: ``size`` [sx, sy, sz], ``chunk_size``,
 ``max_distance``, ``algorithm``, ...), ``compression`` ("zlib"), ``dtype`` ("uint8"),
@@ -26,6 +29,7 @@ import numpy as np
 
 from sdfserver.errors import CorruptData, InvalidInput, TooLarge
 from sdfserver.storage.fsutil import fsync_dir, write_atomic
+from sdfserver.storage.sparse_snapshot import SparseContent, parse_sparse
 
 SNAPSHOT_MAGIC = b"SDFSNAP1"
 SNAPSHOT_PATTERN = "snap-*.sdfsnap"
@@ -48,10 +52,12 @@ def snapshot_version(path: Path) -> int:
 class Snapshot:
     version: int
     config: dict[str, Any]
-    voxels: np.ndarray  # uint8, (z, y, x)
+    voxels: np.ndarray | SparseContent  # uint8, (z, y, x); a sparse world's bricks (format 2)
 
 
-def encode_snapshot(version: int, config: dict[str, Any], voxels: np.ndarray) -> bytes:
+def encode_snapshot(version: int, config: dict[str, Any], voxels: np.ndarray | SparseContent) -> bytes:
+    if isinstance(voxels, SparseContent):
+        return _encode_sparse(version, config, voxels)
     size = [int(v) for v in config["size"]]
     if voxels.dtype != np.uint8 or voxels.shape != tuple(size[::-1]):
         raise InvalidInput(f"snapshot voxels must be uint8 with shape {tuple(size[::-1])}, "
@@ -64,8 +70,20 @@ def encode_snapshot(version: int, config: dict[str, Any], voxels: np.ndarray) ->
     return SNAPSHOT_MAGIC + _HEADER_LENGTH.pack(len(header)) + header + body
 
 
+def _encode_sparse(version: int, config: dict[str, Any], content: SparseContent) -> bytes:
+    blocks, bricks = content.compact()
+    compressor = zlib.compressobj(COMPRESSION_LEVEL)
+    body = b"".join([compressor.compress(blocks)] + [compressor.compress(part) for part in content.brick_bytes()]
+                    + [compressor.flush()])
+    header = json.dumps({
+        "format": 2, "version": int(version), "config": config, "compression": "zlib", "dtype": "bricks",
+        "order": "zyx", "blocks_bytes": len(blocks), "bricks": bricks, "brick": content.brick,
+        "body_bytes": len(body), "body_crc32": zlib.crc32(body)}, sort_keys=True).encode()
+    return SNAPSHOT_MAGIC + _HEADER_LENGTH.pack(len(header)) + header + body
+
+
 def decode_snapshot(data: bytes | memoryview, where: str = "snapshot", *,
-                    max_voxels: int | None = None, corrupt=CorruptData) -> Snapshot:
+                    max_voxels: int | None = None, corrupt=CorruptData, allow_sparse: bool = True) -> Snapshot:
     """Parse and check a snapshot. ``corrupt`` picks the error: ``CorruptData`` for files on
     disk, an ``InvalidInput`` for uploads (see ``decode_upload``)."""
     view = memoryview(data)
@@ -87,12 +105,25 @@ def decode_snapshot(data: bytes | memoryview, where: str = "snapshot", *,
         fmt = (header["format"], header["compression"], header["dtype"], header["order"])
     except (ValueError, KeyError, TypeError, OverflowError, RecursionError) as exc:  # a hostile header nests deeply
         raise fail(head, f"bad header: {type(exc).__name__}: {str(exc)[:200]}") from None
-    if fmt != (1, "zlib", "uint8", "zyx"):
+    if fmt not in ((1, "zlib", "uint8", "zyx"), (2, "zlib", "bricks", "zyx")):
         raise fail(head, f"unsupported format {fmt}")
     if not 0 <= version <= MAX_VERSION or len(size) != 3 or not 0 < min(size) <= max(size) <= MAX_SIDE:
         raise fail(head, f"bad version {version} or size {size}")
-    raw_bytes = size[0] * size[1] * size[2]
-    if max_voxels is not None and raw_bytes > max_voxels:
+    sparse = fmt[0] == 2
+    if sparse and not allow_sparse:
+        raise fail(head, "a sparse world's snapshot cannot be imported")
+    if sparse:
+        try:
+            blocks_bytes, bricks, brick = int(header["blocks_bytes"]), int(header["bricks"]), int(header["brick"])
+        except (ValueError, KeyError, TypeError) as exc:
+            raise fail(head, f"bad header: {type(exc).__name__}") from None
+        if brick not in (8, 16, 32, 64, 128) or any(v % brick for v in size) or not 0 <= bricks <= (
+                size[0] // brick) * (size[1] // brick) * (size[2] // brick) or not 0 <= blocks_bytes <= (1 << 36):
+            raise fail(head, f"bad sparse layout: brick {brick}, {bricks} bricks, {blocks_bytes} table bytes")
+        raw_bytes = blocks_bytes + 3 * bricks * brick ** 3
+    else:
+        raw_bytes = size[0] * size[1] * size[2]
+    if max_voxels is not None and not sparse and raw_bytes > max_voxels:
         raise TooLarge(f"{where}: a {size} world has {raw_bytes} voxels; the limit is {max_voxels}")
     body_at = head + header_len
     body = view[body_at:]
@@ -107,13 +138,17 @@ def decode_snapshot(data: bytes | memoryview, where: str = "snapshot", *,
         raise fail(body_at, f"cannot decompress body: {exc}") from None
     if len(raw) != raw_bytes or inflater.unconsumed_tail or not inflater.eof:
         raise fail(body_at, f"body inflates to a size other than the declared {raw_bytes} bytes")
+    if sparse:
+        return Snapshot(version, config, parse_sparse(raw, blocks_bytes, bricks, brick, fail))
     voxels = np.frombuffer(raw, dtype=np.uint8).reshape(size[::-1]).copy()
     return Snapshot(version, config, voxels)
 
 
 def decode_upload(data: bytes, max_voxels: int | None = None) -> Snapshot:
-    """A snapshot sent by a client: any defect is the client's (422 / 413)."""
-    return decode_snapshot(data, "uploaded snapshot", max_voxels=max_voxels, corrupt=InvalidInput)
+    """A snapshot sent by a client: any defect is the client's (422 / 413). Imports make dense
+    worlds, so a sparse world's snapshot is refused (422)."""
+    return decode_snapshot(data, "uploaded snapshot", max_voxels=max_voxels, corrupt=InvalidInput,
+                           allow_sparse=False)
 
 
 def write_snapshot(directory: Path, version: int, config: dict[str, Any], voxels: np.ndarray) -> Path:

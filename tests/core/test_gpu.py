@@ -55,8 +55,8 @@ def test_every_kernel_declares_its_scalar_argument_types(gpu):
     """Without declared types pyopencl probes each argument on every launch (~50 us a kernel on
     the H200 host): every kernel in kernels/ must have argument info the loader understands."""
     int4 = cl.cltypes.int4
-    expected = {"fill_sphere": [None, int4, int4, int4, cl.cltypes.float4, np.float32, np.uint32],
-                "set_voxels": [None, int4, None, np.int32]}
+    expected = {"fill_sphere": [None, int4, int4, int4, int4, cl.cltypes.float4, np.float32, np.uint32],
+                "set_voxels": [None, int4, int4, None, np.int32]}
     kernels = [Exact().launch_shape(gpu, axis, 64, 64, 64, 64)[0] for axis in range(3)]  # needs defines
     for path in sorted(programs.KERNEL_DIR.glob("*.cl")):
         if path.name != "exact.cl":

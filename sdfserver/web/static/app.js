@@ -176,7 +176,7 @@ function waitForServer() {
 function describeWorld(w) {
   const [sx, sy, sz] = w.size;
   const shape = sx === sy && sy === sz ? `${sx}³` : `${sx}×${sy}×${sz}`;
-  return `${w.id} · ${shape} · ${w.algorithm}`;
+  return `${w.id} · ${shape} · ${w.algorithm}${w.storage === "sparse" ? " · sparse" : ""}`;
 }
 
 async function refreshWorlds(selectId) {
@@ -188,9 +188,21 @@ async function refreshWorlds(selectId) {
 }
 
 async function createWorld(size, algorithm) {
+  if (String(size).startsWith("terrain-")) return createTerrain(Number(String(size).slice(8)), algorithm);
   showStatus(`Creating a ${size}³ world…`);
   const world = await api("POST", "/v1/worlds", { size: [size, size, size], algorithm });
   await api("POST", `/v1/worlds/${world.id}/edits`, { edits: demoScene(world.size) });
+  showStatus("");
+  return world;
+}
+
+// A large sparse world: only the bricks near the generated surface take device memory.
+async function createTerrain(side, algorithm) {
+  showStatus(`Generating a ${side}×${side / 8}×${side} terrain…`);
+  const world = await api("POST", "/v1/worlds", {
+    size: [side, side / 8, side], chunk_size: 32, max_distance: 31, algorithm, storage: "sparse",
+    generate: { kind: "terrain", seed: Math.floor(Math.random() * 2 ** 31) },
+  });
   showStatus("");
   return world;
 }
@@ -207,7 +219,8 @@ async function openWorld(world) {
   worldSize = world.size;
   location.hash = `world=${encodeURIComponent(world.id)}`;
   const [sx, sy, sz] = world.size;
-  lookAt([sx * 1.02, sy * 0.62, sz * 1.12], [sx * 0.5, sy * 0.12, sz * 0.5]);
+  if (world.storage === "sparse") lookAt([sx * 0.5, sy * 0.8, sz * 0.5], [sx * 0.5 + 400, sy * 0.35, sz * 0.5 + 400]);
+  else lookAt([sx * 1.02, sy * 0.62, sz * 1.12], [sx * 0.5, sy * 0.12, sz * 0.5]);
   $("algorithm").value = world.algorithm;
   $("lod-algorithm").value = world.lod_algorithm ?? "jfa";
   $("focus-on").checked = !!world.focus;
@@ -412,7 +425,7 @@ let lastTick = performance.now();
 function tick(now) {
   const dt = Math.min(0.1, (now - lastTick) / 1000);
   lastTick = now;
-  const speed = Math.max(...worldSize) * 0.4 * dt;
+  const speed = Math.min(Math.max(...worldSize) * 0.4, 600) * dt;  // voxels a second, large worlds too
   const { forward, right } = basis();
   const move = [0, 0, 0];
   const add = (v, s) => { for (let i = 0; i < 3; i++) move[i] += v[i] * s; };

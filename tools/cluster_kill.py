@@ -4,8 +4,8 @@ again, and what the other engines' clients saw meanwhile.
     python tools/cluster_kill.py --url http://127.0.0.1:8767 --worlds 10 --side 256 --json kill.json
 
 Creates ``--worlds`` worlds per engine (placement spreads them), writes 20 batches into each,
-starts one writer thread per world (a sphere per batch, the same batch again after a failed
-attempt), SIGKILLs the engine holding the first world, and reports: seconds until every one of
+starts one writer thread per world (a sphere per batch, the same batch with the same
+``Idempotency-Key`` again after a failed attempt), SIGKILLs the engine holding the first world, and reports: seconds until every one of
 its worlds answers a field read at its last acknowledged version; the survivors' edit latencies
 (p50, p99, max) and failures during the outage; batches acknowledged; and whether each world's
 version equals its acknowledged batches (a retried batch applied twice shows as a higher version).
@@ -30,10 +30,11 @@ def writer(url: str, world: str, side: int, stop: threading.Event, log: list, ac
         while not stop.is_set():
             batch = [{"op": "sphere", "center": rng.uniform(0, side, 3).tolist(), "radius": 4.0,
                       "colour": int(rng.integers(0, 256))}]
+            key = {"idempotency-key": f"{world}-{len(acked)}-{rng.integers(1 << 60)}"}
             while not stop.is_set():
                 started = time.monotonic()
                 try:
-                    ok = http.post(f"/v1/worlds/{world}/edits", json={"edits": batch}).status_code == 200
+                    ok = http.post(f"/v1/worlds/{world}/edits", json={"edits": batch}, headers=key).status_code == 200
                 except httpx.TransportError:
                     ok = False
                 log.append((started, time.monotonic() - started, ok))

@@ -82,24 +82,7 @@ def body_for(exc: BaseException) -> tuple[int, dict[str, Any]]:
     return 500, error_body("internal_error", f"{type(exc).__name__}: {exc}")
 
 
-class Answered(Exception):
-    """A failure already translated, in the server process, for a front to send as it is."""
-
-    def __init__(self, status: int, body: bytes, headers: list[tuple[bytes, bytes]]):
-        super().__init__(status)
-        self.status, self.body, self.headers = status, body, headers
-
-    @classmethod
-    def of(cls, exc: BaseException) -> "Answered":
-        response = error_response(exc)
-        return cls(response.status_code, bytes(response.body), list(response.raw_headers))
-
-
 def error_response(exc: BaseException) -> Response:
-    if isinstance(exc, Answered):
-        response = Response(exc.body, exc.status)
-        response.raw_headers = list(exc.headers)
-        return response
     status, body = body_for(exc)
     headers = {"Retry-After": "1"} if status == 503 else None
     if isinstance(exc, RateLimited):

@@ -115,10 +115,24 @@ def _edits_wire(body: Any, max_ops: int) -> list[dict[str, Any]]:
     return raw
 
 
-def batch_record(raw: Any) -> bytes:
+MAX_BATCH_ID_CHARS = 128
+
+
+def batch_id_of(request: Request) -> str | None:
+    """The client's id for this batch (``Idempotency-Key``): a retry with the same id is answered
+    with the first attempt's version instead of being applied again."""
+    key = header(request, b"idempotency-key")
+    if key is None:
+        return None
+    if not 0 < len(key) <= MAX_BATCH_ID_CHARS or not key.isascii() or not key.isprintable():
+        raise InvalidInput(f"Idempotency-Key must be 1..{MAX_BATCH_ID_CHARS} printable ASCII characters")
+    return key
+
+
+def batch_record(raw: Any, batch_id: str | None = None) -> bytes:
     """The batch as the engine takes it (its log record); the engine validates it."""
     try:
-        return encode_batch(raw)
+        return encode_batch(raw, batch_id)
     except (TypeError, ValueError, OverflowError) as exc:
         raise InvalidEdit(f"edits: cannot be encoded as an edit batch: {exc}") from None
 
@@ -127,8 +141,9 @@ def batch_record(raw: Any) -> bytes:
              summary="Apply one edit batch atomically; answers the version it produced")
 async def post_edits(request: Request, world_id: str) -> Response:
     settings = request.app.state.settings
+    batch_id = batch_id_of(request)
     raw = _edits_wire(await decode_body(request), settings.max_ops_per_batch)
-    version = await engine_of(request).apply_edits(world_id, batch_record(raw), access_of(request))
+    version = await engine_of(request).apply_edits(world_id, batch_record(raw, batch_id), access_of(request))
     return respond(request, {"version": version})
 
 

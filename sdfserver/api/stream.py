@@ -87,7 +87,7 @@ class StreamSession:
         try:
             await self._receive()
         finally:
-            await self.frames.close()  # issue 4
+            await self.frames.close()
             sender.cancel()
             with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect, RuntimeError):
                 await sender
@@ -141,7 +141,7 @@ class StreamSession:
             await self.send({"type": "unsubscribed", "id": frame_id})
         elif kind == "ping":
             await self.send({"type": "pong", "id": frame_id})
-        elif kind == "camera":  # issue 4: frames
+        elif kind == "camera":
             self.frames.set_view(frame)
         else:
             raise InvalidInput(f"unknown frame type {kind!r}; expected edits, subscribe, unsubscribe, ping "

@@ -1,12 +1,18 @@
 """Edit batches through one step: plan (validate against the world; a bad batch fails alone,
 nothing logged or applied) -> journal (each world's batches of the step in one log record) ->
 apply (the step's brushes in few launches) -> acknowledge (each batch with its version, once the
-log has it on disk)."""
+log has it on disk).
+
+A batch that carries the client's id (``Idempotency-Key``) is remembered with its version once
+acknowledged (the last ``REMEMBERED_BATCHES`` of each world; rebuilt from the log at start-up):
+the same id again is answered with that version and not applied again, so a client may retry a
+batch whose answer it never got (an engine restarted under it) without doubling it."""
 
 from __future__ import annotations
 
 import logging
 import time
+from collections import OrderedDict
 from concurrent.futures import Future
 from typing import Callable
 
@@ -21,6 +27,7 @@ from sdfserver.world import EditPlan
 
 log = logging.getLogger("sdfserver.engine")
 Planned = tuple[ApplyEdits, Future, EditPlan]
+REMEMBERED_BATCHES = 4096  # ids per world: a retry comes within seconds of its first attempt
 
 
 def fail(future: Future, exc: BaseException) -> None:
@@ -39,10 +46,30 @@ class BatchPipeline:
         self.metrics = metrics
         self.more_queued = more_queued
         self.acknowledging: list[list[tuple[Future, int]]] = []  # the step's applied batches
+        self.remembered: dict[str, OrderedDict[str, int]] = {}  # world -> batch id -> version
+
+    def remember_for(self, world_id: str) -> Callable[[str, int], None]:
+        """What records an acknowledged batch id of ``world_id`` (any thread)."""
+        ids = self.remembered.setdefault(world_id, OrderedDict())
+
+        def remember(batch_id: str, version: int) -> None:
+            ids[batch_id] = version
+            while len(ids) > REMEMBERED_BATCHES:
+                ids.popitem(last=False)
+
+        return remember
+
+    def forget_world(self, world_id: str) -> None:
+        self.remembered.pop(world_id, None)
 
     def plan(self, command: ApplyEdits, future: Future, report: StepReport) -> Planned | None:
         started = time.perf_counter()
         try:
+            if command.batch_id is not None:
+                version = self.remembered.get(command.world_id, {}).get(command.batch_id)
+                if version is not None:  # acknowledged before: the same answer, nothing applied
+                    future.set_result(version)
+                    return None
             return command, future, self.table.get(command.world_id).plan_edits(command.edits)
         except Exception as exc:
             self.reject(future, exc, report)
@@ -92,14 +119,25 @@ class BatchPipeline:
             report.applied_batches += len(items)
             answers = [(future, version) for (_, future, _), version in zip(items, versions)]
             self.acknowledging.append(answers)
+            ids = [(command.batch_id, version) for (command, _, _), version in zip(items, versions)
+                   if command.batch_id is not None]
             if durable is None:
+                self._remember(world_id, ids)
                 for future, version in answers:
                     future.set_result(version)
             else:
+                if ids:  # remembered only once durable: a repeat must not be answered before that
+                    durable.add_done_callback(lambda d, w=world_id, ids=ids: d.exception() is None and
+                                              self._remember(w, ids))
                 acknowledge_when_durable(answers, durable)
             touched.add(world_id)
         report.apply_ms["launch"] += launch_ms
         report.apply_ms["acknowledge"] += (time.perf_counter() - logged) * 1e3 - launch_ms
+
+    def _remember(self, world_id: str, ids: list[tuple[str, int]]) -> None:
+        remember = self.remember_for(world_id)
+        for batch_id, version in ids:
+            remember(batch_id, version)
 
     def reject(self, future: Future, exc: BaseException, report: StepReport) -> None:
         report.rejected_batches += 1

@@ -63,6 +63,7 @@ class ApplyEdits:
     # the batch as it arrived, for the journal; or its log record already encoded
     # (storage.codec.encode_batch), as an API process sends it
     wire: list[dict[str, Any]] | bytes
+    batch_id: str | None = None  # the client's id: a batch seen before is answered, not applied again
 
 
 @dataclass(frozen=True)

@@ -238,6 +238,7 @@ class Engine(EngineLifetime, CommandCalls):
     def _delete_world(self, command: DeleteWorld, touched: set[str]) -> None:
         self.table.delete(command.world_id)
         self.subscriptions.drop_world(command.world_id)
+        self.batches.forget_world(command.world_id)
 
     def _reconfigure(self, command: Reconfigure, touched: set[str]) -> None:
         self.table.reconfigure(command.world_id, command.changes)

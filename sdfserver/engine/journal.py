@@ -11,8 +11,8 @@ The engine calls these on its own thread, in the order things happen:
   ``first_version`` is the version the first batch will produce (the others follow,
   one each), each batch in wire form (a list of op maps as ``sdfserver.edits.parse_edits``
   accepts; ``voxels`` as an (N, 4) integer NumPy array) or as the bytes
-  ``sdfserver.storage.codec.encode_batch`` made of that (a front encodes it before the
-  link). If it raises, none of these
+  ``sdfserver.storage.codec.encode_batch`` made of that (an API process encodes it before
+  sending it). If it raises, none of these
   batches is applied or acknowledged.
   It may return a ``concurrent.futures.Future`` that completes once the batches are
   durable; the engine then acknowledges them only when that future completes (and fails

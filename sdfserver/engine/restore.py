@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from sdfserver.edits import REPLAY_LIMITS, parse_edits
 from sdfserver.engine.core import Engine
 from sdfserver.errors import CorruptData, SdfServerError
-from sdfserver.storage import Storage, decode_batch
+from sdfserver.storage import Storage, batch_parts, decode_batch
 from sdfserver.storage.journal import StorageJournal
 from sdfserver.world import Focus, World, WorldConfig
 from sdfserver.world_config import TerrainSpec
@@ -102,7 +103,7 @@ def restore_worlds(engine: Engine, storage: Storage, journal: StorageJournal) ->
             if recovered.voxels is not None:
                 world.load_voxels(recovered.voxels)
             world.version = recovered.snapshot_version
-            _replay(world, recovered.records, store.directory)
+            _replay(world, recovered.records, store.directory, engine.batches.remember_for(world_id))
             world.limits = engine.limits.edits  # what comes in from now on meets today's limits
             world.recompute()
         except (SdfServerError, KeyError, TypeError, ValueError) as exc:
@@ -123,14 +124,19 @@ def restore_worlds(engine: Engine, storage: Storage, journal: StorageJournal) ->
     return report
 
 
-def _replay(world: World, records: list[tuple[int, bytes]], directory: Path) -> None:
-    """Apply the logged batches in order; CorruptData names the first one that does not apply."""
+def _replay(world: World, records: list[tuple[int, bytes]], directory: Path,
+            remember: Callable[[str, int], None]) -> None:
+    """Apply the logged batches in order, remembering the ids they carry; CorruptData names the
+    first one that does not apply."""
     for start in range(0, len(records), REPLAY_GROUP):
         plans = []
         for version, payload in records[start:start + REPLAY_GROUP]:
             where = f"{directory} record {version}"
             try:
-                plans.append(world.plan_edits(parse_edits(decode_batch(payload, where))))
+                edits_wire, batch_id = batch_parts(decode_batch(payload, where))
+                plans.append(world.plan_edits(parse_edits(edits_wire)))
+                if batch_id is not None:
+                    remember(batch_id, version)
             except SdfServerError as exc:
                 raise CorruptData(where, None, f"logged batch does not apply: {exc}") from None
         world.apply_plans(plans)

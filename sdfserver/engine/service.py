@@ -29,7 +29,7 @@ from sdfserver.engine.restore import config_from_dict
 from sdfserver.errors import InvalidInput, SdfServerError, TooManySubscriptions
 from sdfserver.geometry import Box
 from sdfserver.render import parse_view
-from sdfserver.storage.codec import decode_batch
+from sdfserver.storage.codec import batch_parts, decode_batch
 from sdfserver.world import Focus
 
 log = logging.getLogger("sdfserver.engine")
@@ -155,8 +155,8 @@ class EngineService:
 
     def _apply(self, client: bytes, m: msg.ApplyEdits) -> None:
         self.doorkeeper.admit(m.access, m.world_id)
-        edits = parse_edits(decode_batch(m.batch, "edit batch"))
-        self._submit(client, m.id, cmd.ApplyEdits(m.world_id, edits, m.batch))
+        edits_wire, batch_id = batch_parts(decode_batch(m.batch, "edit batch"))
+        self._submit(client, m.id, cmd.ApplyEdits(m.world_id, parse_edits(edits_wire), m.batch, batch_id))
 
     def _read(self, client: bytes, m: msg.Read) -> None:
         self.doorkeeper.admit(m.access, m.world_id)

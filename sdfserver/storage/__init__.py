@@ -13,7 +13,7 @@ worlds, and import / export formats. Knows files and bytes, never the device or 
     fsutil.py     fsync of directories, atomic replacement
 """
 
-from sdfserver.storage.codec import decode_batch, encode_batch
+from sdfserver.storage.codec import batch_parts, decode_batch, encode_batch
 from sdfserver.storage.npyfile import dump_npy, load_npy, pad_to_chunks
 from sdfserver.storage.recovery import Recovered
 from sdfserver.storage.snapshot import Snapshot, decode_upload, encode_snapshot
@@ -22,6 +22,6 @@ from sdfserver.storage.voxfile import dump_vox, load_vox
 
 __all__ = [
     "DEFAULT_DATA_DIR", "Recovered", "Snapshot", "Storage", "WorldStore", "check_world_id",
-    "decode_batch", "decode_upload", "dump_npy", "dump_vox", "encode_batch", "encode_snapshot",
+    "batch_parts", "decode_batch", "decode_upload", "dump_npy", "dump_vox", "encode_batch", "encode_snapshot",
     "load_npy", "load_vox", "pad_to_chunks",
 ]

@@ -41,11 +41,20 @@ def _ext_hook(code: int, data: bytes) -> Any:
     return np.frombuffer(raw, dtype=np.dtype(dtype)).reshape(shape)
 
 
-def encode_batch(edits_wire: Any) -> bytes:
-    """The record payload of one batch (already-encoded bytes pass through unchanged)."""
+def encode_batch(edits_wire: Any, batch_id: str | None = None) -> bytes:
+    """The record payload of one batch (already-encoded bytes pass through unchanged): its edits,
+    or, for a batch that carries the client's id, ``{"batch_id": id, "edits": edits}``."""
     if isinstance(edits_wire, (bytes, bytearray, memoryview)):
         return bytes(edits_wire)
-    return msgpack.packb(edits_wire, default=_default, use_bin_type=True)
+    value = edits_wire if batch_id is None else {"batch_id": batch_id, "edits": edits_wire}
+    return msgpack.packb(value, default=_default, use_bin_type=True)
+
+
+def batch_parts(decoded: Any) -> tuple[Any, str | None]:
+    """(edits, batch id or None) of a decoded record payload, in either form."""
+    if isinstance(decoded, dict) and set(decoded) == {"batch_id", "edits"} and isinstance(decoded["batch_id"], str):
+        return decoded["edits"], decoded["batch_id"]
+    return decoded, None
 
 
 def decode_batch(payload: bytes, where: str = "log record") -> Any:

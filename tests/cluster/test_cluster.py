@@ -20,6 +20,7 @@ from server_process import ServerProcess
 pytest.importorskip("ray")
 SIZE = (24, 16, 24)
 CAP = 12
+KILLS = 50
 FLAGS = ["--cluster", "local", "--engines", "2", "--engine-gpus", "0", "--workers", "1", "--no-warm-up",
          "--memory-budget-bytes", str(64 << 20)]
 
@@ -101,9 +102,10 @@ def test_a_killed_engine_actor_comes_back_with_every_acknowledged_batch(server):
         with httpx.Client(base_url=server.url, timeout=30) as http:
             while not stop.is_set():
                 batch = random_batch(batches)
-                for attempt in range(100):  # an unanswered attempt may have been applied: the same batch
-                    try:                    # again right after it leaves the same voxels
-                        r = http.post(f"/v1/worlds/{world}/edits", json={"edits": batch})
+                key = {"idempotency-key": f"{world}-{len(acked[world])}-{batches.integers(1 << 60)}"}
+                for attempt in range(100):  # an unanswered attempt may have been applied: its id
+                    try:                    # makes the retry answer it rather than apply it again
+                        r = http.post(f"/v1/worlds/{world}/edits", json={"edits": batch}, headers=key)
                     except httpx.TransportError as exc:
                         errors.append(type(exc).__name__)
                         time.sleep(0.1)
@@ -118,23 +120,29 @@ def test_a_killed_engine_actor_comes_back_with_every_acknowledged_batch(server):
     threads = [threading.Thread(target=writer, args=(w, int(rng.integers(1 << 30)))) for w in worlds]
     for t in threads:
         t.start()
+    pids = [victim["pid"]]
     try:
-        deadline = time.monotonic() + 60
-        while len(acked[worlds[0]]) < 10 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        os.kill(victim["pid"], signal.SIGKILL)
-        killed_at, before = time.monotonic(), len(acked[worlds[0]])
-        while len(acked[worlds[0]]) < before + 10 and time.monotonic() < killed_at + 120:
-            time.sleep(0.05)
-        back_after_s = time.monotonic() - killed_at
+        for _ in range(KILLS):  # each time the engine holding the first world, mid-write
+            before = len(acked[worlds[0]])
+            deadline = time.monotonic() + 60
+            while len(acked[worlds[0]]) < before + 5 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            os.kill(pids[-1], signal.SIGKILL)
+            killed_at, before = time.monotonic(), len(acked[worlds[0]])
+            while len(acked[worlds[0]]) < before + 5 and time.monotonic() < killed_at + 120:
+                time.sleep(0.05)
+            back_after_s = time.monotonic() - killed_at
+            assert len(acked[worlds[0]]) >= before + 5, f"not serving again in {back_after_s:.1f} s: {errors}"
+            restarted = next(e for e in engines(server) if e["engine"] == victim["engine"])
+            assert restarted["pid"] not in pids and worlds[0] in restarted["world_ids"]
+            pids.append(restarted["pid"])
     finally:
         stop.set()
         for t in threads:
             t.join(timeout=120)
-    assert len(acked[worlds[0]]) >= before + 10, f"the world did not serve again in {back_after_s:.1f} s: {errors}"
-    restarted = next(e for e in engines(server) if e["engine"] == victim["engine"])
-    assert restarted["pid"] != victim["pid"] and worlds[0] in restarted["world_ids"]
     for world in worlds:
+        version = httpx.get(f"{server.url}/v1/worlds/{world}", timeout=30).json()["version"]
+        assert version == len(acked[world]), "a retried batch was applied twice"
         expected = np.zeros(SIZE[::-1], np.uint8)
         for batch in acked[world]:
             apply_edits(expected, batch)

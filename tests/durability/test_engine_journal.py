@@ -299,3 +299,42 @@ def test_restore_replays_a_long_log_in_groups(gpu, tmp_path, monkeypatch):
     np.testing.assert_array_equal(field.result().array, oracle_distance(expected, 9))
     fresh.stop()
     fresh_journal.close()
+
+
+def test_a_batch_id_seen_before_is_answered_not_applied_again_even_after_a_restart(gpu, tmp_path):
+    from sdfserver.storage.codec import encode_batch
+
+    journal = StorageJournal(Storage(tmp_path / "data"), snapshot_every_batches=1000)
+    engine = Engine(gpu, journal=journal)
+    created = engine.submit(CreateWorld(WorldConfig(size=(16, 8, 8), chunk_size=8, max_distance=5)))
+    engine.step()
+    world_id = created.result()["id"]
+    rng = np.random.default_rng()
+    ids = [f"batch-{rng.integers(1 << 40)}-{i}" for i in range(3)]
+    raws = [[{"op": "box", "min": [i, 0, 0], "max": [i + 2, 3, 3], "colour": 10 + i}] for i in range(3)]
+
+    def send(target, i):
+        future = target.submit(ApplyEdits(world_id, parse_edits(raws[i]), encode_batch(raws[i], ids[i]), ids[i]))
+        target.step()
+        return future.result(timeout=10)
+
+    assert [send(engine, 0), send(engine, 1), send(engine, 0), send(engine, 1)] == [1, 2, 1, 2]
+    read = engine.submit(Read(world_id, "voxels"))
+    engine.step()
+    assert read.result().version == 2
+    engine.stop()
+    journal.close()
+
+    fresh_journal = StorageJournal(Storage(tmp_path / "data"))
+    fresh = Engine(gpu, journal=fresh_journal)
+    restore_worlds(fresh, fresh_journal.storage, fresh_journal)
+    assert [send(fresh, 1), send(fresh, 2), send(fresh, 0), send(fresh, 2)] == [2, 3, 1, 3]
+    read = fresh.submit(Read(world_id, "voxels"))
+    fresh.step()
+    expected = np.zeros((8, 8, 16), np.uint8)
+    for raw in raws:
+        apply_reference(expected, raw)
+    assert read.result().version == 3
+    np.testing.assert_array_equal(read.result().array, expected)
+    fresh.stop()
+    fresh_journal.close()

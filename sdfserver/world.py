@@ -105,7 +105,7 @@ class World:
         sizes = self.buffer_bytes(config)
         gpu.check_fits(sizes, f"a {sx}x{sy}x{sz} world")
         self._sizes = sizes
-        self.buffers = WorldBuffers(config.size, *self._allocate(sizes))
+        self.buffers = WorldBuffers(config.size, *self.gpu.allocate_all(sizes))
         # An empty world: every voxel air, every distance at the cap.
         bulk.fill(gpu, self.buffers.voxels, np.uint8, 0, self.voxel_count)
         bulk.fill(gpu, self.buffers.field, np.uint16, config.max_distance << 8, self.voxel_count)
@@ -130,17 +130,6 @@ class World:
         return [n, 2 * n, n + sz * WORK_PLANE_PAD, n] + ([4 * n, 4 * n] if config.floods else [])
 
     # -- lifetime -----------------------------------------------------------------------------
-
-    def _allocate(self, sizes: list[int]) -> list[cl.Buffer]:
-        allocated = []
-        try:
-            for n in sizes:
-                allocated.append(self.gpu.allocate(n))
-        except BaseException:
-            for buf, n in zip(allocated, sizes):
-                self.gpu.release(buf, n)
-            raise
-        return allocated
 
     def release(self) -> None:
         b = self.buffers
@@ -246,7 +235,7 @@ class World:
         b, sizes = self.buffers, self.buffer_bytes(config)
         if config.floods and b.seeds is None:
             self.gpu.check_fits(sizes[4:], "jump flooding's seed buffers")
-            b.seeds, b.seeds2 = self._allocate(sizes[4:])
+            b.seeds, b.seeds2 = self.gpu.allocate_all(sizes[4:])
         elif not config.floods and b.seeds is not None:
             self.gpu.queue.finish()  # floods already queued may still read them
             for buf, n in zip((b.seeds, b.seeds2), self._sizes[4:]):

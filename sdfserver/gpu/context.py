@@ -80,6 +80,18 @@ class GpuContext:
             self._allocated_bytes += nbytes
             return buffer
 
+    def allocate_all(self, sizes: list[int]) -> list[cl.Buffer]:
+        """A buffer of each size, or none: what was allocated before a failure is released."""
+        allocated: list[cl.Buffer] = []
+        try:
+            for n in sizes:
+                allocated.append(self.allocate(n))
+        except BaseException:
+            for buf, n in zip(allocated, sizes):
+                self.release(buf, n)
+            raise
+        return allocated
+
     def release(self, buffer: cl.Buffer, nbytes: int) -> None:
         with self._lock:
             buffer.release()

@@ -112,15 +112,7 @@ class SparseWorld:
                 f"(at most {self.gpu.max_allocation_bytes / 2**20:.0f} MiB a buffer); "
                 f"{free / 2**20:.0f} MiB of the budget is free for it")
         self._release_scratch()
-        allocated = []
-        try:
-            for n in sizes:
-                allocated.append(self.gpu.allocate(n))
-        except BaseException:
-            for buf, n in zip(allocated, sizes):
-                self.gpu.release(buf, n)
-            raise
-        self.scratch = WorldBuffers((0, 0, 0), *allocated)
+        self.scratch = WorldBuffers((0, 0, 0), *self.gpu.allocate_all(sizes))
         self._scratch_sizes_held = sizes
 
     def _release_scratch(self) -> None:

@@ -165,8 +165,10 @@ class Settings(BaseSettings):
     def wire_limits(self) -> WireLimits:
         """Built once: every msgpack body is decoded with them."""
         n = self.max_request_bytes
-        return WireLimits(max_bin_len=n, max_str_len=min(n, 1 << 20), max_array_len=n,
-                          max_map_len=1 << 12, max_buffer_size=n)
+        largest = max(self.max_voxels_per_batch, self.max_query_points)  # rows of the longest list
+        return WireLimits(max_bin_len=n, max_str_len=min(n, 1 << 20), max_array_len=min(n, largest + 1024),
+                          max_map_len=1 << 12, max_buffer_size=n,
+                          max_containers=largest + 64 * self.max_ops_per_batch + 4096)
 
 
 ENV_PREFIX = "SDFSERVER_"

@@ -41,6 +41,9 @@ class WireLimits:
     max_array_len: int = 1 << 20
     max_map_len: int = 1 << 12
     max_buffer_size: int = 16 << 20
+    # arrays and maps in the whole message: each costs a Python object of 56+ bytes however few
+    # bytes it took on the wire, so a 16 MiB message of empty ones would grow to gigabytes
+    max_containers: int = 1 << 21
 
 
 DEFAULT_LIMITS = WireLimits()
@@ -96,12 +99,20 @@ def decode(data: bytes, limits: WireLimits = DEFAULT_LIMITS) -> Any:
     """One message from msgpack; WireError on malformed data, trailing bytes or an exceeded limit."""
     if len(data) > limits.max_buffer_size:
         raise WireError(f"message of {len(data)} bytes exceeds the limit of {limits.max_buffer_size}")
+    left = [limits.max_containers]
+
+    def counted(container: Any) -> Any:  # called as each array or map is finished
+        left[0] -= 1
+        if left[0] < 0:
+            raise WireError(f"message holds more than {limits.max_containers} arrays and maps")
+        return container
+
     try:
         return msgpack.unpackb(
             data, raw=False, strict_map_key=True, use_list=True,
             max_bin_len=limits.max_bin_len, max_str_len=limits.max_str_len,
             max_array_len=limits.max_array_len, max_map_len=limits.max_map_len,
-            max_ext_len=0, ext_hook=_no_ext,
+            max_ext_len=0, ext_hook=_no_ext, list_hook=counted, object_hook=counted,
         )
     except WireError:
         raise

@@ -9,6 +9,7 @@ import socket
 import time
 
 import httpx
+import msgpack
 import pytest
 import websockets
 
@@ -231,3 +232,18 @@ def test_a_thousand_slow_clients_cost_little_memory(start_server):
     time.sleep(4)
     closed = sum(1 for sock in held if status_of(answer(sock, 0.05)) == 408)
     assert closed >= len(held) * 0.9, (closed, len(held))
+
+
+def test_a_small_body_of_many_empty_containers_is_refused_before_it_grows(start_server):
+    # at most 1,000 voxel rows and query points: about 70,000 arrays and maps a message
+    server = start_server(*LIMITS, "--max-voxels-per-batch", "1000", "--max-query-points", "1000")
+    world = server.new_world()
+    before = tree_rss_bytes(server.process.pid)
+    # 400 arrays of 2,000 empty maps (each array within max_array_len): 800 KB on the wire, 800,000
+    # dicts (about 50 MB) once decoded
+    body = msgpack.packb({"edits": [[{}] * 2000] * 400})
+    r = server.http.post(f"/v1/worlds/{world}/edits", content=body,
+                         headers={"content-type": "application/msgpack"})
+    assert r.status_code == 422 and "arrays and maps" in r.text, r.text
+    assert tree_rss_bytes(server.process.pid) - before < 64 << 20
+    assert server.http.get(f"/v1/worlds/{world}").json()["version"] == 0

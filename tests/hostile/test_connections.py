@@ -247,3 +247,6 @@ def test_a_small_body_of_many_empty_containers_is_refused_before_it_grows(start_
     assert r.status_code == 422 and "arrays and maps" in r.text, r.text
     assert tree_rss_bytes(server.process.pid) - before < 64 << 20
     assert server.http.get(f"/v1/worlds/{world}").json()["version"] == 0
+    json_body = b'{"edits": [' + b",".join([b"[" + b",".join([b"{}"] * 2000) + b"]"] * 100) + b"]}"
+    r = server.http.post(f"/v1/worlds/{world}/edits", content=json_body, headers={"content-type": "application/json"})
+    assert r.status_code == 422 and "arrays and maps" in r.text, r.text

@@ -54,12 +54,12 @@ def guarded_protocol(limits: ConnectionLimits) -> type[HttpToolsProtocol]:
 
 class GuardedHttpProtocol(HttpToolsProtocol):
     limits = ConnectionLimits()
+    header_timer: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
         self.header_bytes = self.header_lines = self.header_size = 0  # as arrived; lines; as parsed
         self.reading_headers = True
-        self.header_timer: asyncio.TimerHandle | None = None
         if len(self.connections) > self.limits.max_connections:
             self.refuse(503, "this server holds as many connections as it may; try again later")
             return
@@ -136,9 +136,8 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         self.header_timer = self.loop.call_later(self.limits.header_timeout_s, self.headers_too_slow)
 
     def disarm_header_timer(self) -> None:
-        timer = getattr(self, "header_timer", None)
-        if timer is not None:
-            timer.cancel()
+        if self.header_timer is not None:
+            self.header_timer.cancel()
             self.header_timer = None
 
     def headers_too_slow(self) -> None:

@@ -133,16 +133,10 @@ class Launcher:
         self._stopped = False
 
     def run(self) -> int:
-        if self.settings.cluster:
-            failure = self._start_cluster()
-            if failure is not None:
-                print(f"sdfserver serve: {failure}", file=sys.stderr)
-                return 1
-        else:
-            failure = self._start_engines()
-            if failure is not None:
-                print(f"sdfserver serve: {failure}", file=sys.stderr)
-                return 1
+        failure = self._start_cluster() if self.settings.cluster else self._start_engines()
+        if failure is not None:
+            print(f"sdfserver serve: {failure}", file=sys.stderr)
+            return 1
         import sdfserver.api.worker  # noqa: F401  imported once here, inherited by every API process
 
         self.workers = [self._start_worker() for _ in range(worker_count(self.settings))]

@@ -51,6 +51,11 @@ class RateLimiter:
                               f"{who}; retry in {wait:.2f} s", wait)
 
 
+def holder_of(access: Access) -> str:
+    """Whose budget a request spends: its key, or on an open server its client's address."""
+    return access.key if access.key is not None else f"address {access.client}"
+
+
 class Doorkeeper:
     """The rate limit and the owner check of one engine, for requests carrying an ``Access``."""
 
@@ -64,7 +69,7 @@ class Doorkeeper:
         if access is None:
             return
         if self.limiter.rate_per_s > 0:
-            self.limiter.throttle(access.key if access.key is not None else f"address {access.client}")
+            self.limiter.throttle(holder_of(access))
         if world_id is not None and not access.admin and self.owner_of(world_id) != access.key:
             raise NotFound(f"no world {world_id!r}")
 

@@ -48,16 +48,13 @@ class BatchPipeline:
         self.acknowledging: list[list[tuple[Future, int]]] = []  # the step's applied batches
         self.remembered: dict[str, OrderedDict[str, int]] = {}  # world -> batch id -> version
 
-    def remember_for(self, world_id: str) -> Callable[[str, int], None]:
-        """What records an acknowledged batch id of ``world_id`` (any thread)."""
-        ids = self.remembered.setdefault(world_id, OrderedDict())
-
-        def remember(batch_id: str, version: int) -> None:
-            ids[batch_id] = version
-            while len(ids) > REMEMBERED_BATCHES:
-                ids.popitem(last=False)
-
-        return remember
+    def remember(self, world_id: str, ids: list[tuple[str, int]]) -> None:
+        """Record acknowledged (batch id, version) pairs of ``world_id`` (any thread)."""
+        remembered = self.remembered.setdefault(world_id, OrderedDict())
+        for batch_id, version in ids:
+            remembered[batch_id] = version
+        while len(remembered) > REMEMBERED_BATCHES:
+            remembered.popitem(last=False)
 
     def forget_world(self, world_id: str) -> None:
         self.remembered.pop(world_id, None)
@@ -122,22 +119,23 @@ class BatchPipeline:
             ids = [(command.batch_id, version) for (command, _, _), version in zip(items, versions)
                    if command.batch_id is not None]
             if durable is None:
-                self._remember(world_id, ids)
+                self.remember(world_id, ids)
                 for future, version in answers:
                     future.set_result(version)
             else:
                 if ids:  # remembered only once durable: a repeat must not be answered before that
-                    durable.add_done_callback(lambda d, w=world_id, ids=ids: d.exception() is None and
-                                              self._remember(w, ids))
+                    self._remember_when_durable(world_id, ids, durable)
                 acknowledge_when_durable(answers, durable)
             touched.add(world_id)
         report.apply_ms["launch"] += launch_ms
         report.apply_ms["acknowledge"] += (time.perf_counter() - logged) * 1e3 - launch_ms
 
-    def _remember(self, world_id: str, ids: list[tuple[str, int]]) -> None:
-        remember = self.remember_for(world_id)
-        for batch_id, version in ids:
-            remember(batch_id, version)
+    def _remember_when_durable(self, world_id: str, ids: list[tuple[str, int]], durable: Future) -> None:
+        def done(durable: Future) -> None:
+            if durable.exception() is None:
+                self.remember(world_id, ids)
+
+        durable.add_done_callback(done)
 
     def reject(self, future: Future, exc: BaseException, report: StepReport) -> None:
         report.rejected_batches += 1

@@ -44,8 +44,8 @@ from sdfserver.settings import Settings
 
 log = logging.getLogger("sdfserver.engine")
 DEVICE_ADVICE = "`sdfserver devices` lists the usable OpenCL devices and --device picks one"
-IDLE_POLL_S = 0.05
-UNREACHABLE_GRACE_S = 10.0  # how long answers wait for an API process that is not connected  # how often an idle output thread looks for API processes saying hello
+IDLE_POLL_S = 0.05  # how often an idle output thread looks for API processes saying hello
+UNREACHABLE_GRACE_S = 10.0  # how long answers wait for an API process that is not connected
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -103,7 +102,7 @@ def restore_worlds(engine: Engine, storage: Storage, journal: StorageJournal) ->
             if recovered.voxels is not None:
                 world.load_voxels(recovered.voxels)
             world.version = recovered.snapshot_version
-            _replay(world, recovered.records, store.directory, engine.batches.remember_for(world_id))
+            engine.batches.remember(world_id, _replay(world, recovered.records, store.directory))
             world.limits = engine.limits.edits  # what comes in from now on meets today's limits
             world.recompute()
         except (SdfServerError, KeyError, TypeError, ValueError) as exc:
@@ -124,10 +123,10 @@ def restore_worlds(engine: Engine, storage: Storage, journal: StorageJournal) ->
     return report
 
 
-def _replay(world: World, records: list[tuple[int, bytes]], directory: Path,
-            remember: Callable[[str, int], None]) -> None:
-    """Apply the logged batches in order, remembering the ids they carry; CorruptData names the
-    first one that does not apply."""
+def _replay(world: World, records: list[tuple[int, bytes]], directory: Path) -> list[tuple[str, int]]:
+    """Apply the logged batches in order; CorruptData names the first one that does not apply.
+    Returns the (batch id, version) of those that carry an id."""
+    ids = []
     for start in range(0, len(records), REPLAY_GROUP):
         plans = []
         for version, payload in records[start:start + REPLAY_GROUP]:
@@ -136,12 +135,13 @@ def _replay(world: World, records: list[tuple[int, bytes]], directory: Path,
                 edits_wire, batch_id = batch_parts(decode_batch(payload, where))
                 plans.append(world.plan_edits(parse_edits(edits_wire)))
                 if batch_id is not None:
-                    remember(batch_id, version)
+                    ids.append((batch_id, version))
             except SdfServerError as exc:
                 raise CorruptData(where, None, f"logged batch does not apply: {exc}") from None
         world.apply_plans(plans)
         if world.config.storage == "sparse":  # its pending edits make one scratch box: keep them few
             world.recompute()
+    return ids
 
 
 def _refuse(engine: Engine, report: RestoreReport, world_id: str, exc: BaseException) -> None:

@@ -22,7 +22,7 @@ from prometheus_client import generate_latest
 from sdfserver.edits import parse_edits
 from sdfserver.engine import commands as cmd
 from sdfserver.engine import messages as msg
-from sdfserver.engine.access import Doorkeeper
+from sdfserver.engine.access import Doorkeeper, holder_of
 from sdfserver.engine.core import Engine
 from sdfserver.engine.mailbox import Mailbox, Subscription
 from sdfserver.engine.restore import config_from_dict
@@ -79,9 +79,7 @@ class EngineService:
         """Drop the subscriptions of an API process that is gone."""
         for key in list(self.subscriptions):  # a copy: the input thread may change it meanwhile
             if key[0] == client:
-                subscription = self.subscriptions.pop(key, None)
-                self._credit.pop(key, None)
-                self._holders.pop(key, None)
+                subscription = self._drop(key)
                 if subscription is not None:
                     self.engine.unsubscribe(subscription)
 
@@ -218,12 +216,16 @@ class EngineService:
         def done(future: Future) -> None:
             exc = future.exception()
             if exc is not None and self.subscriptions.get(key) is subscription:
-                self.subscriptions.pop(key, None)
-                self._credit.pop(key, None)
-                self._holders.pop(key, None)
+                self._drop(key)
             self._reply(client, m.id, None, exc)
 
         future.add_done_callback(done)
+
+    def _drop(self, key: tuple[bytes, int]) -> Subscription | None:
+        """Forget a subscription's state (the engine's side is the caller's to end)."""
+        self._credit.pop(key, None)
+        self._holders.pop(key, None)
+        return self.subscriptions.pop(key, None)
 
     def _check_room(self, key: tuple[bytes, int], access: msg.Access | None) -> None:
         """Refuse a new subscription past the engine's limits; replacing one's region is not new."""
@@ -233,7 +235,7 @@ class EngineService:
         if len(self.subscriptions) >= limits.max_subscriptions:
             raise TooManySubscriptions(f"this engine holds {limits.max_subscriptions} subscriptions, "
                                        "its limit (max_subscriptions); try again later")
-        holder = "" if access is None else access.key if access.key is not None else f"address {access.client}"
+        holder = "" if access is None else holder_of(access)
         held = sum(1 for who in self._holders.values() if who == holder)
         if held >= limits.max_subscriptions_per_key:
             raise TooManySubscriptions(f"{holder or 'this client'} holds {limits.max_subscriptions_per_key} "
@@ -241,9 +243,7 @@ class EngineService:
         self._holders[key] = holder
 
     def _unsubscribe(self, client: bytes, m: msg.Unsubscribe) -> None:
-        subscription = self.subscriptions.pop((client, m.subscription), None)
-        self._credit.pop((client, m.subscription), None)
-        self._holders.pop((client, m.subscription), None)
+        subscription = self._drop((client, m.subscription))
         if subscription is not None:
             self.engine.unsubscribe(subscription)
         self._reply(client, m.id)

@@ -11,7 +11,8 @@
     ├── NotReady                the device cannot serve requests now          (HTTP 503)
     │   ├── NoOpenCLDevice      no OpenCL platform or no matching device
     │   ├── VersionNotReached   a read's min_version was not reached in time
-    │   └── WritesDisabled      the write-ahead log failed; no edit is accepted
+    │   ├── WritesDisabled      the write-ahead log failed; no edit is accepted
+    │   └── WorldMoved          the world is (being) moved to another engine
     ├── KernelBuildError        an OpenCL program failed to build             (HTTP 500)
     └── StorageError            the data directory cannot be used            (HTTP 500)
         └── CorruptData         a log or snapshot fails its checks; names file and offset
@@ -89,6 +90,14 @@ class WritesDisabled(NotReady):
     every later write is refused with this error until the server is restarted."""
 
     code = "writes_disabled"
+
+
+class WorldMoved(NotReady):
+    """The engine asked no longer holds the world: it handed it to another engine, or another
+    engine took it over (a newer epoch). Nothing of the request was acknowledged; ask again
+    where the world is now (the API does so itself)."""
+
+    code = "world_moved"
 
 
 class StorageError(SdfServerError):

@@ -1,9 +1,17 @@
 """Recovery of one world's directory: the latest snapshot plus the log records after it.
 
-Segments whose records all precede the snapshot are ignored (and trimmed). The remaining
-segments must chain — each starts where the previous ended — and their records continue the
-snapshot's version with no gap. A torn tail of the newest segment is reported for truncation;
-anything else that is damaged raises ``CorruptData`` naming the file and offset.
+Segments are read in the order they were written: by epoch, then base version. Each opening
+of a world for writing takes a new epoch (``Storage.open_world``) and starts a segment of that
+epoch at the last version it recovered; that segment **fences** the epochs before it: what an
+older epoch wrote past its base — an engine that went on writing after its world was taken
+over — is ignored, and whole segments of an older epoch that start at or past it are dropped.
+Within one epoch segments must chain (each starts where the previous ended); across epochs the
+older one must reach the newer one's base.
+
+Segments whose records all precede the snapshot are ignored (and trimmed). The records must
+continue the snapshot's version with no gap. A torn tail of an epoch's last segment (a crash
+in the middle of an append) is cut there; anything else that is damaged raises
+``CorruptData`` naming the file and offset.
 """
 
 from __future__ import annotations
@@ -17,7 +25,7 @@ from sdfserver.errors import CorruptData
 from sdfserver.storage.framing import SegmentScan, scan_segment
 from sdfserver.storage.fsutil import remove_temporaries
 from sdfserver.storage.snapshot import read_latest_snapshot
-from sdfserver.storage.wal import SEGMENT_PATTERN, segment_base
+from sdfserver.storage.wal import SEGMENT_PATTERN, history_order, segment_base, segment_epoch
 
 
 @dataclass
@@ -30,6 +38,8 @@ class Recovered:
     segment_end: int = 0  # its valid length (a torn tail beyond this is truncated)
     torn: str = ""  # what was truncated, for the log
     stale_segments: list[Path] = field(default_factory=list)
+    epoch: int = 0  # the newest epoch that wrote the log
+    fenced_records: int = 0  # records an older epoch wrote after a newer one took the world over
 
 
 def recover_world(directory: Path) -> Recovered:
@@ -38,11 +48,13 @@ def recover_world(directory: Path) -> Recovered:
     snap = read_latest_snapshot(directory)
     base = snap.version if snap else 0
     result = Recovered(base, snap.voxels if snap else None, last_version=base)
-    segments = sorted(directory.glob(SEGMENT_PATTERN), key=segment_base)
+    written = sorted(directory.glob(SEGMENT_PATTERN), key=history_order)
+    segments = _history(written)
+    result.epoch = max((segment_epoch(s) for s in written), default=0)
     # Segment i holds versions base_i + 1 .. base_{i+1}; it matters only if base_{i+1} > base.
     relevant = [s for s, nxt in zip(segments, segments[1:] + [None])
                 if nxt is None or segment_base(nxt) > base]
-    result.stale_segments = [s for s in segments if s not in relevant]
+    result.stale_segments = [s for s in written if s not in relevant]
     if not relevant:
         if snap is None:
             raise CorruptData(str(directory), None, "no snapshot and no log segment")
@@ -52,15 +64,19 @@ def recover_world(directory: Path) -> Recovered:
         raise CorruptData(str(relevant[0]), None, f"the log starts after version {first} but the "
                           f"snapshot is at version {base}: versions {base + 1}..{first} are missing")
     scans: list[SegmentScan] = []
-    for i, path in enumerate(relevant):
+    for path, nxt in zip(relevant, relevant[1:] + [None]):
         scan = scan_segment(path.read_bytes(), str(path), segment_base(path))
-        last = i == len(relevant) - 1
-        if scan.torn_at is not None and not last:
+        handed_over = nxt is not None and segment_epoch(nxt) > segment_epoch(path)
+        if scan.torn_at is not None and nxt is not None and not handed_over:
             raise CorruptData(str(path), scan.torn_at, f"bad record ({scan.torn_reason}) in a segment "
                               "that a newer segment follows")
-        if not last and scan.last_version != segment_base(relevant[i + 1]):
-            raise CorruptData(str(path), scan.good_end, f"segment ends at version {scan.last_version} "
-                              f"but the next segment starts after {segment_base(relevant[i + 1])}")
+        if nxt is not None:
+            end = segment_base(nxt)
+            if scan.last_version < end or (scan.last_version > end and not handed_over):
+                raise CorruptData(str(path), scan.good_end, f"segment ends at version {scan.last_version} "
+                                  f"but the next segment starts after {end}")
+            result.fenced_records += sum(1 for r in scan.records if r[0] > end)
+            scan.records = [r for r in scan.records if r[0] <= end]
         scans.append(scan)
     for scan in scans:
         result.records.extend(r for r in scan.records if r[0] > base)
@@ -72,3 +88,16 @@ def recover_world(directory: Path) -> Recovered:
     if newest_scan.last_version == result.last_version:
         result.segment, result.segment_end = newest, newest_scan.good_end
     return result
+
+
+def _history(segments: list[Path]) -> list[Path]:
+    """The segments that make the world's history, in the order written: a segment of a newer
+    epoch drops the older epochs' segments that start at or past its base (all they hold is
+    fenced)."""
+    chain: list[Path] = []
+    for path in segments:
+        epoch, base = segment_epoch(path), segment_base(path)
+        while chain and segment_epoch(chain[-1]) < epoch and segment_base(chain[-1]) >= base:
+            chain.pop()
+        chain.append(path)
+    return chain

@@ -5,7 +5,8 @@ Layout::
     <data_dir>/
       worlds/<world id>/world.json            the catalog entry: config, owner, ... (atomic)
       worlds/<world id>/snap-<version>.sdfsnap  the latest snapshot of its voxels
-      worlds/<world id>/wal-<base>.log          log segments, records after <base>
+      worlds/<world id>/wal-<base>-e<epoch>.log log segments, records after <base>
+      worlds/<world id>/epoch                   the epoch of the engine that holds the world
 
 A world exists exactly when its directory holds ``world.json``. Creation builds the
 directory under a temporary name and renames it into place (a failure removes the
@@ -19,6 +20,18 @@ catalog change and around every snapshot. A directory deleted or replaced under 
 server disables writes (``WritesDisabled``, 503) instead of acknowledging edits that the
 next start would not find. Other failed file operations of the catalog raise
 ``StorageError`` naming the file and the OS error.
+
+Every opening of a world for writing (creation, a restart, a move to another engine) takes
+the next **epoch**: it writes ``epoch`` first (atomically, so as a new file), then reads the
+log and starts a segment of the new epoch, which fences what older epochs write later
+(``recovery``). The holder of an older epoch finds out after its next sync: ``epoch`` is no
+longer the file it wrote (or the world's directory moved away), and its batches fail with
+``WorldMoved`` instead of being acknowledged. A batch it appended before the new holder read
+the log is in the new holder's history; one appended after is not; either way it was not
+acknowledged, and a retry carrying its ``Idempotency-Key`` is applied exactly once.
+
+``hand_over`` moves a world's directory to another engine's data directory (a rename on the
+shared file system) and ``take_over`` fetches it from there when its holder does not answer.
 
 ``Storage`` owns the group-commit thread shared by every world's log; ``WorldStore`` is one
 world's handle: ``append`` a batch (a future that completes once it is durable), ``snapshot``
@@ -40,17 +53,20 @@ from typing import Any
 
 import numpy as np
 
-from sdfserver.errors import CorruptData, InvalidInput, NotFound, StorageError, WritesDisabled
+from sdfserver.errors import CorruptData, InvalidInput, NotFound, StorageError, WorldMoved, WritesDisabled
 from sdfserver.storage.codec import encode_batch
 from sdfserver.storage.fsutil import fsync_dir, write_atomic
 from sdfserver.storage.recovery import Recovered, recover_world
 from sdfserver.storage.snapshot import SNAPSHOT_PATTERN, remove_snapshot_files, write_snapshot
-from sdfserver.storage.wal import SEGMENT_LIMIT_BYTES, SEGMENT_PATTERN, Committer, SyncError, WorldLog
+from sdfserver.storage.wal import (
+    SEGMENT_LIMIT_BYTES, SEGMENT_PATTERN, Committer, SyncError, WorldLog, segment_epoch,
+)
 
 log = logging.getLogger("sdfserver.storage")
 DEFAULT_DATA_DIR = "data"  # relative to the working directory; see docs/configuration.md
 WORLD_ID = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9_.-]{0,127}$")  # never a leading dot
 META_FILE = "world.json"
+EPOCH_FILE = "epoch"
 _HIDDEN = "."  # prefix of directories being created or deleted
 
 
@@ -64,12 +80,23 @@ class WorldStore:
     """One world's durable state. ``append`` is thread-safe; ``snapshot`` and ``close`` are
     meant for the thread that owns the world."""
 
-    def __init__(self, world_id: str, directory: Path, log: WorldLog):
+    def __init__(self, world_id: str, directory: Path, log: WorldLog, epoch: int = 0):
         self.world_id = world_id
         self.directory = directory
         self.log = log
         self.snapshot_version = 0
         self.records_since_snapshot = 0
+        self.epoch = epoch
+        self.fenced: WorldMoved | None = None
+        self._epoch_file = _file_identity(directory / EPOCH_FILE)
+        log.fence = self.check_fence
+
+    def check_fence(self) -> WorldMoved | None:
+        """Why this holder may no longer acknowledge writes (another took the world), or None."""
+        if self.fenced is None and _file_identity(self.directory / EPOCH_FILE) != self._epoch_file:
+            self.fenced = WorldMoved(f"world {self.world_id!r} is now held by another engine (this one held "
+                                     f"epoch {self.epoch}); nothing it did not acknowledge counts")
+        return self.fenced
 
     @property
     def last_version(self) -> int:
@@ -94,11 +121,16 @@ class WorldStore:
         covers. A version above it records a replacement of the whole world (an import or
         upload): the log starts over after it."""
         self.log.committer.verify()
+        if self.check_fence() is not None:
+            raise self.fenced
         try:
-            write_snapshot(self.directory, version, config, voxels)
+            path = write_snapshot(self.directory, version, config, voxels)
         except OSError:
             self.log.committer.verify()  # a vanished directory disables writes, not just this snapshot
             raise
+        if self.check_fence() is not None:  # taken over while writing: what it holds may be fenced
+            path.unlink(missing_ok=True)
+            raise self.fenced
         self.log.committer.verify()
         if version > self.log.last_version:
             self.log.rotate(version)
@@ -201,34 +233,79 @@ class Storage:
         try:
             staging.mkdir()
             write_atomic(staging / META_FILE, json.dumps(meta, sort_keys=True, indent=1).encode())
+            write_atomic(staging / EPOCH_FILE, b"1\n")
             if voxels is not None:
                 write_snapshot(staging, version, meta["config"], voxels)
-            WorldLog.create_segment(staging, version)
+            segment = WorldLog.create_segment(staging, version, epoch=1)
             fsync_dir(staging)
             staging.rename(final)
             staging = final  # from here a failure removes the world's directory itself
             fsync_dir(self.worlds_dir)
-            return self._attach(world_id, final, Recovered(version, voxels, last_version=version))
+            segment = final / segment.name
+            recovered = Recovered(version, voxels, last_version=version, segment=segment,
+                                  segment_end=segment.stat().st_size)
+            return self._attach(world_id, final, recovered, epoch=1)
         except OSError as exc:
             shutil.rmtree(staging, ignore_errors=True)  # what is left of it, if anything, goes at the next start
             self.check()
             raise StorageError(f"cannot create world {world_id!r} in {self.worlds_dir}: {exc}") from None
 
     def open_world(self, world_id: str) -> tuple[WorldStore, Recovered]:
-        """Recover a stored world; raises ``CorruptData`` when it cannot be trusted."""
+        """Recover a stored world under a new epoch (see the module docstring); raises
+        ``CorruptData`` when it cannot be trusted."""
         directory = self._dir(world_id)
         if not (directory / META_FILE).exists():
             raise NotFound(f"no stored world {world_id!r}")
+        self.check()
+        try:
+            epoch = max(_read_epoch(directory), max_segment_epoch(directory)) + 1
+            write_atomic(directory / EPOCH_FILE, f"{epoch}\n".encode())  # first: it fences the holder before
+        except OSError as exc:
+            raise StorageError(f"cannot take world {world_id!r} in {directory}: {exc}") from None
         recovered = recover_world(directory)
-        return self._attach(world_id, directory, recovered), recovered
+        if recovered.fenced_records:
+            log.warning("world %s: ignored %d log records written by an engine after another took the world "
+                        "over (none of them was acknowledged)", world_id, recovered.fenced_records)
+        if recovered.torn and recovered.segment is not None:
+            _truncate(recovered.segment, recovered.segment_end)
+        recovered.segment = None  # the new epoch writes a segment of its own
+        return self._attach(world_id, directory, recovered, epoch), recovered
 
-    def _attach(self, world_id: str, directory: Path, recovered: Recovered) -> WorldStore:
+    def hand_over(self, world_id: str, store: WorldStore, destination: "Storage") -> None:
+        """Move a world's directory into ``destination``'s catalog, its log closed first (so all it
+        holds is durable). On failure the world stays here, its log closed."""
+        store.close()
+        self._move(self._dir(world_id), destination._dir(world_id), destination)
+
+    def take_over(self, world_id: str, source: Path) -> None:
+        """Fetch a world's directory from the data directory ``source`` (another engine's, which
+        does not answer): its holder, if it still runs, is fenced by the epoch ``open_world`` takes."""
+        here = self._dir(world_id)
+        if here.exists():
+            return
+        self._move(Path(source) / "worlds" / check_world_id(world_id), here, self)
+
+    def _move(self, origin: Path, target: Path, destination: "Storage") -> None:
+        destination.check()
+        if not (origin / META_FILE).exists():
+            raise NotFound(f"no stored world {origin.name!r} in {origin.parent}")
+        if target.exists():
+            raise InvalidInput(f"world {target.name!r} already exists in {target.parent}")
+        try:
+            origin.rename(target)
+            fsync_dir(target.parent)
+            fsync_dir(origin.parent)
+        except OSError as exc:
+            raise StorageError(f"cannot move world {origin.name!r} from {origin.parent} to {target.parent}: "
+                               f"{exc}") from None
+
+    def _attach(self, world_id: str, directory: Path, recovered: Recovered, epoch: int) -> WorldStore:
         segment, end = recovered.segment, recovered.segment_end
-        if segment is None:  # the snapshot is newer than the log: continue in a fresh segment
-            segment = WorldLog.create_segment(directory, recovered.last_version)
+        if segment is None:
+            segment = WorldLog.create_segment(directory, recovered.last_version, epoch)
             end = segment.stat().st_size
         log = WorldLog(directory, self.committer, segment, end, recovered.last_version, self.segment_limit)
-        store = WorldStore(world_id, directory, log)
+        store = WorldStore(world_id, directory, log, epoch)
         store.snapshot_version = recovered.snapshot_version
         store.records_since_snapshot = recovered.last_version - recovered.snapshot_version
         log.trim(recovered.snapshot_version)
@@ -265,3 +342,36 @@ class Storage:
 
 def _identity(st: os.stat_result) -> tuple[int, int]:
     return st.st_dev, st.st_ino
+
+
+def _file_identity(path: Path) -> tuple[int, int, int] | None:
+    """Which file ``path`` is now (a replacement is another inode, or the same inode reused
+    later than it was written), or None when there is none."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino, st.st_mtime_ns
+
+
+def _truncate(path: Path, length: int) -> None:
+    """Cut a torn last record (what a crash in the middle of an append left), durably."""
+    fd = os.open(path, os.O_WRONLY)
+    try:
+        os.ftruncate(fd, length)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _read_epoch(directory: Path) -> int:
+    try:
+        return int((directory / EPOCH_FILE).read_text().strip() or 0)
+    except FileNotFoundError:
+        return 0  # a world written before epochs
+    except ValueError as exc:
+        raise CorruptData(str(directory / EPOCH_FILE), 0, f"not an epoch number: {exc}") from None
+
+
+def max_segment_epoch(directory: Path) -> int:
+    return max((segment_epoch(p) for p in directory.glob(SEGMENT_PATTERN)), default=0)

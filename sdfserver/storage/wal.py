@@ -55,14 +55,26 @@ SYNC_THREADS = 8
 SEGMENT_LIMIT_BYTES = 16 << 20  # some 160k records of a brush or two (~100 bytes each)
 HANDOVER_TIMEOUT_S = 0.005  # a committer not scheduled by then: go on, the record stays queued
 SyncError = tuple[str, str, OSError]  # (path, what failed, the error)
+Fence = Callable[[], "Exception | None"]  # after a sync: why its records must not be acknowledged
 
 
-def segment_name(base_version: int) -> str:
-    return f"wal-{base_version:020d}.log"
+def segment_name(base_version: int, epoch: int = 0) -> str:
+    """``wal-<base>.log`` (epoch 0, logs written before epochs) or ``wal-<base>-e<epoch>.log``."""
+    return f"wal-{base_version:020d}.log" if epoch == 0 else f"wal-{base_version:020d}-e{epoch}.log"
 
 
 def segment_base(path: Path) -> int:
-    return int(path.stem.split("-", 1)[1])
+    return int(path.stem.split("-")[1])
+
+
+def segment_epoch(path: Path) -> int:
+    parts = path.stem.split("-")
+    return int(parts[2][1:]) if len(parts) > 2 else 0
+
+
+def history_order(path: Path) -> tuple[int, int]:
+    """Segments sorted by this key are in the order they were written: epoch, then base."""
+    return segment_epoch(path), segment_base(path)
 
 
 class Committer:
@@ -75,7 +87,7 @@ class Committer:
         self.inline = inline
         self.window_s = max(0.0, window_ms) / 1e3
         self._cond = threading.Condition()
-        self._pending: list[tuple[int, str, Future]] = []
+        self._pending: list[tuple[int, str, Future, Fence | None]] = []
         self._failure: WritesDisabled | None = None
         self._closed = False
         self._idle = False  # the committer waits for records
@@ -119,38 +131,34 @@ class Committer:
                 pending, self._pending = self._pending, []
                 self._taken = self._queued
                 self._cond.notify_all()
-                for _, _, future in pending:
+                for _, _, future, _ in pending:
                     future.set_exception(self._failure)
             return self._failure
 
-    def submit(self, fd: int, path: str, *, wake: bool = True) -> Future:
+    def submit(self, fd: int, path: str, *, wake: bool = True, fence: Fence | None = None) -> Future:
         """A future completed once everything written to ``fd`` so far is durable.
 
         ``wake=False`` leaves an idle committer asleep until ``hand_over``: a caller appending
         to several files calls it once after the last, so they share one round of syncs (an
         early wake would take the first file alone while the next ``os.write`` lets go of the
-        GIL)."""
+        GIL). ``fence``, asked after the sync, may refuse this file's records (its world moved
+        to another engine): the future fails with what it returns, the other files go on."""
         future: Future = Future()
-        if not self.sync:
-            problem = self._after_sync({fd: path})
-            if problem is not None:
-                future.set_exception(self.fail(*problem))
-            else:
-                future.set_result(None)
-            return future
-        if self.inline:
-            self.check()
-            error = self._sync_one((fd, path)) or self._after_sync({fd: path})
+        if not self.sync or self.inline:
+            if self.inline:
+                self.check()
+            error = (self._sync_one((fd, path)) if self.inline else None) or self._after_sync({fd: path})
             if error is not None:
                 future.set_exception(self.fail(*error))
                 return future
-            self.syncs += 1
-            self.records += 1
-            future.set_result(None)
+            if self.inline:
+                self.syncs += 1
+                self.records += 1
+            _complete(future, fence() if fence is not None else None)
             return future
         with self._cond:
             self.check()
-            self._pending.append((fd, path, future))
+            self._pending.append((fd, path, future, fence))
             self._queued += 1
             if wake or self.window_s:
                 self._cond.notify_all()
@@ -185,7 +193,7 @@ class Committer:
                 batch, self._pending = self._pending, []
                 self._taken = self._queued
                 self._cond.notify_all()  # an append waiting for the hand-over goes on
-            files = {fd: path for fd, path, _ in batch}
+            files = {fd: path for fd, path, _, _ in batch}
             # Several files (worlds) sync side by side, so the file system can merge them; one file
             # syncs right here (a pool round trip costs two more waits for the GIL under load).
             if len(files) == 1:
@@ -197,13 +205,16 @@ class Committer:
                 errors = [e for e in (self._after_sync(files),) if e is not None]
             if errors:
                 failure = self.fail(*errors[0])
-                for _, _, future in batch:
+                for _, _, future, _ in batch:
                     future.set_exception(failure)
             else:
                 self.syncs += len(files)
                 self.records += len(batch)
-                for _, _, future in batch:
-                    future.set_result(None)
+                refusals: dict[int, Exception | None] = {}  # one fence check per file and round
+                for fd, _, future, fence in batch:
+                    if fence is not None and fd not in refusals:
+                        refusals[fd] = fence()
+                    _complete(future, refusals.get(fd))
 
     @staticmethod
     def _sync_one(item: tuple[int, str]) -> SyncError | None:
@@ -238,14 +249,23 @@ class Committer:
         self._pool.shutdown()
 
 
+def _complete(future: Future, refusal: Exception | None) -> None:
+    if refusal is None:
+        future.set_result(None)
+    else:
+        future.set_exception(refusal)
+
+
 class WorldLog:
     """Appends to the newest segment of one world's log directory."""
 
     def __init__(self, directory: Path, committer: Committer, segment: Path, end: int, last_version: int,
-                 segment_limit: int = SEGMENT_LIMIT_BYTES):
+                 segment_limit: int = SEGMENT_LIMIT_BYTES, fence: Fence | None = None):
         self.directory = Path(directory)
         self.committer = committer
         self.segment_limit = segment_limit
+        self.epoch = segment_epoch(segment)  # new segments carry it too
+        self.fence = fence
         self._lock = threading.Lock()
         self._path = segment
         self._fd = os.open(segment, os.O_WRONLY | os.O_APPEND)
@@ -255,9 +275,9 @@ class WorldLog:
         self.last_version = last_version
 
     @staticmethod
-    def create_segment(directory: Path, base_version: int) -> Path:
+    def create_segment(directory: Path, base_version: int, epoch: int = 0) -> Path:
         """A new, empty segment, created atomically and durably."""
-        path = Path(directory) / segment_name(base_version)
+        path = Path(directory) / segment_name(base_version, epoch)
         write_atomic(path, encode_segment_header(base_version))
         return path
 
@@ -266,7 +286,7 @@ class WorldLog:
         return self._path
 
     def segments(self) -> list[Path]:
-        return sorted(self.directory.glob(SEGMENT_PATTERN), key=segment_base)
+        return sorted(self.directory.glob(SEGMENT_PATTERN), key=history_order)
 
     def append(self, version: int, payload: bytes) -> Future:
         return self.append_many(version, [payload])
@@ -299,7 +319,7 @@ class WorldLog:
                 raise self.committer.fail(str(self._path), "write", exc) from None
             self._end += len(frame)
             self.last_version = first_version + len(payloads) - 1
-            return self.committer.submit(self._fd, str(self._path), wake=wake)
+            return self.committer.submit(self._fd, str(self._path), wake=wake, fence=self.fence)
 
     def _flush_locked(self) -> None:
         self.committer.submit(self._fd, str(self._path)).result()
@@ -324,7 +344,7 @@ class WorldLog:
     def _rotate_locked(self, base: int) -> None:
         self.committer.check()
         self._flush_locked()
-        path = self.create_segment(self.directory, base)
+        path = self.create_segment(self.directory, base, self.epoch)
         os.close(self._fd)
         self._fd = os.open(path, os.O_WRONLY | os.O_APPEND)
         self._path, self._end, self.last_version = path, len(encode_segment_header(0)), base

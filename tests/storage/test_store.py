@@ -61,7 +61,7 @@ def test_torn_tail_is_truncated_and_appends_continue(storage):
     for v in (1, 2, 3):
         store.append(v, b"batch %d" % v).result()
     store.close()
-    path = storage.worlds_dir / "w" / segment_name(0)
+    path = storage.worlds_dir / "w" / segment_name(0, epoch=1)  # created at epoch 1
     size = path.stat().st_size
     with open(path, "ab") as f:
         f.write(encode_record(4, b"never acknowledged")[:-3])
@@ -81,7 +81,7 @@ def test_corruption_in_the_middle_refuses_the_world(storage):
     for v in range(1, 6):
         store.append(v, b"payload %d" % v).result()
     store.close()
-    path = storage.worlds_dir / "w" / segment_name(0)
+    path = storage.worlds_dir / "w" / segment_name(0, epoch=1)  # created at epoch 1
     data = bytearray(path.read_bytes())
     data[40] ^= 0x10  # inside the second record
     path.write_bytes(bytes(data))
@@ -136,7 +136,7 @@ def test_a_snapshot_leaves_the_open_segment_alone(storage):
     directory = storage.worlds_dir / "w"
     voxels = random_voxels(rng)
     store.snapshot(10, CONFIG, voxels)
-    assert [p.name for p in directory.glob("wal-*")] == [segment_name(0)]
+    assert [p.name for p in directory.glob("wal-*")] == [segment_name(0, epoch=1)]
     store.append(11, b"11").result()
     store.close()
     storage, store, rec = reopen(storage)

@@ -4,6 +4,8 @@
     ├── InvalidInput            bad request data; nothing was changed        (HTTP 422)
     │   └── InvalidEdit         an edit batch that cannot be applied
     ├── Unauthorized            a missing or unknown API key                  (HTTP 401)
+    ├── Forbidden               a key that may not do this (an admin's task)  (HTTP 403)
+    ├── Conflict                the request contradicts the state it finds    (HTTP 409)
     ├── NotFound                an unknown world (or another tenant's)        (HTTP 404)
     ├── TooLarge                a body, batch or region over a limit          (HTTP 413)
     ├── RateLimited             a key over its request rate                   (HTTP 429)
@@ -12,7 +14,8 @@
     │   ├── NoOpenCLDevice      no OpenCL platform or no matching device
     │   ├── VersionNotReached   a read's min_version was not reached in time
     │   ├── WritesDisabled      the write-ahead log failed; no edit is accepted
-    │   └── WorldMoved          the world is (being) moved to another engine
+    │   ├── WorldMoved          the world moved to another engine; nothing was done
+    │   └── WorldFenced         another engine took the world over; the batch was not acknowledged
     ├── KernelBuildError        an OpenCL program failed to build             (HTTP 500)
     └── StorageError            the data directory cannot be used            (HTTP 500)
         └── CorruptData         a log or snapshot fails its checks; names file and offset
@@ -40,6 +43,14 @@ class InvalidEdit(InvalidInput):
 
 class NotFound(SdfServerError):
     code = "not_found"
+
+
+class Forbidden(SdfServerError):
+    code = "forbidden"
+
+
+class Conflict(SdfServerError):
+    code = "conflict"
 
 
 class Unauthorized(SdfServerError):
@@ -93,11 +104,18 @@ class WritesDisabled(NotReady):
 
 
 class WorldMoved(NotReady):
-    """The engine asked no longer holds the world: it handed it to another engine, or another
-    engine took it over (a newer epoch). Nothing of the request was acknowledged; ask again
-    where the world is now (the API does so itself)."""
+    """The engine asked no longer holds the world (it went to another engine); nothing of the
+    request was done, so it may be asked again where the world is now (the API does so itself)."""
 
     code = "world_moved"
+
+
+class WorldFenced(NotReady):
+    """Another engine took the world over (a newer epoch) after this engine logged the batch and
+    before it acknowledged it: the batch may or may not be in the world's history. Retrying it
+    with its ``Idempotency-Key`` is safe; without one it may be applied twice."""
+
+    code = "world_fenced"
 
 
 class StorageError(SdfServerError):

@@ -83,6 +83,10 @@ class Settings(BaseSettings):
     max_read_voxels: int = Field(
         1 << 27, ge=1, description="Largest box one field or voxel read may cover, in voxels (413 above it).")
     max_query_points: int = Field(1 << 16, ge=1, description="Most points in one point query (413 above it).")
+    move_release_timeout_s: float = Field(
+        10.0, gt=0, le=600, description="How long a world's move (POST /v1/worlds/{id}/move) waits for its engine "
+                                        "to hand it over; past that the target engine takes the world over and its "
+                                        "new epoch fences the old holder.")
     max_wait_ms: int = Field(
         5000, ge=0, description="Longest a read with min_version waits for the field to reach that version, "
                                 "in milliseconds; after it the read fails with 503.")

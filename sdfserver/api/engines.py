@@ -19,10 +19,11 @@ import numpy as np
 
 from sdfserver.api.engine_client import BaseClient
 from sdfserver.engine import messages as msg
-from sdfserver.errors import NotFound, NotReady
+from sdfserver.errors import Conflict, InvalidInput, NotFound, NotReady, WorldMoved
 from sdfserver.geometry import Box
 
 STATUS_TIMEOUT_S = 2.0  # an engine that does not answer its status in this long is not ready
+MOVE_POLL_S = 0.005  # how often a request for a world on its way to another engine asks again
 
 
 @dataclass(frozen=True)
@@ -61,11 +62,14 @@ class LocalPlacement:
         if len(self.engines) == 1:
             return self.engines[0]
         engine = self._where.get(world_id)
-        if engine is None:  # created by another API process, or restored: ask every engine
-            for candidate in self.engines:
-                worlds = await candidate.call(msg.Describe(candidate.next_id(), None))
-                for world in worlds:
-                    self._where[world["id"]] = candidate
+        if engine is None:  # created by another API process, restored or moved: ask every engine
+            lists = await asyncio.gather(*(e.call(msg.Describe(e.next_id(), None)) for e in self.engines))
+            epochs: dict[str, int] = {}
+            for candidate, worlds in zip(self.engines, lists):
+                for world in worlds:  # an engine that missed its world being taken over has an older epoch
+                    if world.get("epoch", 0) >= epochs.get(world["id"], -1):
+                        epochs[world["id"]] = world.get("epoch", 0)
+                        self._where[world["id"]] = candidate
             engine = self._where.get(world_id)
         if engine is None:
             raise NotFound(f"no world {world_id!r}")
@@ -97,7 +101,33 @@ class Engines:
 
     async def _call(self, world_id: str, make: Callable[[int], Any]) -> Any:
         engine = await self.placement.engine_for(world_id)
-        return await engine.call(make(engine.next_id()))
+        try:
+            return await engine.call(make(engine.next_id()))
+        except (WorldMoved, NotFound):
+            if len(self.clients) == 1:
+                raise
+        return await self._call_after_move(world_id, make)
+
+    async def _call_after_move(self, world_id: str, make: Callable[[int], Any]) -> Any:
+        """Ask again where the world is: it moved (or is moving) to another engine. Until it
+        arrives there (at most ``max_wait_s``) the engines answer WorldMoved or NotFound; a world
+        that no engine has and none has seen leave is not found."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self.max_wait_s
+        moving = False
+        while True:
+            self.placement.forget(world_id)
+            try:
+                engine = await self.placement.engine_for(world_id)
+                return await engine.call(make(engine.next_id()))
+            except WorldMoved:
+                moving = True
+                if loop.time() >= deadline:
+                    raise
+            except NotFound:
+                if not moving or loop.time() >= deadline:
+                    raise
+            await asyncio.sleep(MOVE_POLL_S)
 
     # -- worlds --------------------------------------------------------------------------------
 
@@ -118,6 +148,39 @@ class Engines:
     async def delete_world(self, world_id: str, access: msg.Access | None) -> None:
         await self._call(world_id, lambda i: msg.DeleteWorld(i, world_id, access))
         self.placement.forget(world_id)
+
+    async def move_world(self, world_id: str, target: int, access: msg.Access | None,
+                         release_timeout_s: float) -> dict[str, Any]:
+        """Move a world to engine ``target``: released by its holder (its batches so far durable,
+        its directory handed over) and adopted by the target. A holder that does not answer in
+        ``release_timeout_s`` is taken over: the target fetches the directory and its new epoch
+        fences the old holder. If the target cannot take the world, its holder takes it back."""
+        if not 0 <= target < len(self.clients):
+            raise InvalidInput(f"engine must be 0..{len(self.clients) - 1}, got {target}")
+        self.placement.forget(world_id)
+        source = await self.placement.engine_for(world_id)
+        await source.call(msg.Admit(source.next_id(), access, world_id))  # a world this key may see
+        origin = list(self.clients).index(source)
+        if origin == target:
+            raise Conflict(f"world {world_id!r} is already on engine {target}")
+        destination = self.clients[target]
+        taken_from = None
+        try:
+            await asyncio.wait_for(source.call(msg.ReleaseWorld(source.next_id(), world_id, target, access)),
+                                   release_timeout_s)
+        except (asyncio.TimeoutError, NotReady) as exc:
+            if isinstance(exc, WorldMoved):
+                raise
+            taken_from = origin  # the holder does not answer: its directory is fetched, it is fenced
+        self.placement.forget(world_id)
+        try:
+            described = await destination.call(msg.AdoptWorld(destination.next_id(), world_id, taken_from, access))
+        except Exception:
+            if taken_from is None:  # handed over but not taken (no room there, say): back to its holder
+                await source.call(msg.AdoptWorld(source.next_id(), world_id, target, access))
+            raise
+        self.placement.placed(world_id, destination)
+        return {**described, "engine": target}
 
     async def reconfigure(self, world_id: str, changes: dict[str, Any], access: msg.Access | None) -> None:
         await self._call(world_id, lambda i: msg.Reconfigure(i, world_id, changes, access))

@@ -22,8 +22,8 @@ from pydantic import ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from sdfserver.errors import (
-    BodyTooLarge, DeviceMemoryExceeded, InvalidInput, KernelBuildError, NotFound, NotReady, RateLimited, SdfServerError,
-    TooLarge, TooManySubscriptions, Unauthorized,
+    BodyTooLarge, Conflict, DeviceMemoryExceeded, Forbidden, InvalidInput, KernelBuildError, NotFound, NotReady,
+    RateLimited, SdfServerError, TooLarge, TooManySubscriptions, Unauthorized,
 )
 from sdfserver.wire import WireError
 
@@ -37,11 +37,13 @@ STATUS: dict[type[SdfServerError], int] = {
     NotReady: 503,
     KernelBuildError: 500,
     Unauthorized: 401,
+    Forbidden: 403,
+    Conflict: 409,
     RateLimited: 429,
     TooManySubscriptions: 429,
 }
 
-HTTP_CODES = {401: "unauthorized", 404: "not_found", 405: "method_not_allowed", 406: "not_acceptable",
+HTTP_CODES = {401: "unauthorized", 403: "forbidden", 404: "not_found", 405: "method_not_allowed", 406: "not_acceptable",
               413: "too_large", 415: "unsupported_media_type", 422: "invalid_input"}
 
 
@@ -99,12 +101,14 @@ def error_response(exc: BaseException) -> Response:
 ERROR_SCHEMA = {"type": "object", "required": ["error"], "properties": {"error": {
     "type": "object", "required": ["code", "message"],
     "properties": {"code": {"type": "string"}, "message": {"type": "string"}, "detail": {}}}}}
-ANSWERS = {401: "No or unknown API key", 404: "Unknown world (or another key's)",
+ANSWERS = {401: "No or unknown API key", 403: "Not an admin key", 404: "Unknown world (or another key's)",
+           409: "The world is already on that engine",
            413: "Over a size limit", 422: "Invalid input", 429: "Over the key's request rate",
            500: "A bug, or a world whose files failed their checks (storage_error)",
            503: "Not ready, writes disabled, or min_version not reached",
            507: "The world does not fit the device memory budget"}
 _READS = ("/field", "/voxels", "/export")  # answers whose size a limit bounds
+_ADMIN = {("post", "/v1/worlds/{world_id}/move")}
 _ALLOCATING = {("post", "/v1/worlds"), ("post", "/v1/worlds/import"), ("patch", "/v1/worlds/{world_id}")}
 
 
@@ -120,6 +124,8 @@ def document(schema: dict[str, Any]) -> dict[str, Any]:
                     statuses.append(413)
                 if (method, path) in _ALLOCATING:
                     statuses.append(507)
+                if (method, path) in _ADMIN:
+                    statuses += [403, 409, 507]
             else:
                 statuses = [503] if path == "/readyz" else []
             responses = operation.setdefault("responses", {})

@@ -65,6 +65,10 @@ class PatchWorldBody(Strict):
     focus: FocusBody | None = Field(None, description="null removes the focus; leave it out to keep it.")
 
 
+class MoveWorldBody(Strict):
+    engine: Annotated[StrictInt, Field(ge=0, le=255, description="The engine (GET /v1/engines) to move the world to.")]
+
+
 class EditOp(BaseModel):
     """One operation: {op: voxels, voxels} | {op: box, min, max, colour} | {op: sphere, center, radius, colour}."""
 

@@ -17,9 +17,9 @@ from sdfserver import wire
 from sdfserver.api.auth import access_of, principal_of
 from sdfserver.api.bodies import MSGPACK, OCTET, Encoded, decode_body, header, respond
 from sdfserver.api.engines import Engines
-from sdfserver.api.models import CreateWorldBody, EditsBody, PatchWorldBody, QueryBody, request_body
+from sdfserver.api.models import CreateWorldBody, EditsBody, MoveWorldBody, PatchWorldBody, QueryBody, request_body
 from sdfserver.engine.core import world_config_dict
-from sdfserver.errors import InvalidEdit, InvalidInput, TooLarge
+from sdfserver.errors import Forbidden, InvalidEdit, InvalidInput, TooLarge
 from sdfserver.geometry import Box
 from sdfserver.storage.codec import encode_batch
 from sdfserver.world import Focus, WorldConfig
@@ -70,7 +70,7 @@ async def list_engines(request: Request) -> Response:
     sees_all = principal_of(request).admin  # world ids are other tenants' business
     return respond(request, [{"engine": i, "address": getattr(client, "input_address", "in this process"),
                               "ready": s.ready, "reason": s.reason, "device": s.device, "pid": s.pid,
-                              "free_bytes": s.free_bytes, "worlds": len(s.worlds),
+                              "free_bytes": s.free_bytes, "worlds": len(s.worlds), "epoch": s.epoch,
                               **({"world_ids": sorted(s.worlds)} if sees_all else {})}
                              for i, (client, s) in enumerate(zip(engines.clients, statuses))])
 
@@ -94,6 +94,18 @@ async def patch_world(request: Request, world_id: str) -> Response:
         await engine.reconfigure(world_id, changes, access_of(request))
         return respond(request, await engine.describe(world_id))
     return respond(request, await engine.describe(world_id, access_of(request)))
+
+
+@router.post("/worlds/{world_id}/move", openapi_extra=request_body(MoveWorldBody),
+             summary="Move a world to another engine (admin): its writes meanwhile wait, none lost or doubled")
+async def move_world(request: Request, world_id: str) -> Response:
+    body = MoveWorldBody.model_validate(await decode_body(request))
+    if not principal_of(request).admin:
+        raise Forbidden("moving a world between engines needs an admin key")
+    settings = request.app.state.settings
+    described = await engine_of(request).move_world(world_id, body.engine, access_of(request),
+                                                     release_timeout_s=settings.move_release_timeout_s)
+    return respond(request, described)
 
 
 @router.delete("/worlds/{world_id}", status_code=204, summary="Delete a world")

@@ -28,7 +28,7 @@ from starlette.requests import ClientDisconnect
 from sdfserver.api.auth import access_of
 from sdfserver.api.bodies import OCTET, header, respond
 from sdfserver.engine.core import world_config_dict
-from sdfserver.engine.restore import config_from_dict
+from sdfserver.engine.rebuild import config_from_dict
 from sdfserver.errors import BodyTooLarge, InvalidInput
 from sdfserver.storage import (
     decode_upload, dump_npy, dump_vox, encode_snapshot, load_npy, load_vox, pad_to_chunks,

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable, Literal
 
 import numpy as np
@@ -54,6 +55,18 @@ class DeleteWorld:
 class Reconfigure:
     world_id: str
     changes: dict[str, Any]  # keyword arguments of World.reconfigure
+
+
+@dataclass(frozen=True)
+class ReleaseWorld:
+    world_id: str
+    destination: Path  # the data directory of the engine that takes it (moves.py)
+
+
+@dataclass(frozen=True)
+class AdoptWorld:
+    world_id: str
+    source: Path | None  # the data directory it comes from if its holder did not hand it over
 
 
 @dataclass(frozen=True)
@@ -118,7 +131,7 @@ class OnDevice:
     fn: Callable[[], Any]
 
 
-APPLY = (CreateWorld, DeleteWorld, Reconfigure, ApplyEdits)
+APPLY = (CreateWorld, DeleteWorld, Reconfigure, ReleaseWorld, AdoptWorld, ApplyEdits)
 
 
 class CommandCalls:

@@ -42,13 +42,14 @@ import pyopencl as cl
 
 from sdfserver.engine.batches import BatchPipeline, Planned, fail
 from sdfserver.engine.commands import (
-    APPLY, ApplyEdits, CommandCalls, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice, Reconfigure,
-    StepReport, Subscribe,
+    APPLY, AdoptWorld, ApplyEdits, CommandCalls, CreateWorld, DeleteWorld, Describe, EngineLimits, OnDevice,
+    Reconfigure, ReleaseWorld, StepReport, Subscribe,
 )
 from sdfserver.engine.journal import Journal
 from sdfserver.engine.lifetime import EngineLifetime, Pending
 from sdfserver.engine.mailbox import Subscription
 from sdfserver.engine.metrics import EngineMetrics
+from sdfserver.engine.moves import Moves
 from sdfserver.engine.reads import Reads
 from sdfserver.engine.stepclock import StepClock
 from sdfserver.engine.subscriptions import Subscriptions
@@ -95,8 +96,11 @@ class Engine(EngineLifetime, CommandCalls):
         parts = parts or EngineParts.build(gpu, limits, journal, self.metrics, lambda: not self._commands.empty())
         self.table, self.batches, self.reads, self.subscriptions = (
             parts.table, parts.batches, parts.reads, parts.subscriptions)
+        self.moves = Moves(gpu, limits, self.table, self.batches, self.subscriptions, journal)
         self._changers: dict[type, Callable[[Any, set[str]], Any]] = {  # the changing commands' handlers
             CreateWorld: self._create_world, DeleteWorld: self._delete_world, Reconfigure: self._reconfigure,
+            ReleaseWorld: lambda c, _: self.moves.release(c.world_id, c.destination),
+            AdoptWorld: lambda c, _: self.moves.adopt(c.world_id, c.source),
         }
         # the table's own dicts: read by restore, tests and the engine's service
         self.worlds, self.owners, self.refused = self.table.worlds, self.table.owners, self.table.refused
@@ -212,6 +216,7 @@ class Engine(EngineLifetime, CommandCalls):
             if not future.set_running_or_notify_cancel():
                 continue
             if isinstance(command, ApplyEdits):
+                self.moves.drop_if_fenced(command.world_id)
                 planned = self.batches.plan(command, future, report)  # a bad batch fails alone
                 if planned is not None:
                     batches.append(planned)

@@ -30,6 +30,11 @@ The engine calls these on its own thread, in the order things happen:
   and ``ready``, which waits until the copy is done: call it (from any thread) before
   reading ``voxels``. The engine does not wait for the copy, nor for the snapshot.
 
+- ``epoch_of(world_id)``: the epoch under which this engine holds the world (0: none);
+  ``fenced(world_id)``: whether another engine has taken it over since (its batches then
+  fail with ``WorldMoved`` instead of being acknowledged); ``forget(world_id)``: drop a
+  world taken over, its files left to their new holder.
+
 A journal must not call back into the engine.
 """
 
@@ -56,6 +61,12 @@ class Journal(Protocol):
     def record_delete(self, world_id: str) -> None: ...
 
     def wants_snapshot(self, world_id: str) -> bool: ...
+
+    def epoch_of(self, world_id: str) -> int: ...
+
+    def fenced(self, world_id: str) -> bool: ...
+
+    def forget(self, world_id: str) -> None: ...
 
     def record_snapshot(self, world_id: str, version: int, config: dict[str, Any],
                         voxels: np.ndarray, ready: Callable[[], None]) -> Any: ...

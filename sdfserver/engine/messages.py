@@ -74,6 +74,20 @@ class Describe(Request, tag=True):
     access: Access | None = None
 
 
+class ReleaseWorld(Request, tag=True):
+    id: int
+    world_id: str
+    destination: int  # the engine (index) that takes the world
+    access: Access | None = None
+
+
+class AdoptWorld(Request, tag=True):
+    id: int
+    world_id: str
+    source: int | None = None  # the engine it comes from, if that one did not hand it over
+    access: Access | None = None
+
+
 class ApplyEdits(Request, tag=True):
     id: int
     world_id: str
@@ -163,8 +177,8 @@ class CountApi(Request, tag=True):
     websocket_clients: int = 0  # a change, +/-
 
 
-AnyRequest = Union[CreateWorld, DeleteWorld, Reconfigure, Describe, ApplyEdits, Read, Query, Render, Pick,
-                   Subscribe, Unsubscribe, Taken, Admit, Status, MetricsText, CountApi]
+AnyRequest = Union[CreateWorld, DeleteWorld, Reconfigure, ReleaseWorld, AdoptWorld, Describe, ApplyEdits, Read,
+                   Query, Render, Pick, Subscribe, Unsubscribe, Taken, Admit, Status, MetricsText, CountApi]
 
 
 # -- answers --------------------------------------------------------------------------------------
@@ -205,6 +219,7 @@ class EngineStatus(msgspec.Struct, array_like=True):
     writes_disabled: str | None = None  # the log's failure, when writes are refused
     pid: int = 0  # the engine's process
     worlds: list[str] = []  # the ids of the worlds it holds
+    epoch: int = 0  # how many times this engine's data directory was opened to serve
 
 
 class Failure(msgspec.Struct, array_like=True):

@@ -275,8 +275,14 @@ def serve_engine(settings: Settings, address: EngineAddress, engines: int, conn:
             failed = journal.storage.committer.failure if journal is not None else None
             return None if failed is None else str(failed)
 
-        transport = EngineTransport(lambda send: EngineService(engine, doorkeeper, send,
-                                                               writes_failure=writes_failure), address)
+        def peer_dir(index: int) -> Path:
+            if not 0 <= index < engines:
+                raise IndexError(f"there are {engines} engines")
+            return data_dir_of(settings, index, engines)
+
+        transport = EngineTransport(lambda send: EngineService(
+            engine, doorkeeper, send, writes_failure=writes_failure, data_dir_of=peer_dir if engines > 1 else None,
+            epoch=journal.storage.epoch if journal is not None else 0), address)
         transport.start()
         conn.send(("ready", gpu.device_name))
         while not stop.wait(0.5):

@@ -15,6 +15,7 @@ import os
 import threading
 import time
 from concurrent.futures import Future
+from pathlib import Path
 from typing import Any, Callable
 
 from prometheus_client import generate_latest
@@ -25,8 +26,8 @@ from sdfserver.engine import messages as msg
 from sdfserver.engine.access import Doorkeeper, holder_of
 from sdfserver.engine.core import Engine
 from sdfserver.engine.mailbox import Mailbox, Subscription
-from sdfserver.engine.restore import config_from_dict
-from sdfserver.errors import InvalidInput, SdfServerError, TooManySubscriptions
+from sdfserver.engine.rebuild import config_from_dict
+from sdfserver.errors import Forbidden, InvalidInput, SdfServerError, TooManySubscriptions
 from sdfserver.geometry import Box
 from sdfserver.render import parse_view
 from sdfserver.storage.codec import batch_parts, decode_batch
@@ -48,11 +49,15 @@ class SubscriptionNews:
 
 class EngineService:
     def __init__(self, engine: Engine, doorkeeper: Doorkeeper, send: Send, *, writes_failure:
-                 Callable[[], str | None] = lambda: None):
+                 Callable[[], str | None] = lambda: None, data_dir_of: Callable[[int], Path] | None = None,
+                 epoch: int = 0):
+        """``data_dir_of(i)``: engine i's data directory, for moves (None: this engine has no peers)."""
         self.engine = engine
         self.doorkeeper = doorkeeper
         self.send = send
         self.writes_failure = writes_failure
+        self.data_dir_of = data_dir_of
+        self.epoch = epoch
         self.subscriptions: dict[tuple[bytes, int], Subscription] = {}
         self._holders: dict[tuple[bytes, int], str] = {}  # each subscription's key (or client address)
         # a subscription with credit may be sent its next update; sending spends it, ``Taken`` returns it
@@ -60,6 +65,7 @@ class EngineService:
         self._credit_lock = threading.Lock()
         self.handlers: dict[type, Callable[[bytes, Any], None]] = {
             msg.CreateWorld: self._create, msg.DeleteWorld: self._delete, msg.Reconfigure: self._reconfigure,
+            msg.ReleaseWorld: self._release, msg.AdoptWorld: self._adopt,
             msg.Describe: self._describe, msg.ApplyEdits: self._apply, msg.Read: self._read,
             msg.Query: self._query, msg.Render: self._render, msg.Pick: self._pick,
             msg.Subscribe: self._subscribe, msg.Unsubscribe: self._unsubscribe, msg.Taken: self._taken,
@@ -142,6 +148,28 @@ class EngineService:
             focus = changes["focus"]
             changes["focus"] = Focus(tuple(focus["center"]), tuple(focus["size"]))
         self._submit(client, m.id, cmd.Reconfigure(m.world_id, changes))
+
+    def _release(self, client: bytes, m: msg.ReleaseWorld) -> None:
+        self._check_move(m.access)
+        self._submit(client, m.id, cmd.ReleaseWorld(m.world_id, self._peer_dir(m.destination)))
+
+    def _adopt(self, client: bytes, m: msg.AdoptWorld) -> None:
+        self._check_move(m.access)
+        source = None if m.source is None else self._peer_dir(m.source)
+        self._submit(client, m.id, cmd.AdoptWorld(m.world_id, source))
+
+    def _check_move(self, access: msg.Access | None) -> None:
+        self.doorkeeper.admit(access)
+        if access is not None and not access.admin:
+            raise Forbidden("moving a world between engines needs an admin key")
+        if self.data_dir_of is None:
+            raise InvalidInput("this engine has no other engine to move worlds to or from")
+
+    def _peer_dir(self, index: int) -> Path:
+        try:
+            return self.data_dir_of(index)
+        except (IndexError, ValueError) as exc:
+            raise InvalidInput(f"no engine {index}: {exc}") from None
 
     def _describe(self, client: bytes, m: msg.Describe) -> None:
         self.doorkeeper.admit(m.access, m.world_id)
@@ -268,7 +296,7 @@ class EngineService:
         free = max(0, gpu.memory_budget_bytes - sum(w.device_bytes for w in list(engine.worlds.values())))
         self._reply(client, m.id, msg.EngineStatus(engine.ready, None if engine.ready else engine.not_ready_reason(),
                                                    gpu.device_name, free, self.writes_failure(), os.getpid(),
-                                                   list(engine.worlds)))
+                                                   list(engine.worlds), self.epoch))
 
     def _metrics(self, client: bytes, m: msg.MetricsText) -> None:
         self._reply(client, m.id, generate_latest(self.engine.metrics.registry).decode())

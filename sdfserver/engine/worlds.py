@@ -12,10 +12,13 @@ from sdfserver.engine.commands import CreateWorld, EngineLimits
 from sdfserver.engine.describe import describe_recompute
 from sdfserver.engine.journal import Journal, reconfigure_durably
 from sdfserver.engine.metrics import EngineMetrics
-from sdfserver.errors import InvalidInput, NotFound, StorageError, TooLarge
+from sdfserver.errors import InvalidInput, NotFound, StorageError, TooLarge, WorldMoved
 from sdfserver.gpu import GpuContext
 from sdfserver.world import World, WorldConfig
 from sdfserver.world_factory import make_world
+
+
+MAX_TOMBSTONES = 4096  # worlds that moved away, remembered to answer WorldMoved (not NotFound)
 
 
 def world_config_dict(config: WorldConfig) -> dict[str, Any]:
@@ -41,6 +44,7 @@ class WorldTable:
         self.worlds: dict[str, World] = {}
         self.owners: dict[str, str | None] = {}
         self.refused: dict[str, str] = {}  # worlds on disk that could not be restored, and why
+        self.gone: dict[str, str] = {}  # worlds that moved to another engine, and how
         self.last_recompute_ms: dict[str, float] = {}
 
     def get(self, world_id: str) -> World:
@@ -49,6 +53,8 @@ class WorldTable:
         except (KeyError, TypeError):
             if isinstance(world_id, str) and world_id in self.refused:
                 raise StorageError(f"world {world_id!r} was not restored: {self.refused[world_id]}") from None
+            if isinstance(world_id, str) and world_id in self.gone:
+                raise WorldMoved(self.gone[world_id]) from None
             raise NotFound(f"no world {world_id!r}") from None
 
     def owner_of(self, world_id: str) -> str | None:
@@ -70,7 +76,7 @@ class WorldTable:
         if len(self.worlds) >= self.limits.max_worlds:
             raise TooLarge(f"the server already holds {len(self.worlds)} worlds, its limit")
         world_id = command.world_id or new_world_id()
-        while world_id in self.worlds:
+        while world_id in self.worlds or (not command.world_id and world_id in self.gone):
             if command.world_id:
                 raise InvalidInput(f"world {world_id!r} already exists")
             world_id = new_world_id()
@@ -94,6 +100,18 @@ class WorldTable:
     def adopt(self, world_id: str, world: World, owner: str | None) -> None:
         self.worlds[world_id] = world
         self.owners[world_id] = owner
+        self.gone.pop(world_id, None)
+        self.count()
+
+    def forget(self, world_id: str, why: str) -> None:
+        """The world leaves this engine (moved to another): off the device, its files left alone."""
+        world = self.worlds.pop(world_id)
+        self.owners.pop(world_id, None)
+        self.last_recompute_ms.pop(world_id, None)
+        self.gone[world_id] = why
+        while len(self.gone) > MAX_TOMBSTONES:
+            self.gone.pop(next(iter(self.gone)))
+        world.release()
         self.count()
 
     def delete(self, world_id: str) -> None:
@@ -127,6 +145,7 @@ class WorldTable:
             **({"stored_bricks": world.stored_bricks, "bytes_per_stored_voxel": world.bytes_per_stored_voxel}
                if world.config.storage == "sparse" else {}),
             "owner": self.owners.get(world_id),
+            "epoch": self.journal.epoch_of(world_id) if self.journal is not None else 0,
         }
 
     def release_all(self) -> None:

@@ -15,7 +15,10 @@ The engine calls it on its own thread:
   the log. The interval keeps a busy world from snapshotting several times a second: each
   snapshot copies, compresses and writes every voxel of the world.
 
-``adopt`` registers a world restored at start-up (``sdfserver.engine.restore``).
+``adopt`` registers a world restored at start-up (``sdfserver.engine.restore``) or moved here;
+``hand_over`` gives a world's directory to another engine's data directory (its snapshot
+finished, its log closed: all of it durable), ``take_over`` fetches one from another engine
+that does not answer, ``fenced`` tells whether another engine took a world of this one over.
 
 Each hook either does all it was asked or raises before changing anything:
 ``WritesDisabled`` when writes are disabled or the data directory was deleted or replaced
@@ -27,6 +30,7 @@ from __future__ import annotations
 import logging
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -118,6 +122,42 @@ class StorageJournal:
         future = self._snapshotting.pop(world_id, None)
         if future is not None:
             future.exception()  # waits; a failure was logged by _snapshot
+
+    def hand_over(self, world_id: str, destination: Path) -> None:
+        """After this, the world is another engine's to open; on failure its log is open again here."""
+        self._wait_snapshot(world_id)
+        store = self._store(world_id)
+        try:
+            self.storage.hand_over(world_id, store, destination)
+        except BaseException:
+            reopened, _ = self.storage.open_world(world_id)  # a new epoch: everything logged is in it
+            self.stores[world_id] = reopened
+            raise
+        self.stores.pop(world_id, None)
+        self.owners.pop(world_id, None)
+        self._last_snapshot_at.pop(world_id, None)
+
+    def take_over(self, world_id: str, source: Path) -> None:
+        self.storage.take_over(world_id, source)
+
+    def epoch_of(self, world_id: str) -> int:
+        store = self.stores.get(world_id)
+        return 0 if store is None else store.epoch
+
+    def fenced(self, world_id: str) -> bool:
+        store = self.stores.get(world_id)
+        return store is not None and store.fenced is not None
+
+    def forget(self, world_id: str) -> None:
+        """A world another engine took over: its log closed here, its files left alone."""
+        store = self.stores.pop(world_id, None)
+        self.owners.pop(world_id, None)
+        self._last_snapshot_at.pop(world_id, None)
+        if store is not None:
+            try:
+                store.close()
+            except Exception as exc:  # the directory may be gone from here: nothing of it is ours now
+                log.warning("closing the log of world %s, taken over by another engine: %s", world_id, exc)
 
     def close(self) -> None:
         self._snapshots.shutdown(wait=True)

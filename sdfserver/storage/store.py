@@ -26,7 +26,7 @@ the next **epoch**: it writes ``epoch`` first (atomically, so as a new file), th
 log and starts a segment of the new epoch, which fences what older epochs write later
 (``recovery``). The holder of an older epoch finds out after its next sync: ``epoch`` is no
 longer the file it wrote (or the world's directory moved away), and its batches fail with
-``WorldMoved`` instead of being acknowledged. A batch it appended before the new holder read
+``WorldFenced`` instead of being acknowledged. A batch it appended before the new holder read
 the log is in the new holder's history; one appended after is not; either way it was not
 acknowledged, and a retry carrying its ``Idempotency-Key`` is applied exactly once.
 
@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from sdfserver.errors import CorruptData, InvalidInput, NotFound, StorageError, WorldMoved, WritesDisabled
+from sdfserver.errors import CorruptData, InvalidInput, NotFound, StorageError, WorldFenced, WritesDisabled
 from sdfserver.storage.codec import encode_batch
 from sdfserver.storage.fsutil import fsync_dir, write_atomic
 from sdfserver.storage.recovery import Recovered, recover_world
@@ -87,14 +87,14 @@ class WorldStore:
         self.snapshot_version = 0
         self.records_since_snapshot = 0
         self.epoch = epoch
-        self.fenced: WorldMoved | None = None
+        self.fenced: WorldFenced | None = None
         self._epoch_file = _file_identity(directory / EPOCH_FILE)
         log.fence = self.check_fence
 
-    def check_fence(self) -> WorldMoved | None:
+    def check_fence(self) -> WorldFenced | None:
         """Why this holder may no longer acknowledge writes (another took the world), or None."""
         if self.fenced is None and _file_identity(self.directory / EPOCH_FILE) != self._epoch_file:
-            self.fenced = WorldMoved(f"world {self.world_id!r} is now held by another engine (this one held "
+            self.fenced = WorldFenced(f"world {self.world_id!r} is now held by another engine (this one held "
                                      f"epoch {self.epoch}); nothing it did not acknowledge counts")
         return self.fenced
 
@@ -167,6 +167,12 @@ class Storage:
         self.committer = Committer(sync=sync, window_ms=commit_window_ms, inline=sync_inline,
                                    guard=self.moved)
         self._sweep()
+        try:  # the opening's number: an engine's epoch, one more each time it starts
+            self.epoch = _read_epoch(self.data_dir) + 1
+            write_atomic(self.data_dir / EPOCH_FILE, f"{self.epoch}\n".encode())
+        except OSError as exc:
+            self.committer.close()
+            raise StorageError(f"cannot write {self.data_dir / EPOCH_FILE}: {exc}") from None
 
     def moved(self) -> SyncError | None:
         """Why the data directory is no longer the one opened (deleted, replaced), or None."""
@@ -271,27 +277,28 @@ class Storage:
         recovered.segment = None  # the new epoch writes a segment of its own
         return self._attach(world_id, directory, recovered, epoch), recovered
 
-    def hand_over(self, world_id: str, store: WorldStore, destination: "Storage") -> None:
-        """Move a world's directory into ``destination``'s catalog, its log closed first (so all it
-        holds is durable). On failure the world stays here, its log closed."""
+    def hand_over(self, world_id: str, store: WorldStore, destination: Path) -> None:
+        """Move a world's directory into the data directory ``destination`` (another engine's on
+        the same file system), its log closed first so that all it holds is durable."""
         store.close()
-        self._move(self._dir(world_id), destination._dir(world_id), destination)
+        self._move(self._dir(world_id), Path(destination) / "worlds" / check_world_id(world_id))
 
     def take_over(self, world_id: str, source: Path) -> None:
         """Fetch a world's directory from the data directory ``source`` (another engine's, which
-        does not answer): its holder, if it still runs, is fenced by the epoch ``open_world`` takes."""
+        does not answer) unless it is here already: its holder, if it still runs, is fenced by
+        the epoch ``open_world`` takes next."""
         here = self._dir(world_id)
-        if here.exists():
-            return
-        self._move(Path(source) / "worlds" / check_world_id(world_id), here, self)
+        if not here.exists():
+            self._move(Path(source) / "worlds" / check_world_id(world_id), here)
 
-    def _move(self, origin: Path, target: Path, destination: "Storage") -> None:
-        destination.check()
+    def _move(self, origin: Path, target: Path) -> None:
+        self.check()
         if not (origin / META_FILE).exists():
             raise NotFound(f"no stored world {origin.name!r} in {origin.parent}")
         if target.exists():
             raise InvalidInput(f"world {target.name!r} already exists in {target.parent}")
         try:
+            target.parent.mkdir(parents=True, exist_ok=True)
             origin.rename(target)
             fsync_dir(target.parent)
             fsync_dir(origin.parent)

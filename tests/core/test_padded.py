@@ -173,7 +173,7 @@ def test_borders_survive_the_wire_form():
     snapshots) loads as exact."""
     from sdfserver.api.models import CreateWorldBody, PatchWorldBody
     from sdfserver.engine import world_config_dict
-    from sdfserver.engine.restore import config_from_dict
+    from sdfserver.engine.rebuild import config_from_dict
 
     config = WorldConfig((16, 16, 16), 8, 9, "jfa+1", borders="padded").validated()
     d = world_config_dict(config)

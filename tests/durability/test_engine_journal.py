@@ -264,7 +264,7 @@ def test_a_busy_world_snapshots_at_most_once_an_interval(gpu, tmp_path):
 
 
 def test_restore_replays_a_long_log_in_groups(gpu, tmp_path, monkeypatch):
-    import sdfserver.engine.restore as restore
+    import sdfserver.engine.rebuild as rebuild
 
     journal = StorageJournal(Storage(tmp_path / "data"), snapshot_every_batches=10_000)
     rng = np.random.default_rng()
@@ -283,13 +283,13 @@ def test_restore_replays_a_long_log_in_groups(gpu, tmp_path, monkeypatch):
     engine.stop()
     journal.close()
 
-    monkeypatch.setattr(restore, "REPLAY_GROUP", 5)  # groups of 5, 5, 5, 5, 3
+    monkeypatch.setattr(rebuild, "REPLAY_GROUP", 5)  # groups of 5, 5, 5, 5, 3
     grouped = []
-    real = restore.World.apply_plans
-    monkeypatch.setattr(restore.World, "apply_plans", lambda self, plans: grouped.append(len(plans)) or real(self, plans))
+    real = rebuild.World.apply_plans
+    monkeypatch.setattr(rebuild.World, "apply_plans", lambda self, plans: grouped.append(len(plans)) or real(self, plans))
     fresh_journal = StorageJournal(Storage(tmp_path / "data"))
     fresh = Engine(gpu, journal=fresh_journal)
-    report = restore.restore_worlds(fresh, fresh_journal.storage, fresh_journal)
+    report = restore_worlds(fresh, fresh_journal.storage, fresh_journal)
     assert report.batches_replayed == 23 and grouped == [5, 5, 5, 5, 3]
     voxels, field = fresh.submit(Read(world_id, "voxels")), fresh.submit(Read(world_id, "distance"))
     fresh.step()

@@ -101,6 +101,15 @@ class RecordingJournal:
     def record_snapshot(self, world_id, version, config, voxels, ready):
         raise AssertionError("wants_snapshot said no")
 
+    def epoch_of(self, world_id):
+        return 1
+
+    def fenced(self, world_id):
+        return False
+
+    def forget(self, world_id):
+        raise AssertionError("never fenced")
+
 
 def test_journal_records_before_acknowledging(gpu):
     journal = RecordingJournal(fail_on_version=3)

@@ -4,7 +4,7 @@ engine) refuses to acknowledge what its old holder writes afterwards, and recove
 import numpy as np
 import pytest
 
-from sdfserver.errors import NotFound, WorldMoved
+from sdfserver.errors import NotFound, WorldFenced
 from sdfserver.storage import Storage, batch_parts, decode_batch
 from sdfserver.storage.framing import encode_record
 from sdfserver.storage.wal import segment_epoch
@@ -41,7 +41,7 @@ def test_a_world_handed_over_continues_under_a_new_epoch(two):
     store = a.create_world("w", {"config": CONFIG})
     assert store.epoch == 1
     fill(store, range(1, 6))
-    a.hand_over("w", store, b)
+    a.hand_over("w", store, b.data_dir)
     assert a.world_ids() == [] and b.world_ids() == ["w"]
     moved, recovered = b.open_world("w")
     assert moved.epoch == 2 and [v for v, _ in recovered.records] == [1, 2, 3, 4, 5]
@@ -56,12 +56,12 @@ def test_the_old_holder_of_a_world_taken_over_cannot_acknowledge(two):
     fill(stale, range(1, 4))
     b.take_over("w", a.data_dir)  # its holder did not answer: fetched, and fenced by the epoch
     holder, _ = b.open_world("w")
-    with pytest.raises(WorldMoved):
+    with pytest.raises(WorldFenced):
         stale.append(4, b"stale 4").result()
     fill(holder, range(4, 6), b"b")
     holder.close()
     assert [p for _, p in written(b)] == [b"a1", b"a2", b"a3", b"b4", b"b5"]
-    with pytest.raises(WorldMoved):
+    with pytest.raises(WorldFenced):
         stale.snapshot(3, CONFIG, np.zeros((16, 8, 8), np.uint8))
     with pytest.raises(NotFound):
         b.take_over("gone", a.data_dir)
@@ -76,7 +76,7 @@ def test_a_restarted_holder_fences_the_one_still_running_in_the_same_directory(t
         holder, recovered = new.open_world("w")
         assert holder.epoch == 2 and recovered.last_version == 3
         for v in (4, 5):  # the zombie goes on writing into its own segment
-            with pytest.raises(WorldMoved):
+            with pytest.raises(WorldFenced):
                 stale.append(v, b"stale %d" % v).result()
         fill(holder, range(4, 7), b"new")
         holder.close()
@@ -99,7 +99,7 @@ def test_a_write_appended_before_the_new_holder_read_the_log_is_kept_not_acknowl
         pending = stale.log.append_many(3, [b"in flight"], wake=False)  # written, not yet synced
         holder, recovered = new.open_world("w")
         old.committer.hand_over()
-        with pytest.raises(WorldMoved):  # its holder changed before its sync: not acknowledged
+        with pytest.raises(WorldFenced):  # its holder changed before its sync: not acknowledged
             pending.result(timeout=10)
         assert recovered.records[-1] == (3, b"in flight")  # but the new holder has it: a retry
         holder.close()  # that carries its Idempotency-Key is found there, not applied twice
@@ -133,7 +133,7 @@ def test_batch_ids_survive_a_move(two):
     store = a.create_world("w", {"config": CONFIG})
     from sdfserver.storage.codec import encode_batch
     store.append(1, encode_batch([{"op": "box", "min": [0, 0, 0], "max": [1, 1, 1], "colour": 3}], "key-1")).result()
-    a.hand_over("w", store, b)
+    a.hand_over("w", store, b.data_dir)
     moved, recovered = b.open_world("w")
     moved.close()
     assert batch_parts(decode_batch(recovered.records[0][1]))[1] == "key-1"

@@ -63,17 +63,28 @@ class LocalPlacement:
             return self.engines[0]
         engine = self._where.get(world_id)
         if engine is None:  # created by another API process, restored or moved: ask every engine
-            lists = await asyncio.gather(*(e.call(msg.Describe(e.next_id(), None)) for e in self.engines))
+            lists = await asyncio.gather(*(self._worlds_of(e) for e in self.engines))
             epochs: dict[str, int] = {}
             for candidate, worlds in zip(self.engines, lists):
-                for world in worlds:  # an engine that missed its world being taken over has an older epoch
+                for world in worlds or ():  # an engine that missed its world being taken over has an older epoch
                     if world.get("epoch", 0) >= epochs.get(world["id"], -1):
                         epochs[world["id"]] = world.get("epoch", 0)
                         self._where[world["id"]] = candidate
             engine = self._where.get(world_id)
+            silent = [i for i, worlds in enumerate(lists) if worlds is None]
+            if engine is None and silent:
+                raise NotReady(f"world {world_id!r} is on no engine that answered; engine {silent[0]} did not "
+                               f"answer in {STATUS_TIMEOUT_S:g} s")
         if engine is None:
             raise NotFound(f"no world {world_id!r}")
         return engine
+
+    @staticmethod
+    async def _worlds_of(engine: BaseClient) -> list[dict[str, Any]] | None:
+        try:
+            return await asyncio.wait_for(engine.call(msg.Describe(engine.next_id(), None)), STATUS_TIMEOUT_S)
+        except asyncio.TimeoutError:
+            return None
 
     async def place(self, config: dict[str, Any]) -> BaseClient:
         if len(self.engines) == 1:
@@ -157,21 +168,24 @@ class Engines:
         fences the old holder. If the target cannot take the world, its holder takes it back."""
         if not 0 <= target < len(self.clients):
             raise InvalidInput(f"engine must be 0..{len(self.clients) - 1}, got {target}")
-        self.placement.forget(world_id)
-        source = await self.placement.engine_for(world_id)
-        await source.call(msg.Admit(source.next_id(), access, world_id))  # a world this key may see
-        origin = list(self.clients).index(source)
-        if origin == target:
-            raise Conflict(f"world {world_id!r} is already on engine {target}")
+        for attempt in range(2):
+            source = await self.placement.engine_for(world_id)
+            origin = list(self.clients).index(source)
+            if origin == target:
+                raise Conflict(f"world {world_id!r} is already on engine {target}")
+            taken_from = None
+            try:
+                await asyncio.wait_for(source.call(msg.ReleaseWorld(source.next_id(), world_id, target, access)),
+                                       release_timeout_s)
+                break
+            except (WorldMoved, NotFound):  # where this process saw it last is out of date: look again
+                self.placement.forget(world_id)
+                if attempt:
+                    raise
+            except (asyncio.TimeoutError, NotReady):
+                taken_from = origin  # the holder does not answer: its directory is fetched, it is fenced
+                break
         destination = self.clients[target]
-        taken_from = None
-        try:
-            await asyncio.wait_for(source.call(msg.ReleaseWorld(source.next_id(), world_id, target, access)),
-                                   release_timeout_s)
-        except (asyncio.TimeoutError, NotReady) as exc:
-            if isinstance(exc, WorldMoved):
-                raise
-            taken_from = origin  # the holder does not answer: its directory is fetched, it is fenced
         self.placement.forget(world_id)
         try:
             described = await destination.call(msg.AdoptWorld(destination.next_id(), world_id, taken_from, access))

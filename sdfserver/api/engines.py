@@ -110,16 +110,20 @@ class Engines:
     def clients(self) -> Sequence[BaseClient]:
         return self.placement.engines
 
-    async def _call(self, world_id: str, make: Callable[[int], Any]) -> Any:
+    async def _call(self, world_id: str, make: Callable[[int], Any],
+                    asking: Callable[[BaseClient], None] = lambda engine: None) -> Any:
+        """``make(request id)``'s request sent to the world's engine (``asking`` is told which)."""
         engine = await self.placement.engine_for(world_id)
+        asking(engine)
         try:
             return await engine.call(make(engine.next_id()))
         except (WorldMoved, NotFound):
             if len(self.clients) == 1:
                 raise
-        return await self._call_after_move(world_id, make)
+        return await self._call_after_move(world_id, make, asking)
 
-    async def _call_after_move(self, world_id: str, make: Callable[[int], Any]) -> Any:
+    async def _call_after_move(self, world_id: str, make: Callable[[int], Any],
+                               asking: Callable[[BaseClient], None]) -> Any:
         """Ask again where the world is: it moved (or is moving) to another engine. Until it
         arrives there (at most ``max_wait_s``) the engines answer WorldMoved or NotFound; a world
         that no engine has and none has seen leave is not found."""
@@ -130,6 +134,7 @@ class Engines:
             self.placement.forget(world_id)
             try:
                 engine = await self.placement.engine_for(world_id)
+                asking(engine)
                 return await engine.call(make(engine.next_id()))
             except WorldMoved:
                 moving = True
@@ -241,15 +246,24 @@ class Engines:
 
     async def subscribe(self, world_id: str, region: Box, fmt: str, access: msg.Access | None,
                         deliver: Callable[[msg.ChunkUpdate], None]) -> tuple[BaseClient, int]:
-        engine = await self.placement.engine_for(world_id)
+        """Subscribe on the engine that holds the world (asked again while it moves)."""
         number = next(self._subscription_numbers)
-        engine.on_updates(number, deliver)
+        held: list[BaseClient] = []
+
+        def asking(engine: BaseClient) -> None:  # updates may come before the answer
+            if held:
+                held[0].on_updates(number, None)
+            held[:] = [engine]
+            engine.on_updates(number, deliver)
+
         try:
-            await engine.call(msg.Subscribe(engine.next_id(), world_id, number, region.lo, region.hi, fmt, access))
+            await self._call(world_id, lambda i: msg.Subscribe(i, world_id, number, region.lo, region.hi, fmt, access),
+                             asking)
         except BaseException:
-            engine.on_updates(number, None)
+            if held:
+                held[0].on_updates(number, None)
             raise
-        return engine, number
+        return held[0], number
 
     def taken(self, engine: BaseClient, number: int) -> None:
         """The subscriber sent what it had: the engine may send the next update."""

@@ -161,14 +161,36 @@ class StreamSession:
         await self.send({"type": "subscribed", "id": frame.get("id"), "min": list(region.lo),
                          "max": list(region.hi), "chunk_size": self.chunk_size, "format": fmt,
                          "dtype": dtype})
-        mailbox = self.mailbox = Mailbox(self.wake.set)
+        self.mailbox = Mailbox(self.wake.set)
+        await self._follow(region, fmt, dtype)
+
+    async def _follow(self, region: Box, fmt: str, dtype: str) -> None:
+        """Subscribe on the engine that holds the world; when it moves to another engine, again
+        there (its first update is then the whole region, as after a subscribe)."""
+        mailbox = self.mailbox
+        moved = asyncio.Event()
 
         def deliver(update: ChunkUpdate) -> None:  # on this process's event loop
             mailbox.put(update.version, {tuple(key): data for key, data in update.chunks})
+            if update.ended is not None and not moved.is_set():
+                moved.set()
+                asyncio.ensure_future(self._follow_again(subscription, region, fmt, dtype))
 
         engine, number = await self.engine.subscribe(self.world_id, region, fmt, self.access, deliver)
-        self.subscription = (engine, number, fmt, dtype)
+        subscription = self.subscription = (engine, number, fmt, dtype)
         self.wake.set()  # the first chunks may have come before the subscription was recorded
+
+    async def _follow_again(self, ended: tuple[Any, int, str, str], region: Box, fmt: str, dtype: str) -> None:
+        if self.subscription is not ended:  # replaced or closed meanwhile
+            return
+        self.engine.unsubscribe(ended[0], ended[1])
+        self.subscription = None  # the sender waits for the new one (its first chunks may come first)
+        try:
+            await self._follow(region, fmt, dtype)
+        except SdfServerError as exc:
+            self.subscription = None
+            with contextlib.suppress(WebSocketDisconnect, RuntimeError):
+                await self.send({"type": "error", "id": None, "error": body_for(exc)["error"]})
 
     async def _send_updates(self) -> None:
         while True:

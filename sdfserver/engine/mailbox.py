@@ -21,6 +21,7 @@ ChunkKey = tuple[int, int, int]  # chunk coordinates (x, y, z)
 class Update:
     version: int  # the world version the newest chunk reflects
     chunks: dict[ChunkKey, bytes]  # chunk -> C-ordered (z, y, x) bytes in the subscription's format
+    ended: str | None = None  # why no update follows (the world moved to another engine)
 
 
 class Mailbox:
@@ -29,6 +30,7 @@ class Mailbox:
         self._chunks: dict[ChunkKey, bytes] = {}
         self._version = 0
         self._notify = notify
+        self._ended: str | None = None
         self.merged_chunks = 0  # chunks overwritten before they were sent
 
     def put(self, version: int, chunks: dict[ChunkKey, bytes]) -> int:
@@ -45,12 +47,20 @@ class Mailbox:
             self._notify()
         return merged
 
+    def end(self, why: str) -> None:
+        """No update follows: the last ``take`` says why (after what was still pending)."""
+        with self._lock:
+            was_empty, self._ended = not self._chunks, why
+        if was_empty:
+            self._notify()
+
     def take(self) -> Update | None:
         with self._lock:
-            if not self._chunks:
+            if not self._chunks and self._ended is None:
                 return None
             chunks, self._chunks = self._chunks, {}
-            return Update(self._version, chunks)
+            ended, self._ended = self._ended, None
+            return Update(self._version, chunks, ended)
 
     @property
     def pending_chunks(self) -> int:

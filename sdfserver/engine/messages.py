@@ -238,6 +238,7 @@ class ChunkUpdate(msgspec.Struct, tag=True, array_like=True):
     subscription: int
     version: int
     chunks: list[tuple[tuple[int, int, int], bytes]]  # chunk (x, y, z) -> its bytes
+    ended: str | None = None  # no update follows: the world moved to another engine
 
 
 class Outputs(msgspec.Struct, array_like=True):

@@ -6,7 +6,8 @@ A move is two commands, each run in its step's order with the edits around it:
   their log records made durable (so they are acknowledged), its snapshot finished, its log
   closed, and its directory renamed into the other engine's data directory; the world leaves
   the device and a tombstone answers ``WorldMoved`` for it, so that a request that comes later
-  is asked again where the world is now.
+  is asked again where the world is now; its subscriptions are told they ended (the API's
+  stream subscribes again where the world went).
 - ``AdoptWorld`` on the engine that takes it: the directory fetched from the old holder's data
   directory if that one did not hand it over (it does not answer; it is fenced by the new
   epoch), the world rebuilt from its snapshot and log (``rebuild.restore_world``) and served.
@@ -77,5 +78,5 @@ class Moves:
 
     def _leave(self, world_id: str, why: str) -> None:
         self.table.forget(world_id, why)
-        self.subscriptions.drop_world(world_id)
+        self.subscriptions.drop_world(world_id, why)
         self.batches.forget_world(world_id)

@@ -318,5 +318,5 @@ def chunk_update(news: SubscriptionNews) -> msg.ChunkUpdate | None:
     update = news.subscription.mailbox.take()
     if update is None:
         return None
-    return msg.ChunkUpdate(news.number, update.version, [(k, v) for k, v in update.chunks.items()])
+    return msg.ChunkUpdate(news.number, update.version, [(k, v) for k, v in update.chunks.items()], update.ended)
 

@@ -40,9 +40,13 @@ class Subscriptions:
         self.count()
         self.count_pending()  # what its mailbox held leaves the gauges now, not at the next step
 
-    def drop_world(self, world_id: str) -> None:
+    def drop_world(self, world_id: str, why: str | None = None) -> None:
+        """Forget the world's subscriptions; with ``why`` (it moved), each is told it ended."""
         with self._lock:
-            self._by_world.pop(world_id, None)
+            subs = self._by_world.pop(world_id, set())
+        if why is not None:
+            for sub in subs:
+                sub.mailbox.end(why)
         self.count()
 
     def publish(self, recomputed: dict[str, RecomputeResult]) -> None:

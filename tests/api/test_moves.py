@@ -143,6 +143,43 @@ def test_moves_under_a_writing_load_lose_nothing_and_double_nothing(server):
     np.testing.assert_array_equal(field_of(server, world), expected_field(acknowledged))
 
 
+def test_a_websocket_stream_follows_its_world_to_the_new_engine(server):
+    import websockets.sync.client
+
+    from sdfserver import wire
+
+    rng = np.random.default_rng()
+    world = new_world(server)
+    here = describe(server, world)["engine"]
+    url = server.url.replace("http://", "ws://") + f"/v1/worlds/{world}/stream?access_token=admin-token-0123456789"
+    local = np.zeros(SIZE[::-1], np.uint8)
+    acknowledged: dict[int, list[dict]] = {}
+
+    def take_chunks(ws, until_version: int) -> None:
+        while True:
+            frame = wire.decode(ws.recv(timeout=30))
+            assert frame["type"] == "chunks", frame
+            for chunk in frame["chunks"]:
+                x, y, z = chunk["origin"]
+                local[z:z + 8, y:y + 8, x:x + 8] = wire.unpack_array(chunk["data"])
+            if frame["version"] >= until_version:
+                return
+
+    with websockets.sync.client.connect(url) as ws:
+        ws.send(wire.encode({"type": "subscribe", "id": "s", "min": [0, 0, 0], "max": list(SIZE)}))
+        assert wire.decode(ws.recv(timeout=30))["type"] == "subscribed"
+        take_chunks(ws, 0)
+        for hop in range(2):
+            assert move(server, world, 1 - here).status_code == 200
+            here = 1 - here
+            batch = random_batch(rng)
+            r = httpx.post(f"{server.url}/v1/worlds/{world}/edits", json={"edits": batch}, headers=ADMIN, timeout=30)
+            assert r.status_code == 200, r.text
+            acknowledged[r.json()["version"]] = batch
+            take_chunks(ws, r.json()["version"])  # the new engine's chunks, through the same socket
+            np.testing.assert_array_equal(local, expected_field(acknowledged))
+
+
 def engine_pid(server, index: int) -> int:
     r = httpx.get(server.url + "/v1/engines", headers=ADMIN, timeout=30)
     return r.json()[index]["pid"]
@@ -177,7 +214,8 @@ def test_an_engine_that_does_not_answer_is_taken_over_and_its_late_write_fenced(
     assert late and late[0].status_code == 503 and late[0].json()["error"]["code"] == "world_fenced", late[0].text
     assert describe(server, world)["version"] == 4
     np.testing.assert_array_equal(field_of(server, world), expected_field(acknowledged))
-    # the old holder's late record stays in its segment, and recovery ignores it
+    # the old holder's late record stays in its segment, and recovery ignores it (this server
+    # stops here: this test comes last in the module)
     server.stop()
     restarted = ServerProcess(data_dir, *FLAGS).wait_ready()
     try:

@@ -31,6 +31,7 @@ def start_server(args: argparse.Namespace, data_dir: str) -> subprocess.Popen:
                if args.cluster else ["--devices", f"{args.device},{args.device}"])
     command = [sys.executable, "-m", "sdfserver", "serve", "--port", str(args.port), "--workers", str(args.workers),
                "--no-warm-up", "--data-dir", data_dir, *engines]
+    os.makedirs(args.log_dir, exist_ok=True)
     log = open(os.path.join(args.log_dir, "move-bench-server.log"), "w")
     server = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
     deadline = time.monotonic() + 300

@@ -17,6 +17,9 @@ chunk_size, format, chunks: [{chunk: [cx, cy, cz], origin: [x, y, z], data:
 failed (the connection stays open). An unknown world closes the socket with
 4404; see errors.py for the close codes.
 
+When the world moves to another engine the subscription is made again there (``_follow``): the
+client receives the region whole again, then its changes, on the same socket.
+
 Updates wait in single-slot mailboxes (engine/mailbox.py), in the engine process and again
 in this one: a client that reads slowly gets fewer, merged frames, never a growing queue.
 """

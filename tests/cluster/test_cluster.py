@@ -150,6 +150,44 @@ def test_a_killed_engine_actor_comes_back_with_every_acknowledged_batch(server):
         np.testing.assert_array_equal(read(server, world, "field"), oracle_distance(expected, CAP))
 
 
+def test_a_world_moves_between_engine_actors_under_a_writer_losing_and_doubling_nothing(server):
+    world = new_world(server)
+    acked: list[list[dict]] = []
+    stop = threading.Event()
+
+    def writer(seed: int) -> None:
+        batches = np.random.default_rng(seed)
+        with httpx.Client(base_url=server.url, timeout=30) as http:
+            while not stop.is_set():
+                batch, key = random_batch(batches), {"idempotency-key": f"move-{len(acked)}-{batches.integers(1 << 60)}"}
+                for _ in range(100):
+                    r = http.post(f"/v1/worlds/{world}/edits", json={"edits": batch}, headers=key)
+                    if r.status_code == 200:
+                        acked.append(batch)
+                        break
+                    assert r.status_code == 503, r.text
+                    time.sleep(0.05)
+
+    thread = threading.Thread(target=writer, args=(int(np.random.default_rng().integers(1 << 30)),))
+    thread.start()
+    try:
+        here = httpx.get(f"{server.url}/v1/worlds/{world}", timeout=30).json()["engine"]
+        for _ in range(3):
+            time.sleep(0.3)
+            r = httpx.post(f"{server.url}/v1/worlds/{world}/move", json={"engine": 1 - here}, timeout=60)
+            assert r.status_code == 200 and r.json()["engine"] == 1 - here, r.text
+            here = 1 - here
+            assert world in next(e for e in engines(server) if e["engine"] == here)["world_ids"]
+    finally:
+        stop.set()
+        thread.join(timeout=60)
+    assert httpx.get(f"{server.url}/v1/worlds/{world}", timeout=30).json()["version"] == len(acked) > 5
+    expected = np.zeros(SIZE[::-1], np.uint8)
+    for batch in acked:
+        apply_edits(expected, batch)
+    np.testing.assert_array_equal(read(server, world, "field"), oracle_distance(expected, CAP))
+
+
 def test_engines_asking_for_gpus_the_cluster_lacks_stop_the_server_with_why(tmp_path):
     process = ServerProcess(tmp_path / "data", "--cluster", "local", "--engines", "2", "--engine-gpus", "8",
                             "--no-warm-up")

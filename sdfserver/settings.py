@@ -87,6 +87,13 @@ class Settings(BaseSettings):
         10.0, gt=0, le=600, description="How long a world's move (POST /v1/worlds/{id}/move) waits for its engine "
                                         "to hand it over; past that the target engine takes the world over and its "
                                         "new epoch fences the old holder.")
+    rebalance_below: float = Field(
+        0.0, ge=0, lt=1, description="With several engines and a data directory: every rebalance_every_s seconds, "
+                                     "an engine whose free device memory is under this fraction of its budget moves "
+                                     "its smallest world that fits to the engine with the most free memory. 0: off "
+                                     "(POST /v1/engines/rebalance does one pass on demand).")
+    rebalance_every_s: float = Field(5.0, gt=0, le=3600, description="How often the automatic rebalance looks "
+                                                                     "(rebalance_below).")
     max_wait_ms: int = Field(
         5000, ge=0, description="Longest a read with min_version waits for the field to reach that version, "
                                 "in milliseconds; after it the read fails with 503.")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+from pathlib import Path
 from typing import Any, AsyncIterator, Sequence
 
 from fastapi import Depends, FastAPI
@@ -74,6 +75,22 @@ class _WebSocketGauge:
             self.metrics.engines.count(websocket_clients=-1)
 
 
+class RebalanceLeader:
+    """Whether this API process rebalances: the one that holds the data directory's
+    ``rebalance.lock`` (another takes it over when that process is gone)."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self._held = None
+
+    def __call__(self) -> bool:
+        if self._held is None:
+            from sdfserver.storage.lock import try_lock
+
+            self._held = try_lock(self.path)
+        return self._held is not None
+
+
 def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[BaseClient] | None = None,
                freeze_gc: bool = False) -> FastAPI:
     """``clients``: the engine processes' clients (started with the app); ``engine``: an Engine
@@ -99,6 +116,11 @@ def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[Base
         for client in engine_clients:
             await client.start()
         reporter = asyncio.create_task(app.state.metrics.report_forever())
+        rebalancer = None
+        if settings.rebalance_below > 0 and settings.persist and len(engine_clients) > 1:
+            rebalancer = asyncio.create_task(app.state.engine.rebalance_forever(
+                settings.rebalance_below, settings.rebalance_every_s, settings.move_release_timeout_s,
+                RebalanceLeader(Path(settings.data_dir) / "rebalance.lock")))
         if freeze_gc:  # here, once uvicorn has imported all it serves with
             log.info("%d start-up objects exempted from garbage collection", freeze_startup_objects())
             GcPauses(app.state.metrics.registry)
@@ -106,6 +128,8 @@ def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[Base
             yield
         finally:
             reporter.cancel()
+            if rebalancer is not None:
+                rebalancer.cancel()
             app.state.metrics.report()
             for client in engine_clients:
                 await client.stop()

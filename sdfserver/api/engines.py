@@ -12,6 +12,7 @@ back into what the routes need (NumPy arrays, dicts).
 from __future__ import annotations
 
 import asyncio
+import logging
 from dataclasses import dataclass
 from typing import Any, Callable, Protocol, Sequence
 
@@ -19,9 +20,10 @@ import numpy as np
 
 from sdfserver.api.engine_client import BaseClient
 from sdfserver.engine import messages as msg
-from sdfserver.errors import Conflict, InvalidInput, NotFound, NotReady, WorldMoved
+from sdfserver.errors import Conflict, InvalidInput, NotFound, NotReady, SdfServerError, WorldMoved
 from sdfserver.geometry import Box
 
+log = logging.getLogger("sdfserver.api")
 STATUS_TIMEOUT_S = 2.0  # an engine that does not answer its status in this long is not ready
 MOVE_POLL_S = 0.005  # how often a request for a world on its way to another engine asks again
 
@@ -200,6 +202,48 @@ class Engines:
             raise
         self.placement.placed(world_id, destination)
         return {**described, "engine": target}
+
+    async def rebalance(self, below: float, release_timeout_s: float) -> list[dict[str, Any]]:
+        """One pass: each engine whose free memory is under ``below`` of its budget moves its
+        smallest world that fits to the engine with the most free memory (which stays above the
+        mark). Returns the moves made: [{world, from, to, bytes, ms}]."""
+        statuses = await self.status()
+        lists = await asyncio.gather(*(e.call(msg.Describe(e.next_id(), None)) for e in self.clients))
+        free = [s.free_bytes if s.ready else 0 for s in statuses]
+        moves = []
+        for short, status in enumerate(statuses):
+            if not status.ready or status.budget_bytes <= 0 or free[short] >= below * status.budget_bytes:
+                continue
+            roomiest = max((i for i, s in enumerate(statuses) if i != short and s.ready), key=lambda i: free[i],
+                           default=None)
+            if roomiest is None:
+                continue
+            room = free[roomiest] - below * statuses[roomiest].budget_bytes
+            fitting = sorted((w["device_bytes"], w["id"]) for w in lists[short] if w["device_bytes"] <= room)
+            if not fitting:
+                continue
+            size, world_id = fitting[0]
+            started = asyncio.get_running_loop().time()
+            await self.move_world(world_id, roomiest, None, release_timeout_s)
+            free[short] += size
+            free[roomiest] -= size
+            moves.append({"world": world_id, "from": short, "to": roomiest, "bytes": size,
+                          "ms": round((asyncio.get_running_loop().time() - started) * 1e3, 1)})
+        return moves
+
+    async def rebalance_forever(self, below: float, every_s: float, release_timeout_s: float,
+                                leading: Callable[[], bool]) -> None:
+        """``rebalance`` every ``every_s`` seconds while ``leading()`` (one API process of all)."""
+        while True:
+            await asyncio.sleep(every_s)
+            if not leading():
+                continue
+            try:
+                for move in await self.rebalance(below, release_timeout_s):
+                    log.info("rebalanced: world %s from engine %d to %d (%d bytes, %.1f ms)", move["world"],
+                             move["from"], move["to"], move["bytes"], move["ms"])
+            except SdfServerError as exc:  # an engine not ready, a world that moved meanwhile: next time
+                log.warning("rebalancing failed, tried again in %g s: %s", every_s, exc)
 
     async def reconfigure(self, world_id: str, changes: dict[str, Any], access: msg.Access | None) -> None:
         await self._call(world_id, lambda i: msg.Reconfigure(i, world_id, changes, access))

@@ -108,7 +108,7 @@ ANSWERS = {401: "No or unknown API key", 403: "Not an admin key", 404: "Unknown 
            503: "Not ready, writes disabled, or min_version not reached",
            507: "The world does not fit the device memory budget"}
 _READS = ("/field", "/voxels", "/export")  # answers whose size a limit bounds
-_ADMIN = {("post", "/v1/worlds/{world_id}/move")}
+_ADMIN = {("post", "/v1/worlds/{world_id}/move"), ("post", "/v1/engines/rebalance")}
 _ALLOCATING = {("post", "/v1/worlds"), ("post", "/v1/worlds/import"), ("patch", "/v1/worlds/{world_id}")}
 
 

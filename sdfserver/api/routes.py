@@ -75,6 +75,18 @@ async def list_engines(request: Request) -> Response:
                              for i, (client, s) in enumerate(zip(engines.clients, statuses))])
 
 
+@router.post("/engines/rebalance", summary="Move worlds off engines short of device memory (admin; one pass)")
+async def rebalance(request: Request,
+                    below: float = Query(0.25, gt=0, lt=1, description="an engine whose free memory is under this "
+                                         "fraction of its budget moves its smallest world that fits elsewhere")
+                    ) -> Response:
+    if not principal_of(request).admin:
+        raise Forbidden("rebalancing engines needs an admin key")
+    settings = request.app.state.settings
+    moves = await engine_of(request).rebalance(below, settings.move_release_timeout_s)
+    return respond(request, {"moves": moves})
+
+
 @router.get("/worlds/{world_id}", summary="Describe a world")
 async def describe_world(request: Request, world_id: str) -> Response:
     return respond(request, await engine_of(request).describe(world_id, access_of(request)))

@@ -220,6 +220,7 @@ class EngineStatus(msgspec.Struct, array_like=True):
     pid: int = 0  # the engine's process
     worlds: list[str] = []  # the ids of the worlds it holds
     epoch: int = 0  # how many times this engine's data directory was opened to serve
+    budget_bytes: int = 0  # the device memory the engine may use in all
 
 
 class Failure(msgspec.Struct, array_like=True):

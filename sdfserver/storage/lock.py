@@ -32,3 +32,15 @@ def lock_data_dir(data_dir: Path) -> IO[str]:
     handle.write(f"sdfserver serve pid {os.getpid()}\n")
     handle.flush()
     return handle
+
+
+def try_lock(path: Path) -> IO[str] | None:
+    """Take ``path`` exclusively if no other process holds it (the returned file keeps it), else None."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    handle = open(path, "a+")
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.close()
+        return None
+    return handle

@@ -223,3 +223,37 @@ def test_an_engine_that_does_not_answer_is_taken_over_and_its_late_write_fenced(
         np.testing.assert_array_equal(field_of(restarted, world), expected_field(acknowledged))
     finally:
         restarted.stop()
+
+
+def test_an_engine_short_of_memory_moves_its_smallest_world_to_the_roomiest(tmp_path):
+    """The automatic rebalance (``rebalance_below``), and one pass on demand."""
+    flags = ["--no-warm-up", "--devices", "0,0", "--workers", "1", "--memory-budget-bytes", str(64 << 20),
+             "--rebalance-below", "0.45", "--rebalance-every-s", "0.3"]
+    server = ServerProcess(tmp_path / "data", *flags).wait_ready()
+    try:
+        with httpx.Client(base_url=server.url, timeout=60) as http:
+            worlds = [http.post("/v1/worlds", json={"size": [128, 128, 128]}).json()["id"] for _ in range(4)]
+            assert {http.get(f"/v1/worlds/{w}").json()["engine"] for w in worlds} == {0, 1}
+            http.post(f"/v1/worlds/{worlds[0]}/edits", json={"edits": [{"op": "box", "min": [1, 1, 1],
+                                                                         "max": [9, 9, 9], "colour": 7}]})
+            for world in worlds:  # all on engine 0: 4 x 10.5 MB of its 64 MB, 34% free
+                if http.get(f"/v1/worlds/{world}").json()["engine"] == 1:
+                    assert http.post(f"/v1/worlds/{world}/move", json={"engine": 0}).status_code == 200
+
+            def held() -> list[int]:
+                return [e["worlds"] for e in http.get("/v1/engines").json()]
+
+            deadline = time.monotonic() + 20
+            while held() != [3, 1] and time.monotonic() < deadline:
+                time.sleep(0.1)
+            assert held() == [3, 1], "the automatic rebalance moved one world (then 51% free: enough)"
+            time.sleep(1.0)
+            assert held() == [3, 1], "and no more"
+            assert http.get(f"/v1/worlds/{worlds[0]}").json()["version"] == 1
+            assert http.post("/v1/engines/rebalance", params={"below": 0.45}).json() == {"moves": []}
+            moved = http.post("/v1/engines/rebalance", params={"below": 0.6}).json()["moves"]
+            assert [(m["from"], m["to"]) for m in moved] == [(0, 1)] and moved[0]["bytes"] > 10 << 20
+            assert held() == [2, 2]
+            assert http.post("/v1/engines/rebalance", params={"below": 1.5}).status_code == 422
+    finally:
+        server.stop()

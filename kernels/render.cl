@@ -6,7 +6,10 @@
  * only where it must: a voxel whose Manhattan distance is d > 0 has no solid
  * within d - 1 face-steps, and every DDA step is one face-step, so the ray
  * takes d steps without reading and reads again where it lands (Figure 3.4:
- * read 3, advance 3, read 1, advance 1, read 0: hit). The field is exact or a
+ * read 3, advance 3, read 1, advance 1, read 0: hit). A long run of clear steps is not walked
+ * voxel by voxel: the ray jumps along itself by a length that cannot cross more faces than the
+ * run allows, and the traversal starts again where it lands (shadow rays, whose softness
+ * depends on where they read, always step). The field is exact or a
  * lower bound for the exact algorithms; an approximate field that overestimates
  * (JFA outside a focus box) can let a ray step over a thin solid.
  *
@@ -35,6 +38,7 @@
 #define RENDER_AO 1
 #define RENDER_SHADOW 2
 #define RENDER_STATS 4
+#define JUMP_MIN_STEPS 8  /* from this many clear face-steps on, a ray jumps instead of stepping */
 
 typedef struct {
     int hit;       /* 1: a solid voxel was reached */
@@ -109,6 +113,7 @@ inline march_result march(FIELD_ARGS, int4 dims, float3 o, float3 d, int long_st
                                     d.y != 0.0f ? fabs(1.0f / d.y) : INFINITY,
                                     d.z != 0.0f ? fabs(1.0f / d.z) : INFINITY);
     float t = t0;
+    const float l1 = fabs(d.x) + fabs(d.y) + fabs(d.z);
     /* Each pass takes at least one step, and a ray crosses at most sx + sy + sz voxels. */
     const int max_passes = dims.x + dims.y + dims.z + 3;
     for (int pass = 0; pass < max_passes; ++pass) {
@@ -125,6 +130,21 @@ inline march_result march(FIELD_ARGS, int4 dims, float3 o, float3 d, int long_st
         r.shade = fmin(r.shade, (float)dist / fmax(t, 1e-3f));
         if (!long_steps)
             steps = dist;
+        if (steps >= JUMP_MIN_STEPS) {
+            /* Over dt each axis crosses at most |d_a| dt + 1 faces, so dt = (steps - 5) / |d|_1
+             * crosses at most steps - 2 of them; one more for rounding where the ray lands: every
+             * voxel passed, and the one landed in, is nearer than `steps` and clear. */
+            t += (float)(steps - 5) / l1;
+            const float3 q = o + d * t;
+            v = convert_int3_rtn(q);
+            if (!in_world(v, dims))
+                return r;
+            const float3 up = convert_float3(v) + (float3)(r.step.x > 0, r.step.y > 0, r.step.z > 0);
+            t_max = (float3)(d.x != 0.0f ? (up.x - o.x) / d.x : INFINITY,
+                             d.y != 0.0f ? (up.y - o.y) / d.y : INFINITY,
+                             d.z != 0.0f ? (up.z - o.z) / d.z : INFINITY);
+            continue;
+        }
         for (uint k = 0; k < steps; ++k) {
             const int axis = argmin3(t_max);
             if (axis == 0) { v.x += r.step.x; t = t_max.x; t_max.x += t_delta.x; }

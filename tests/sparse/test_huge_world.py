@@ -45,8 +45,9 @@ def test_edits_far_apart_in_a_huge_world(gpu, rng):
         # Erasing one edit frees its bricks and touches only its own region.
         stored = world.stored_bricks
         first = batch[0]
+        c = centres[0]  # the sphere and the voxel beside it (which may hold its bricks alone)
         world.apply_edits(parse_edits([{"op": "sphere", "center": first["center"], "radius": first["radius"],
-                                        "colour": 0}]))
+                                        "colour": 0}, {"op": "voxels", "voxels": [[c[0] + 5, c[1], c[2], 0]]}]))
         again = world.recompute()
         assert len(again.regions) == 1 and max(again.regions[0].shape_xyz) <= 32 * 3
         assert world.stored_bricks < stored

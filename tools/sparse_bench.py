@@ -11,7 +11,8 @@ allocated bytes. On the first size of each cap, also: ``--brushes`` radius-8 sph
 the terrain's surface (alternately adding and erasing), each timed from ``apply_edits`` to the
 end of ``recompute`` (wall) with the recompute's kernel time (device, from profiling events);
 ``--frames`` 1280x720 frames over the terrain (plain, and with ambient occlusion and shadows),
-the render kernel's device time and the frame's wall time; and windows around the brushes
+the render kernel's device time, the frame's wall time and its pixels' SHA-256 (so that two
+builds can be shown to draw the same image); and windows around the brushes
 checked against scipy's taxicab transform (a window's oracle reads the window grown by the cap
 plus one, so it is exact). A dense 512^3 world (cap 31) takes the same brushes for comparison
 with dense worlds. A size that does not fit is reported as refused (507); sizes after it are
@@ -22,6 +23,7 @@ skipped, as are sizes once ``--budget-s`` has passed. Everything goes to the JSO
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import statistics
 import sys
@@ -114,7 +116,8 @@ def time_frames(gpu, world, frames: int) -> dict:
                 device.append(frame.device_ms)
                 wall.append(frame.wall_ms)
                 ground = float((frame.pixels[..., :3] != [0x9C, 0xC8, 0xF0]).any(axis=-1).mean())
-            out[name] = {"device_ms": summary(device), "wall_ms": summary(wall), "ground_fraction": ground}
+            out[name] = {"device_ms": summary(device), "wall_ms": summary(wall), "ground_fraction": ground,
+                         "pixels_sha256": hashlib.sha256(frame.pixels.tobytes()).hexdigest()}
     finally:
         renderer.release()
     return out

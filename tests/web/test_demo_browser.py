@@ -225,3 +225,54 @@ async def _drive_keyed(server, tmp: Path) -> None:
         await browser.close()
     log = server.log.read_text()
     assert "[redacted]" in log and painter not in log and other not in log  # no token in the log
+
+
+def test_demo_opens_a_sparse_terrain_and_flies_over_it(server):
+    tmp = Path(tempfile.mkdtemp(prefix="sdfserver-demo-terrain-"))
+    asyncio.run(asyncio.wait_for(_drive_terrain(server, tmp), timeout=240))
+
+
+async def _drive_terrain(base: str, tmp: Path) -> None:
+    browser = Chromium(tmp)
+    try:
+        await browser.open_page()
+        await browser.call("Page.enable")
+        await browser.call("Page.navigate", url=base + "/")
+        await browser.wait_for("window.sdfDemo && window.sdfDemo.framesReceived > 0")
+        frames = await browser.evaluate("window.sdfDemo.framesReceived")
+        # New: the smallest generated terrain (the larger ones need a GPU's memory and speed).
+        await browser.evaluate("document.getElementById('new-size').value = 'terrain-1024'; "
+                               "document.getElementById('create-world').click()")
+        terrain = await browser.wait_for(
+            "(() => { const w = window.sdfDemo.world; const s = document.getElementById('world-line').textContent;"
+            " return s.includes('sparse') && s.startsWith(w) ? w : null; })()", 120)
+        described = httpx.get(f"{base}/v1/worlds/{terrain}").json()
+        assert described["storage"] == "sparse" and described["size"] == [1024, 128, 1024]
+        assert 0 < described["stored_bricks"] < 32 * 4 * 32  # bricks near the surface only
+        await browser.wait_for(f"window.sdfDemo.framesReceived > {frames}", 60)  # the terrain's first frame
+        start = await browser.evaluate("window.sdfDemo.camera.position.slice()")
+        before = await browser.screenshot(tmp / "terrain-before.png")
+        # Fly forward over it: hold W for half a second (about 200 voxels at this world's speed).
+        await browser.call("Input.dispatchKeyEvent", type="keyDown", key="w", code="KeyW", text="w")
+        await asyncio.sleep(0.5)
+        await browser.call("Input.dispatchKeyEvent", type="keyUp", key="w", code="KeyW")
+        end = await browser.evaluate("window.sdfDemo.camera.position.slice()")
+        moved = float(np.linalg.norm(np.subtract(end, start)))
+        assert moved > 60, f"the camera moved {moved:.1f} voxels"
+        frames = await browser.evaluate("window.sdfDemo.framesReceived")
+        await asyncio.sleep(2.0)  # the frame of where the flight ended (frames follow the view)
+        await browser.wait_for(f"window.sdfDemo.framesReceived >= {frames}", 60)
+        after = await browser.screenshot(tmp / "terrain-after.png")
+        rect = await browser.evaluate("(() => { const r = document.getElementById('frame')"
+                                      ".getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; })()")
+        left, top, width, height = (int(v) for v in rect)
+        view = (slice(top, top + height), slice(left, left + width))
+        changed = np.any(np.abs(after[view].astype(int) - before[view].astype(int)) > 40, axis=-1)
+        assert changed.mean() > 0.05, "flying over the terrain did not change the picture"
+        for picture in (before, after):  # above the ground: sky over terrain, both in sight
+            sky = np.all(np.abs(picture[view].astype(int) - [0x9C, 0xC8, 0xF0]) < 24, axis=-1).mean()
+            assert 0.1 < sky < 0.9, f"sky covers {sky:.0%} of the picture"
+        assert not await browser.evaluate("window.sdfDemo.errors.length"), \
+            await browser.evaluate("window.sdfDemo.errors")
+    finally:
+        await browser.close()

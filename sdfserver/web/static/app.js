@@ -20,6 +20,7 @@ const demo = { framesReceived: 0, lastVersion: -1, world: null, ready: false, ed
 window.sdfDemo = demo;  // read by the browser test
 
 const cam = { position: [0, 0, 0], yaw: 0, pitch: 0, fov: 60 };
+demo.camera = cam;
 const brush = { mode: "place", colour: PALETTE[0], size: 2 };
 let socket = null, cursor = null, viewDirty = true, lastSent = 0, worldSize = [64, 64, 64];
 const keys = new Set();
@@ -187,8 +188,9 @@ async function refreshWorlds(selectId) {
   return worlds;
 }
 
-async function createWorld(size, algorithm) {
-  if (String(size).startsWith("terrain-")) return createTerrain(Number(String(size).slice(8)), algorithm);
+async function createWorld(choice, algorithm) {  // "64", or "terrain-4096" for a sparse terrain
+  if (String(choice).startsWith("terrain-")) return createTerrain(Number(String(choice).slice(8)), algorithm);
+  const size = Number(choice);
   showStatus(`Creating a ${size}³ world…`);
   const world = await api("POST", "/v1/worlds", { size: [size, size, size], algorithm });
   await api("POST", `/v1/worlds/${world.id}/edits`, { edits: demoScene(world.size) });
@@ -504,7 +506,7 @@ function setupPanel() {
     openWorld(await api("GET", `/v1/worlds/${encodeURIComponent(e.target.value)}`));
   });
   $("create-world").onclick = () => guarded("Create world", async () => {
-    const world = await createWorld(Number($("new-size").value), $("new-algorithm").value);
+    const world = await createWorld($("new-size").value, $("new-algorithm").value);
     await refreshWorlds(world.id);
     openWorld(world);
   });

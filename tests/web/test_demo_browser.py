@@ -29,7 +29,7 @@ import pytest
 import websockets
 from PIL import Image
 
-from .conftest import KEYS
+from .conftest import KEYS, serve
 
 ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -227,9 +227,10 @@ async def _drive_keyed(server, tmp: Path) -> None:
     assert "[redacted]" in log and painter not in log and other not in log  # no token in the log
 
 
-def test_demo_opens_a_sparse_terrain_and_flies_over_it(server):
+def test_demo_opens_a_sparse_terrain_and_flies_over_it(tmp_path):
     tmp = Path(tempfile.mkdtemp(prefix="sdfserver-demo-terrain-"))
-    asyncio.run(asyncio.wait_for(_drive_terrain(server, tmp), timeout=240))
+    with serve(tmp_path / "data") as (base, _):  # its own: the paint test wants a server with no world
+        asyncio.run(asyncio.wait_for(_drive_terrain(base, tmp), timeout=240))
 
 
 async def _drive_terrain(base: str, tmp: Path) -> None:

@@ -150,7 +150,10 @@ class Engines:
     # -- worlds --------------------------------------------------------------------------------
 
     async def create_world(self, config: dict[str, Any], access: msg.Access | None,
-                           voxels: np.ndarray | None = None, max_owned: int = 0) -> dict[str, Any]:
+                           voxels: np.ndarray | None = None, max_owned: int = 0,
+                           sparse_snapshot: bytes | None = None) -> dict[str, Any]:
+        """A new world: empty, generated, or imported (dense ``voxels``, or a sparse world's
+        snapshot file, which its engine checks)."""
         engine = await self.placement.place(config)
         elsewhere = 0
         if len(self.clients) > 1 and access is not None and not access.admin and max_owned:
@@ -159,9 +162,14 @@ class Engines:
                     worlds = await other.call(msg.Describe(other.next_id(), None, access))
                     elsewhere += len(worlds)
         blob = None if voxels is None else msg.Array.of(voxels)
-        described = await engine.call(msg.CreateWorld(engine.next_id(), config, access, blob, max_owned, elsewhere))
+        described = await engine.call(msg.CreateWorld(engine.next_id(), config, access, blob, max_owned, elsewhere,
+                                                      sparse_snapshot))
         self.placement.placed(described["id"], engine)
         return described
+
+    async def export_bricks(self, world_id: str, access: msg.Access | None) -> bytes:
+        """A sparse world as a snapshot file (its brick table and stored bricks)."""
+        return await self._call(world_id, lambda i: msg.ExportBricks(i, world_id, access))
 
     async def delete_world(self, world_id: str, access: msg.Access | None) -> None:
         await self._call(world_id, lambda i: msg.DeleteWorld(i, world_id, access))

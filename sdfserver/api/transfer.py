@@ -33,6 +33,7 @@ from sdfserver.errors import BodyTooLarge, InvalidInput
 from sdfserver.storage import (
     decode_upload, dump_npy, dump_vox, encode_snapshot, load_npy, load_vox, pad_to_chunks,
 )
+from sdfserver.storage.snapshot import upload_config
 from sdfserver.storage.uploads import SNIFF_BYTES, upload_format, upload_limit_bytes
 from sdfserver.world import WorldConfig
 
@@ -49,15 +50,18 @@ async def export_world(request: Request, world_id: str,
                        ) -> Response:
     engine = request.app.state.engine
     described = await engine.describe(world_id, access_of(request))  # admitted once, here
+    disposition = {"Content-Disposition": f'attachment; filename="{world_id}.{EXTENSIONS[format]}"'}
+    if format == "snapshot" and described.get("storage") == "sparse":  # its bricks, not every voxel
+        body = await engine.export_bricks(world_id, access_of(request))
+        request.app.state.metrics.bytes_out.inc(len(body))
+        return Response(body, media_type=OCTET, headers=disposition)
     read = await engine.read(world_id, "voxels")
     config = {k: described[k] for k in CONFIG_KEYS}
     encode = {"snapshot": lambda: encode_snapshot(read.version, config, read.array),
               "npy": lambda: dump_npy(read.array), "vox": lambda: dump_vox(read.array)}[format]
     body = await asyncio.to_thread(encode)
     request.app.state.metrics.bytes_out.inc(len(body))
-    return Response(body, media_type=OCTET, headers={
-        "X-Sdf-Version": str(read.version),
-        "Content-Disposition": f'attachment; filename="{world_id}.{EXTENSIONS[format]}"'})
+    return Response(body, media_type=OCTET, headers={"X-Sdf-Version": str(read.version), **disposition})
 
 
 @router.post("/worlds/import", status_code=201, summary="Create a world from a snapshot, .npy or .vox file",
@@ -75,6 +79,11 @@ async def import_world(request: Request,
     limit = settings.max_world_voxels
 
     def parse() -> tuple[WorldConfig, Any]:
+        if format == "snapshot" and upload_config(data)[0]:  # a sparse world: its engine checks the bricks
+            try:
+                return config_from_dict(upload_config(data)[1]), None
+            except (KeyError, TypeError, ValueError) as exc:
+                raise InvalidInput(f"uploaded snapshot: bad configuration: {exc!r}") from None
         if format == "snapshot":
             snap = decode_upload(data, max_voxels=limit)
             try:
@@ -92,7 +101,8 @@ async def import_world(request: Request,
     config, voxels = await asyncio.to_thread(parse)
     described = await request.app.state.engine.create_world(
         world_config_dict(config.validated()), access_of(request), voxels=voxels,
-        max_owned=request.app.state.settings.max_worlds_per_key)
+        max_owned=request.app.state.settings.max_worlds_per_key,
+        sparse_snapshot=data if config.storage == "sparse" else None)
     response = respond(request, described, status_code=201)
     response.headers["Location"] = f"/v1/worlds/{described['id']}"
     return response

@@ -125,6 +125,14 @@ class PickAt:
 
 
 @dataclass(frozen=True)
+class CopyBricks:
+    """A sparse world's bricks as they are now (an export): (version, configuration, SparseContent,
+    wait), the content to read only after ``wait()`` (its device copy)."""
+
+    world_id: str
+
+
+@dataclass(frozen=True)
 class OnDevice:
     """A function run on the engine thread: for tests and tools inside the engine's process."""
 

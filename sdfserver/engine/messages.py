@@ -53,6 +53,7 @@ class CreateWorld(Request, tag=True):
     voxels: Array | None = None  # an import: initial voxels, uint8 (z, y, x)
     max_owned: int = 0  # most worlds the access's key may own (0: no limit); admins have none
     owned_elsewhere: int = 0  # worlds the key owns on other engines
+    snapshot: bytes | None = None  # an import of a sparse world: its snapshot file (format 2)
 
 
 class DeleteWorld(Request, tag=True):
@@ -85,6 +86,15 @@ class AdoptWorld(Request, tag=True):
     id: int
     world_id: str
     source: int | None = None  # the engine it comes from, if that one did not hand it over
+    access: Access | None = None
+
+
+class ExportBricks(Request, tag=True):
+    """A sparse world as a snapshot (format 2: its brick table and stored bricks); the answer is
+    the file's bytes."""
+
+    id: int
+    world_id: str
     access: Access | None = None
 
 
@@ -177,8 +187,9 @@ class CountApi(Request, tag=True):
     websocket_clients: int = 0  # a change, +/-
 
 
-AnyRequest = Union[CreateWorld, DeleteWorld, Reconfigure, ReleaseWorld, AdoptWorld, Describe, ApplyEdits, Read,
-                   Query, Render, Pick, Subscribe, Unsubscribe, Taken, Admit, Status, MetricsText, CountApi]
+AnyRequest = Union[CreateWorld, DeleteWorld, Reconfigure, ReleaseWorld, AdoptWorld, Describe, ExportBricks,
+                   ApplyEdits, Read, Query, Render, Pick, Subscribe, Unsubscribe, Taken, Admit, Status, MetricsText,
+                   CountApi]
 
 
 # -- answers --------------------------------------------------------------------------------------

@@ -1,5 +1,5 @@
 """What a step serves after its recompute, one handler per command type: field and voxel reads,
-point queries, descriptions, subscriptions, frames and picks. A read or query whose
+point queries, descriptions, subscriptions, frames, picks and a sparse world's bricks (exports). A read or query whose
 ``min_version`` the world has not reached waits for later steps until its deadline."""
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ import pyopencl as cl
 
 from sdfserver.engine.batches import fail
 from sdfserver.engine.commands import (
-    Describe, Draw, EngineLimits, OnDevice, PickAt, Query, Read, ReadResult, StepReport, Subscribe,
+    CopyBricks, Describe, Draw, EngineLimits, OnDevice, PickAt, Query, Read, ReadResult, StepReport, Subscribe,
 )
 from sdfserver.engine.query import query_points
 from sdfserver.engine.subscriptions import Subscriptions
-from sdfserver.engine.worlds import WorldTable
-from sdfserver.errors import TooLarge, VersionNotReached
+from sdfserver.engine.worlds import WorldTable, world_config_dict
+from sdfserver.errors import InvalidInput, TooLarge, VersionNotReached
 from sdfserver.gpu import GpuContext
 from sdfserver.render import Renderer
 
@@ -38,7 +38,19 @@ class Reads:
             Draw: self.draw,
             PickAt: self.pick,
             OnDevice: lambda c: c.fn(),
+            CopyBricks: self.copy_bricks,
         }
+
+    def copy_bricks(self, command: CopyBricks) -> tuple[int, dict[str, Any], Any, Callable[[], None]]:
+        world = self.table.get(command.world_id)
+        if world.config.storage != "sparse":
+            raise InvalidInput("only a sparse world's bricks are copied; a dense world exports its voxels")
+        stored = world.stored_bricks * world.brick ** 3
+        if stored > self.limits.max_read_voxels:
+            raise TooLarge(f"world {command.world_id!r} stores {stored} voxels; an export holds at most "
+                           f"{self.limits.max_read_voxels} (max_read_voxels)")
+        content, wait = world.copy_voxels_out()
+        return world.version, world_config_dict(world.config), content, wait
 
     def serve(self, commands: list[Pending], report: StepReport, waiting: list[Pending]) -> list[tuple[Future, Any]]:
         """Run the serving commands; returns the answers for the caller to deliver. A read or

@@ -14,7 +14,7 @@ import logging
 import os
 import threading
 import time
-from concurrent.futures import Future
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Callable
 
@@ -31,6 +31,7 @@ from sdfserver.errors import Forbidden, InvalidInput, SdfServerError, TooManySub
 from sdfserver.geometry import Box
 from sdfserver.render import parse_view
 from sdfserver.storage.codec import batch_parts, decode_batch
+from sdfserver.storage.snapshot import encode_snapshot, sparse_upload
 from sdfserver.world import Focus
 
 log = logging.getLogger("sdfserver.engine")
@@ -58,6 +59,7 @@ class EngineService:
         self.writes_failure = writes_failure
         self.data_dir_of = data_dir_of
         self.epoch = epoch
+        self._exports = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sdfserver-export")
         self.subscriptions: dict[tuple[bytes, int], Subscription] = {}
         self._holders: dict[tuple[bytes, int], str] = {}  # each subscription's key (or client address)
         # a subscription with credit may be sent its next update; sending spends it, ``Taken`` returns it
@@ -65,7 +67,7 @@ class EngineService:
         self._credit_lock = threading.Lock()
         self.handlers: dict[type, Callable[[bytes, Any], None]] = {
             msg.CreateWorld: self._create, msg.DeleteWorld: self._delete, msg.Reconfigure: self._reconfigure,
-            msg.ReleaseWorld: self._release, msg.AdoptWorld: self._adopt,
+            msg.ReleaseWorld: self._release, msg.AdoptWorld: self._adopt, msg.ExportBricks: self._export,
             msg.Describe: self._describe, msg.ApplyEdits: self._apply, msg.Read: self._read,
             msg.Query: self._query, msg.Render: self._render, msg.Pick: self._pick,
             msg.Subscribe: self._subscribe, msg.Unsubscribe: self._unsubscribe, msg.Taken: self._taken,
@@ -134,6 +136,8 @@ class EngineService:
         except (KeyError, TypeError, ValueError) as exc:
             raise InvalidInput(f"bad world configuration: {exc!r}") from None
         voxels = None if m.voxels is None else m.voxels.numpy()
+        if m.snapshot is not None:  # a sparse world's file: checked here, where the world will live
+            voxels = sparse_upload(m.snapshot, config, self.engine.limits.max_read_voxels)
         owner = m.access.key if m.access is not None else None
         self._submit(client, m.id, cmd.CreateWorld(config, None, owner, voxels))
 
@@ -157,6 +161,26 @@ class EngineService:
         self._check_move(m.access)
         source = None if m.source is None else self._peer_dir(m.source)
         self._submit(client, m.id, cmd.AdoptWorld(m.world_id, source))
+
+    def _export(self, client: bytes, m: msg.ExportBricks) -> None:
+        """The bricks are copied on the engine thread and encoded (zlib) on the export thread."""
+        self.doorkeeper.admit(m.access, m.world_id)
+        future = self.engine.submit(cmd.CopyBricks(m.world_id))
+
+        def encode(copied: tuple) -> bytes:
+            version, config, content, wait = copied
+            wait()
+            return encode_snapshot(version, config, content)
+
+        def done(future: Future) -> None:
+            if future.exception() is not None:
+                self._reply(client, m.id, failure=future.exception())
+                return
+            encoded = self._exports.submit(encode, future.result())
+            encoded.add_done_callback(lambda e: self._reply(client, m.id, e.result()) if e.exception() is None
+                                      else self._reply(client, m.id, failure=e.exception()))
+
+        future.add_done_callback(done)
 
     def _check_move(self, access: msg.Access | None) -> None:
         self.doorkeeper.admit(access)

@@ -14,6 +14,7 @@ from sdfserver.engine.journal import Journal, reconfigure_durably
 from sdfserver.engine.metrics import EngineMetrics
 from sdfserver.errors import InvalidInput, NotFound, StorageError, TooLarge, WorldMoved
 from sdfserver.gpu import GpuContext
+from sdfserver.storage.sparse_snapshot import SparseContent
 from sdfserver.world import World, WorldConfig
 from sdfserver.world_factory import make_world
 
@@ -80,9 +81,9 @@ class WorldTable:
             if command.world_id:
                 raise InvalidInput(f"world {world_id!r} already exists")
             world_id = new_world_id()
-        if command.voxels is not None and config.storage != "dense":
-            raise InvalidInput("an import makes a dense world; a sparse world starts empty or generated")
-        world = make_world(self.gpu, config, self.limits.edits)
+        if command.voxels is not None and (config.storage == "sparse") != isinstance(command.voxels, SparseContent):
+            raise InvalidInput("a sparse world imports a sparse world's snapshot (its bricks), a dense one voxels")
+        world = make_world(self.gpu, config, self.limits.edits, generate=command.voxels is None)
         try:
             if command.voxels is not None:
                 world.load_voxels(command.voxels)

@@ -29,7 +29,7 @@ import numpy as np
 
 from sdfserver.errors import CorruptData, InvalidInput, TooLarge
 from sdfserver.storage.fsutil import fsync_dir, write_atomic
-from sdfserver.storage.sparse_snapshot import SparseContent, parse_sparse
+from sdfserver.storage.sparse_snapshot import SparseContent, check_upload, parse_sparse
 
 SNAPSHOT_MAGIC = b"SDFSNAP1"
 SNAPSHOT_PATTERN = "snap-*.sdfsnap"
@@ -125,6 +125,9 @@ def decode_snapshot(data: bytes | memoryview, where: str = "snapshot", *,
         raw_bytes = size[0] * size[1] * size[2]
     if max_voxels is not None and not sparse and raw_bytes > max_voxels:
         raise TooLarge(f"{where}: a {size} world has {raw_bytes} voxels; the limit is {max_voxels}")
+    if max_voxels is not None and sparse and max(bricks * brick ** 3, blocks_bytes) > max_voxels:
+        raise TooLarge(f"{where}: {bricks} stored bricks of {brick}^3 and {blocks_bytes} table bytes; the "
+                       f"limit is {max_voxels} voxels")  # before anything is inflated
     body_at = head + header_len
     body = view[body_at:]
     if len(body) != body_bytes:
@@ -149,6 +152,40 @@ def decode_upload(data: bytes, max_voxels: int | None = None) -> Snapshot:
     worlds, so a sparse world's snapshot is refused (422)."""
     return decode_snapshot(data, "uploaded snapshot", max_voxels=max_voxels, corrupt=InvalidInput,
                            allow_sparse=False)
+
+
+def upload_config(data: bytes) -> tuple[bool, dict[str, Any]]:
+    """(whether it is a sparse world's snapshot, its configuration), from the header alone: the
+    body is checked where the world is made (``sparse_upload``, ``decode_upload``)."""
+    view = memoryview(data)
+    head = len(SNAPSHOT_MAGIC) + _HEADER_LENGTH.size
+    if len(view) < head or bytes(view[:8]) != SNAPSHOT_MAGIC:
+        raise InvalidInput("uploaded snapshot: not an sdfserver snapshot (bad magic)")
+    (header_len,) = _HEADER_LENGTH.unpack_from(view, 8)
+    if header_len > MAX_HEADER_BYTES or head + header_len > len(view):
+        raise InvalidInput(f"uploaded snapshot: header length {header_len} is out of range")
+    try:
+        header = json.loads(bytes(view[head:head + header_len]))
+        return header["format"] == 2, dict(header["config"])
+    except (ValueError, KeyError, TypeError, RecursionError) as exc:
+        raise InvalidInput(f"uploaded snapshot: bad header: {type(exc).__name__}") from None
+
+
+def sparse_upload(data: bytes, config: Any, max_voxels: int) -> SparseContent:
+    """The bricks of a sparse world's snapshot a client sent, for a world of ``config`` (a
+    WorldConfig): the file whole and its field exact (``sparse_snapshot.check_upload``), at most
+    ``max_voxels`` stored voxels (413); any defect is 422."""
+    where = "uploaded sparse snapshot"
+    fail = lambda reason: InvalidInput(f"{where}: {reason}")  # noqa: E731
+    snap = decode_snapshot(data, where, max_voxels=max_voxels, corrupt=InvalidInput, allow_sparse=True)
+    content = snap.voxels
+    if not isinstance(content, SparseContent):
+        raise fail("a dense world's snapshot; this import makes a sparse world")
+    if list(snap.config.get("size", ())) != list(config.size) or content.brick != config.chunk_size:
+        raise fail(f"its size {snap.config.get('size')} and brick {content.brick} are not the world's "
+                   f"{list(config.size)} and {config.chunk_size}")
+    check_upload(content, tuple(config.size), config.max_distance, fail)
+    return content
 
 
 def write_snapshot(directory: Path, version: int, config: dict[str, Any], voxels: np.ndarray) -> Path:

@@ -77,3 +77,135 @@ def parse_sparse(raw: bytes, blocks_bytes: int, bricks: int, brick: int, fail) -
     field = np.frombuffer(view[at + bricks * size:at + 3 * bricks * size], dtype="<u2").reshape(
         bricks, brick, brick, brick)
     return SparseContent(brick, blocks, voxels, field.astype(np.uint16), np.arange(bricks))
+
+
+def check_upload(content: SparseContent, size: tuple[int, int, int], cap: int, fail) -> None:
+    """Refuse (``fail(reason)``) a sparse snapshot a client sent unless its bricks are a world of
+    ``size`` whose field is exactly the capped Manhattan distance of its voxels: blocks inside the
+    world's table, uniform blocks with uniform codes, each stored brick's colours its voxels' and
+    each of its voxels 0 on a solid and min(cap, 1 + its least face neighbour) on air (neighbours in
+    other bricks, stored or implicit, included), and no implicit air brick where that fails for it
+    (beside an implicit solid brick, or a stored voxel nearer than cap - 1)."""
+    b = content.brick
+    dims = [-(-(s // b) // BLOCK_CODES_SIDE) for s in size]
+    for key, block in content.blocks.items():  # one loop over kept blocks
+        if not all(0 <= k < n for k, n in zip(key, dims)):
+            raise fail(f"block {list(key)} lies outside the world's {dims} blocks")
+        if isinstance(block, int) and block >= 0:
+            raise fail(f"block {list(key)} is uniform but names a stored brick")
+    grid = _BrickGrid(content, [s // b for s in size])
+    for key in content.blocks:
+        codes = grid.codes_around(key)  # the block's codes, one brick of its neighbours around
+        inner = codes[1:-1, 1:-1, 1:-1]
+        air = inner == AIR_CODE
+        for axis in range(3):
+            for shift in (-1, 1):
+                beside = np.roll(codes, shift, axis=axis)[1:-1, 1:-1, 1:-1]
+                if cap > 1 and (air & (beside <= -2) & (beside >= -257)).any():
+                    raise fail(f"block {list(key)}: an implicit air brick lies beside an implicit solid one")
+    for row, where in grid.stored_bricks():  # one loop over stored bricks
+        _check_brick(content, grid, row, where, cap, fail)
+
+
+BLOCK_CODES_SIDE = 16
+AIR_CODE = -1
+OUTSIDE_CODE = -(1 << 20)  # a brick beyond the world's side, in a block that reaches past it
+
+
+class _BrickGrid:
+    """The codes of a sparse snapshot's bricks by brick coordinates (missing blocks are air)."""
+
+    def __init__(self, content: SparseContent, bricks: list[int]):
+        self.content = content
+        self.bricks = bricks
+
+    def code(self, x: int, y: int, z: int) -> int | None:
+        """A brick's code; None outside the world."""
+        if not (0 <= x < self.bricks[0] and 0 <= y < self.bricks[1] and 0 <= z < self.bricks[2]):
+            return None
+        n = BLOCK_CODES_SIDE
+        block = self.content.blocks.get((x // n, y // n, z // n), AIR_CODE)
+        return block if isinstance(block, int) else int(block[z % n, y % n, x % n])
+
+    def block_codes(self, key: tuple[int, int, int]) -> np.ndarray | None:
+        """A block's (16, 16, 16) codes (z, y, x); None outside the world (counted as air)."""
+        n = BLOCK_CODES_SIDE
+        if not all(0 <= k * n < m for k, m in zip(key, self.bricks)):
+            return None
+        block = self.content.blocks.get(key, AIR_CODE)
+        return np.full((n, n, n), block, dtype=np.int64) if isinstance(block, int) else block.astype(np.int64)
+
+    def codes_around(self, key: tuple[int, int, int]) -> np.ndarray:
+        """(18, 18, 18) codes (z, y, x) of a block and the face layers of its six neighbours (the
+        edges and corners stay air: only face neighbours are compared)."""
+        n = BLOCK_CODES_SIDE
+        out = np.full((n + 2, n + 2, n + 2), AIR_CODE, dtype=np.int64)
+        out[1:-1, 1:-1, 1:-1] = self.block_codes(key)
+        for axis in range(3):  # x, y, z; arrays are (z, y, x)
+            for sign in (-1, 1):
+                other = list(key)
+                other[axis] += sign
+                codes = self.block_codes(tuple(other))
+                if codes is None:
+                    continue
+                index = [slice(1, -1)] * 3
+                index[2 - axis] = n + 1 if sign > 0 else 0
+                out[tuple(index)] = np.take(codes, 0 if sign > 0 else n - 1, axis=2 - axis)
+        lo = [k * n - 1 for k in key]
+        z, y, x = np.ogrid[lo[2]:lo[2] + n + 2, lo[1]:lo[1] + n + 2, lo[0]:lo[0] + n + 2]
+        outside = (x < 0) | (x >= self.bricks[0]) | (y < 0) | (y >= self.bricks[1]) | (z < 0) | (z >= self.bricks[2])
+        out[np.broadcast_to(outside, out.shape)] = OUTSIDE_CODE
+        return out
+
+    def stored_bricks(self):
+        n = BLOCK_CODES_SIDE
+        for (kx, ky, kz), block in self.content.blocks.items():
+            if isinstance(block, int):
+                continue
+            for z, y, x in np.argwhere(block >= 0):
+                yield int(block[z, y, x]), (kx * n + int(x), ky * n + int(y), kz * n + int(z))
+
+    def field_of(self, where: tuple[int, int, int], cap: int) -> np.ndarray | None:
+        """A neighbouring brick's field, stored or implicit; None outside the world."""
+        code = self.code(*where)
+        if code is None:
+            return None
+        b = self.content.brick
+        if code >= 0:
+            return self.content.field[code]
+        if code == AIR_CODE:
+            return np.full((b, b, b), cap << 8, dtype=np.uint16)
+        return np.full((b, b, b), -2 - code, dtype=np.uint16)
+
+
+def _check_brick(content: SparseContent, grid: _BrickGrid, row: int, where: tuple[int, int, int], cap: int,
+                 fail) -> None:
+    voxels, field = content.voxels[row], content.field[row].astype(np.int64)
+    if ((field & 0xFF) != voxels).any():
+        raise fail(f"brick {list(where)}: its field's colours are not its voxels")
+    distance = field >> 8
+    b = content.brick
+    big = 1 << 20  # beyond the world: no neighbour
+    padded = np.full((b + 2, b + 2, b + 2), big, dtype=np.int64)
+    padded[1:-1, 1:-1, 1:-1] = distance
+    x, y, z = where
+    for axis, (dx, dy, dz) in enumerate(((1, 0, 0), (0, 1, 0), (0, 0, 1))):
+        for sign in (-1, 1):
+            other = grid.field_of((x + sign * dx, y + sign * dy, z + sign * dz), cap)
+            if other is None:
+                continue
+            face = np.take(other.astype(np.int64) >> 8, 0 if sign > 0 else b - 1, axis=2 - axis)
+            index = [slice(1, -1)] * 3
+            index[2 - axis] = b + 1 if sign > 0 else 0
+            padded[tuple(index)] = face
+            mine = np.take(distance, b - 1 if sign > 0 else 0, axis=2 - axis)
+            if grid.code(x + sign * dx, y + sign * dy, z + sign * dz) == AIR_CODE and (mine < cap - 1).any():
+                raise fail(f"brick {list(where)}: a voxel nearer than the cap lies beside an implicit air brick")
+    nearest = np.minimum.reduce([padded[1 + dz:b + 1 + dz, 1 + dy:b + 1 + dy, 1 + dx:b + 1 + dx]
+                                 for dx, dy, dz in ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0),
+                                                    (0, 0, 1), (0, 0, -1))])
+    expected = np.where(voxels != 0, 0, np.minimum(cap, nearest + 1))
+    if (distance != expected).any():
+        bad = tuple(int(v) for v in np.argwhere(distance != expected)[0][::-1])
+        raise fail(f"brick {list(where)}: the field at voxel {list(bad)} of the brick is not the capped "
+                   "distance of the voxels")

@@ -73,7 +73,9 @@ async def import_world(request: Request,
                        chunk_size: int = Query(16, description="npy/vox: chunk side, 8..128"),
                        max_distance: int = Query(255, description="npy/vox: distance cap, 1..255"),
                        algorithm: str = Query("exact", description="npy/vox: the field's algorithm"),
-                       model: int = Query(0, ge=0, description="vox: which model of the file")) -> Response:
+                       model: int | None = Query(None, ge=0, description=(
+                           "vox: one model of the file alone; left out, the file's whole scene (its "
+                           "scene graph placing every model; model 0 of a file without one)"))) -> Response:
     settings = request.app.state.settings
     format, data = await read_upload(request, settings.max_request_bytes, format)  # noqa: A001
     limit = settings.max_world_voxels

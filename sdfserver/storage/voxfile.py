@@ -5,12 +5,14 @@ Layout: ``"VOX "``, int32 version, then the ``MAIN`` chunk whose children are an
 ``PACK`` (model count), one ``SIZE`` (x, y, z; z is up) and ``XYZI`` (count, then x, y, z,
 colour index as bytes) per model, and an optional ``RGBA`` palette (256 RGBA entries; entry
 ``i`` is colour index ``i + 1``). Every chunk is id, int32 content bytes, int32 children
-bytes. Other chunks (scene graph, materials, layers) are skipped.
+bytes. The scene graph (``nTRN``, ``nGRP``, ``nSHP``) places the models in one scene
+(``voxscene.py``); other chunks (materials, layers) are skipped.
 
 Import: z-up becomes y-up keeping the handedness — world (x, y, z) = (vx, vz, sy - 1 - vy) —
 and each palette colour maps to RGB332, ``(r >> 5) << 5 | (g >> 5) << 2 | b >> 6``. Colour
 index 0 is air; a solid voxel whose colour quantises to 0 (black) becomes 0x01, the darkest
-non-air colour, so it does not vanish. Export writes one model with the RGB332 palette
+non-air colour, so it does not vanish. A whole scene is imported as one world: its placed voxels'
+bounding box, at most ``MAX_SCENE_SIDE`` a side. Export writes one model with the RGB332 palette
 (colour ``c`` is palette index ``c``), for worlds up to 256 voxels a side.
 """
 
@@ -21,8 +23,10 @@ import struct
 import numpy as np
 
 from sdfserver.errors import InvalidInput, TooLarge
+from sdfserver.storage.voxscene import SceneGraph, place
 
 VOX_MAGIC = b"VOX "
+MAX_SCENE_SIDE = 2048  # a dense world's largest side
 _CHUNK = struct.Struct("<4sii")
 MAX_SIDE = 256
 
@@ -68,16 +72,19 @@ def _chunks(data: bytes, start: int, end: int):
 Model = tuple[tuple[int, int, int], np.ndarray]  # (size xyz, xyzi (N, 4) uint8)
 
 
-def parse_vox(data: bytes, *, max_voxels: int | None = None) -> tuple[list[Model], np.ndarray]:
-    """([(size xyz, xyzi (N, 4) uint8)] per model, palette (256, 3) RGB by colour index)."""
+def parse_vox(data: bytes, *, max_voxels: int | None = None) -> tuple[list[Model], np.ndarray, SceneGraph]:
+    """([(size xyz, xyzi (N, 4) uint8)] per model, palette (256, 3) RGB by colour index, the
+    scene graph: empty when the file has none)."""
     if len(data) < 8 or data[:4] != VOX_MAGIC:
         raise InvalidInput(".vox: missing 'VOX ' magic")
     chunks = list(_chunks(data, 8, len(data)))
     if not chunks or chunks[0][0] != b"MAIN":
         raise InvalidInput(".vox: the first chunk must be MAIN")
-    models, size, palette = [], None, default_palette()
+    models, size, palette, scene = [], None, default_palette(), SceneGraph()
     for cid, content, (lo, hi) in _chunks(data, *chunks[0][2]):
-        if cid == b"SIZE":
+        if cid in (b"nTRN", b"nGRP", b"nSHP"):
+            scene.add(cid, content)
+        elif cid == b"SIZE":
             if len(content) < 12:
                 raise InvalidInput(".vox: SIZE chunk shorter than 12 bytes")
             size = struct.unpack_from("<3i", content)
@@ -103,20 +110,34 @@ def parse_vox(data: bytes, *, max_voxels: int | None = None) -> tuple[list[Model
             palette = np.concatenate([np.zeros((1, 3), np.uint8), rgba[:255, :3]])
     if not models:
         raise InvalidInput(".vox: no model (SIZE + XYZI) found")
-    return models, palette
+    return models, palette, scene
 
 
-def load_vox(data: bytes, *, model: int = 0, max_voxels: int | None = None) -> np.ndarray:
-    """One model as world voxels, uint8 RGB332, shape (z, y, x) = (vy, vz, vx) sizes."""
-    models, palette = parse_vox(data, max_voxels=max_voxels)
-    if not 0 <= model < len(models):
-        raise InvalidInput(f".vox: model {model} requested, the file has {len(models)}")
-    (sx, sy, sz), xyzi = models[model]
+def load_vox(data: bytes, *, model: int | None = None, max_voxels: int | None = None) -> np.ndarray:
+    """World voxels, uint8 RGB332, (z, y, x): model ``model`` alone, or (None) the file's whole
+    scene (model 0 of a file without a scene graph)."""
+    models, palette, scene = parse_vox(data, max_voxels=max_voxels)
+    placements = scene.placements(len(models)) if model is None else []
+    if model is None and not placements:
+        model = 0
+    if model is not None:
+        if not 0 <= model < len(models):
+            raise InvalidInput(f".vox: model {model} requested, the file has {len(models)}")
+        (sx, sy, sz), xyzi = models[model]
+        solid = xyzi[xyzi[:, 3] != 0].astype(np.int64)
+        coords, indexes, extent = solid[:, :3], solid[:, 3], np.array([sx, sy, sz])
+    else:
+        coords, indexes = place(models, placements)
+        coords = coords - coords.min(axis=0)
+        extent = coords.max(axis=0) + 1
+        if extent.max() > MAX_SCENE_SIDE or (max_voxels is not None and int(np.prod(extent)) > max_voxels):
+            raise TooLarge(f".vox: the scene spans {extent.tolist()} voxels; a world holds at most "
+                           f"{MAX_SCENE_SIDE} a side and {max_voxels} voxels (import one model with model=)")
     colours = rgb_to_rgb332(palette)
     colours[1:][colours[1:] == 0] = 0x01
-    solid = xyzi[xyzi[:, 3] != 0].astype(np.int64)
-    voxels = np.zeros((sy, sz, sx), dtype=np.uint8)  # world (z, y, x)
-    voxels[sy - 1 - solid[:, 1], solid[:, 2], solid[:, 0]] = colours[solid[:, 3]]
+    sx, sy, sz = (int(v) for v in extent)
+    voxels = np.zeros((sy, sz, sx), dtype=np.uint8)  # world (z, y, x) from vox (x, y, z up)
+    voxels[sy - 1 - coords[:, 1], coords[:, 2], coords[:, 0]] = colours[indexes]
     return voxels
 
 

@@ -83,7 +83,7 @@ def test_vox_import_axes_and_palette():
     palette[6] = (0, 0, 0, 255)  # colour index 7 is black: must stay solid
     size = (5, 3, 4)  # x, y, z with z up
     voxels = [(0, 0, 0, 1), (4, 2, 3, 200), (1, 2, 0, 7), (2, 0, 3, 255)]
-    data = vox_file(size, voxels, palette, extra=chunk(b"nTRN", b"\x00" * 12))
+    data = vox_file(size, voxels, palette, extra=chunk(b"MATL", b"\x00" * 12))  # skipped
     world = load_vox(data)
     assert world.shape == (3, 4, 5)  # (z, y, x) of a world whose y is the model's z
     expected = np.zeros((3, 4, 5), np.uint8)
@@ -156,3 +156,78 @@ def test_snapshot_that_inflates_beyond_its_declared_size_is_refused():
     data = b"SDFSNAP1" + struct.pack("<I", len(header)) + header + body
     with pytest.raises(InvalidInput, match="inflates"):
         decode_upload(data)
+
+
+# -- .vox scenes: models placed by the scene graph (nTRN, nGRP, nSHP) --------------------------------
+
+def vox_dict(pairs: dict) -> bytes:
+    out = struct.pack("<i", len(pairs))
+    for k, v in pairs.items():
+        out += struct.pack("<i", len(k)) + k.encode() + struct.pack("<i", len(v)) + v.encode()
+    return out
+
+
+def transform(node, child, t=(0, 0, 0), r=None, hidden=False):
+    frame = {"_t": " ".join(map(str, t)), **({"_r": str(r)} if r is not None else {})}
+    return chunk(b"nTRN", struct.pack("<i", node) + vox_dict({"_hidden": "1"} if hidden else {})
+                 + struct.pack("<iiii", child, -1, 0, 1) + vox_dict(frame))
+
+
+def group(node, children):
+    return chunk(b"nGRP", struct.pack("<i", node) + vox_dict({}) + struct.pack("<i", len(children))
+                 + b"".join(struct.pack("<i", c) for c in children))
+
+
+def shape(node, model):
+    return chunk(b"nSHP", struct.pack("<i", node) + vox_dict({}) + struct.pack("<ii", 1, model) + vox_dict({}))
+
+
+def scene_file(models, graph):
+    children = chunk(b"PACK", struct.pack("<i", len(models)))
+    for size, voxels in models:
+        children += chunk(b"SIZE", struct.pack("<iii", *size))
+        children += chunk(b"XYZI", struct.pack("<i", len(voxels)) + b"".join(bytes(v) for v in voxels))
+    return b"VOX " + struct.pack("<i", 150) + chunk(b"MAIN", b"", children + graph)
+
+
+MODELS = [((2, 2, 2), [(1, 1, 1, 5)]), ((3, 1, 1), [(0, 0, 0, 7), (2, 0, 0, 9)])]
+# a quarter turn about z (row 0 takes column 1, row 1 column 0 negated): bits 1 | 0 << 2 | 1 << 5
+QUARTER = 33
+
+
+def test_a_vox_scene_places_every_model_where_its_graph_says():
+    graph = (transform(0, 1) + group(1, [2, 4, 6]) + transform(2, 3) + shape(3, 0)
+             + transform(4, 5, t=(10, 0, 0), r=QUARTER) + shape(5, 1)
+             + transform(6, 7, t=(40, 40, 40), hidden=True) + shape(7, 0))  # hidden: left out
+    world = load_vox(scene_file(MODELS, graph))
+    # By hand: model 0's voxel (1,1,1) minus its centre (1,1,1) -> (0,0,0); model 1's (0,0,0) and
+    # (2,0,0) minus (1,0,0), turned: (0,1,0) and (0,-1,0), plus (10,0,0). Shifted by the least
+    # corner (0,-1,0): (0,1,0), (10,2,0), (10,0,0); z-up (x, y, z) -> world (x, z, 2 - y).
+    palette = rgb_to_rgb332(default_palette())
+    expected = np.zeros((3, 1, 11), np.uint8)
+    expected[1, 0, 0], expected[0, 0, 10], expected[2, 0, 10] = palette[5], palette[7], palette[9]
+    np.testing.assert_array_equal(world, expected)
+    alone = load_vox(scene_file(MODELS, graph), model=1)  # one model, as it is in its own box
+    assert alone.shape == (1, 1, 3) and alone[0, 0, 0] == palette[7] and alone[0, 0, 2] == palette[9]
+    assert load_vox(scene_file(MODELS, b"")).shape == (2, 2, 2)  # no graph: model 0
+
+
+@pytest.mark.parametrize("graph, why", [
+    (transform(0, 1) + group(1, [1]), "deeper"),  # a group that holds itself
+    (transform(0, 1) + shape(1, 5), "model 5"),
+    (transform(0, 1, r=0) + shape(1, 0), "rotation"),  # rows 0 and 1 in one column
+    (transform(0, 9) + shape(1, 0), "node 9"),
+    (chunk(b"nTRN", struct.pack("<i", 0) + vox_dict({}) + struct.pack("<i", 1)) + shape(1, 0), "truncated"),
+    (transform(0, 1, t=("x", 0, 0)) + shape(1, 0), "not numbers"),
+])
+def test_a_broken_vox_scene_is_refused_clearly(graph, why):
+    with pytest.raises(InvalidInput) as info:
+        load_vox(scene_file(MODELS, graph))
+    assert why in str(info.value)
+
+
+def test_a_vox_scene_larger_than_a_world_is_refused():
+    graph = transform(0, 1) + group(1, [2, 4]) + transform(2, 3) + shape(3, 0) + transform(4, 5, t=(5000, 0, 0)) \
+        + shape(5, 0)
+    with pytest.raises(TooLarge):
+        load_vox(scene_file(MODELS, graph))

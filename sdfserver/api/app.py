@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 from pathlib import Path
 from typing import Any, AsyncIterator, Sequence
@@ -75,6 +76,30 @@ class _WebSocketGauge:
             self.metrics.engines.count(websocket_clients=-1)
 
 
+FOLLOW_EVERY_S = 0.5  # how often an API process looks for a cluster engine's new address
+
+
+async def follow_addresses(clients: Sequence[Any], path: Path) -> None:
+    """Reconnect a client whose engine now listens elsewhere (a cluster's engine actor restarted
+    on another node): the cluster process rewrites ``path`` ([{index, input, output}]) then."""
+    seen = None
+    while True:
+        await asyncio.sleep(FOLLOW_EVERY_S)
+        try:
+            stamp = path.stat().st_mtime_ns
+            if stamp == seen:
+                continue
+            addresses = json.loads(path.read_text())
+            seen = stamp
+        except (OSError, ValueError):
+            continue  # not written yet, or being replaced: next time
+        for entry in addresses:
+            client = clients[entry["index"]]
+            if (client.input_address, client.output_address) != (entry["input"], entry["output"]):
+                log.warning("engine %d now listens at %s; reconnecting", entry["index"], entry["input"])
+                client.relocate(entry["input"], entry["output"])
+
+
 class RebalanceLeader:
     """Whether this API process rebalances: the one that holds the data directory's
     ``rebalance.lock`` (another takes it over when that process is gone)."""
@@ -92,7 +117,7 @@ class RebalanceLeader:
 
 
 def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[BaseClient] | None = None,
-               freeze_gc: bool = False) -> FastAPI:
+               freeze_gc: bool = False, addresses_file: str | None = None) -> FastAPI:
     """``clients``: the engine processes' clients (started with the app); ``engine``: an Engine
     in this process instead (started if it is not running, stopped at shutdown).
     ``freeze_gc``: exempt start-up objects from garbage collection and count collections on
@@ -116,6 +141,8 @@ def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[Base
         for client in engine_clients:
             await client.start()
         reporter = asyncio.create_task(app.state.metrics.report_forever())
+        follower = None if addresses_file is None else asyncio.create_task(
+            follow_addresses(engine_clients, Path(addresses_file)))
         rebalancer = None
         if settings.rebalance_below > 0 and settings.persist and len(engine_clients) > 1:
             rebalancer = asyncio.create_task(app.state.engine.rebalance_forever(
@@ -128,8 +155,9 @@ def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[Base
             yield
         finally:
             reporter.cancel()
-            if rebalancer is not None:
-                rebalancer.cancel()
+            for task in (rebalancer, follower):
+                if task is not None:
+                    task.cancel()
             app.state.metrics.report()
             for client in engine_clients:
                 await client.stop()

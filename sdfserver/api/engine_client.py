@@ -115,6 +115,18 @@ class EngineClient(BaseClient):
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
         self._context = zmq.Context()
+        welcomed = self._loop.create_future()
+        self._connect(welcomed)
+        await asyncio.wait_for(welcomed, HELLO_TIMEOUT_S)
+
+    def relocate(self, input_address: str, output_address: str) -> None:
+        """The engine now listens at other addresses: what it held failed when it went away;
+        new sockets there (the engine answers once it has heard this process's hello)."""
+        self._close_sockets()
+        self.input_address, self.output_address = input_address, output_address
+        self._connect(None)
+
+    def _connect(self, welcomed: asyncio.Future | None) -> None:
         self._push = self._context.socket(zmq.PUSH)
         self._push.setsockopt(zmq.SNDHWM, 0)
         self._push.setsockopt(zmq.LINGER, 0)
@@ -126,11 +138,9 @@ class EngineClient(BaseClient):
         self._dealer.connect(self.output_address)
         # The engine's ROUTER can answer this process only once it has heard from it.
         self._dealer.send(b"hello")
-        welcomed = self._loop.create_future()
         self._fd = self._dealer.getsockopt(zmq.FD)
         self._loop.add_reader(self._fd, self._drain, welcomed)
         self._drain(welcomed)
-        await asyncio.wait_for(welcomed, HELLO_TIMEOUT_S)
         # An engine that goes away (a cluster's engine actor restarting) takes the requests it
         # held with it: they fail at once, 503, rather than wait for answers that cannot come.
         # ZeroMQ reconnects by itself when the engine listens again.
@@ -148,6 +158,11 @@ class EngineClient(BaseClient):
                                        "retry the request"))
 
     async def stop(self) -> None:
+        self._close_sockets()
+        if self._context is not None:
+            self._context.term()
+
+    def _close_sockets(self) -> None:
         if self._fd is not None and self._loop is not None:
             self._loop.remove_reader(self._fd)
             self._fd = None
@@ -159,8 +174,7 @@ class EngineClient(BaseClient):
         for sock in (self._push, self._dealer):
             if sock is not None:
                 sock.close(0)
-        if self._context is not None:
-            self._context.term()
+        self._push = self._dealer = None
 
     def _send(self, request: Any) -> None:
         self._push.send_multipart([self.identity, ENCODE(request)], flags=zmq.NOBLOCK)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import logging
 import multiprocessing
+import os
 import shutil
 import signal
 import sys
@@ -127,6 +128,9 @@ class Launcher:
         specs = [d.strip() for d in settings.devices.split(",")] if settings.devices.strip() else [settings.device]
         self.addresses = [EngineAddress(i, spec, f"ipc://{run_dir}/engine-{i}-in", f"ipc://{run_dir}/engine-{i}-out")
                           for i, spec in enumerate(specs)]
+        # where the cluster process tells the API processes an engine's new address (an actor
+        # restarted on another node); None without a cluster
+        self.addresses_file = os.path.join(run_dir, "engines.json") if settings.cluster else None
         self.engines: list[tuple[Any, Any]] = []  # (process, pipe)
         self.workers: list[tuple[Any, float]] = []  # (process, started at)
         self.serving = False
@@ -152,7 +156,8 @@ class Launcher:
         from sdfserver.cluster.manager import cluster_main
 
         receiver, sender = self.context.Pipe(duplex=False)
-        process = self.context.Process(target=_exit_with, args=(cluster_main, self.settings, sender),
+        process = self.context.Process(target=_exit_with, args=(cluster_main, self.settings, sender,
+                                                                  self.addresses_file),
                                        name="sdfserver-cluster")
         process.start()
         sender.close()
@@ -195,7 +200,8 @@ class Launcher:
         from sdfserver.api.worker import worker_main
 
         process = self.context.Process(target=_exit_with, args=(worker_main, self.settings, self.sock,
-                                                                 self.addresses, self.log_config),
+                                                                 self.addresses, self.log_config,
+                                                                 self.addresses_file),
                                        name="sdfserver-api")
         process.start()
         return process, time.monotonic()

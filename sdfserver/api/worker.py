@@ -17,11 +17,13 @@ from sdfserver.engine.proc import EngineAddress, die_with_parent
 from sdfserver.settings import Settings, worker_count
 
 
-def worker_main(settings: Settings, sock: socket.socket, engines: Sequence[EngineAddress], log_config: Any) -> int:
-    """The API process's body (after fork); its exit status."""
+def worker_main(settings: Settings, sock: socket.socket, engines: Sequence[EngineAddress], log_config: Any,
+                addresses_file: str | None = None) -> int:
+    """The API process's body (after fork); its exit status. ``addresses_file``: where a
+    cluster's engines' addresses are kept (an engine restarted elsewhere is followed)."""
     die_with_parent()
     clients = [EngineClient(e.input, e.output) for e in engines]
-    app = create_app(settings, clients=clients, freeze_gc=True)
+    app = create_app(settings, clients=clients, freeze_gc=True, addresses_file=addresses_file)
     config = uvicorn.Config(HotRoutes(app), log_config=log_config, log_level=settings.log_level,
                             access_log=settings.access_log, timeout_graceful_shutdown=5, lifespan="on",
                             **uvicorn_options(settings, worker_count(settings)))

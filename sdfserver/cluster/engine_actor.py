@@ -3,7 +3,9 @@ thread of the actor's process, its ZeroMQ sockets on TCP ports given by the laun
 
 Ray re-runs the constructor when it restarts the actor (``max_restarts=-1``), with the same
 arguments: the same ports and the same data directory, so the new incarnation restores every
-world the old one acknowledged and listens where the API processes' sockets reconnect.
+world the old one acknowledged and listens where the API processes' sockets reconnect. Where
+those ports are taken (another node, or another program since) it listens on free ones; the
+cluster process sees the new address in ``describe`` and the API processes follow it.
 """
 
 from __future__ import annotations
@@ -18,6 +20,29 @@ from sdfserver.engine.proc import EngineAddress, serve_engine
 from sdfserver.settings import Settings
 
 READY_TIMEOUT_S = 600.0  # restore and warm-up of every world this engine holds
+
+
+def port_is_free(port: int) -> bool:
+    """Whether ZeroMQ could listen on ``port`` (it binds with SO_REUSEADDR, so the old
+    incarnation's connections lingering in TIME_WAIT do not count; another listener does)."""
+    with socket.socket() as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(("", port))
+        except OSError:
+            return False
+    return True
+
+
+def free_ports(n: int) -> list[int]:
+    sockets = [socket.socket() for _ in range(n)]
+    try:
+        for s in sockets:
+            s.bind(("", 0))
+        return [s.getsockname()[1] for s in sockets]
+    finally:
+        for s in sockets:
+            s.close()
 
 
 class _Pipe:
@@ -38,6 +63,8 @@ class EngineActor:
             import ray
 
             host = ray.util.get_node_ip_address()
+        if not all(port_is_free(p) for p in ports):
+            ports = tuple(free_ports(2))
         bind = EngineAddress(index, settings.device, f"tcp://0.0.0.0:{ports[0]}", f"tcp://0.0.0.0:{ports[1]}")
         self.address = EngineAddress(index, settings.device, f"tcp://{host}:{ports[0]}", f"tcp://{host}:{ports[1]}")
         self._stop = threading.Event()

@@ -5,36 +5,28 @@ It joins the cluster (``settings.cluster``: ``local`` starts one on this machine
 engine actors — named ``sdfserver-engine-<i>`` in the ``sdfserver`` namespace, detached,
 restarted without limit, each asking for ``engine_gpus`` GPUs — waits until each has restored
 its worlds and listens, and tells the launcher their addresses. Then it watches them: a restart
-(a new process behind the same name) is logged with the time it took to serve again.
+(a new process behind the same name) is logged with the time it took to serve again, and an
+engine restarted where it listens at another address (another node, or its ports taken) has its
+addresses rewritten in the launcher's addresses file, which the API processes follow.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import signal
-import socket
 import threading
 import time
 from typing import Any
 
 from sdfserver.engine.proc import EngineAddress, die_with_parent
 from sdfserver.settings import Settings
+from sdfserver.storage.fsutil import write_atomic
 
 log = logging.getLogger("sdfserver.cluster")
 NAMESPACE = "sdfserver"
 WATCH_EVERY_S = 1.0
 DESCRIBE_TIMEOUT_S = 600.0  # an engine restores every world it holds before it answers
-
-
-def free_ports(n: int) -> list[int]:
-    sockets = [socket.socket() for _ in range(n)]
-    try:
-        for s in sockets:
-            s.bind(("", 0))
-        return [s.getsockname()[1] for s in sockets]
-    finally:
-        for s in sockets:
-            s.close()
 
 
 def engine_name(index: int) -> str:
@@ -54,7 +46,7 @@ def missing_gpus(ray: Any, settings: Settings) -> str | None:
 
 def start_engines(ray: Any, settings: Settings) -> list[Any]:
     """The engine actors, created or (detached ones left by an earlier launcher) found again."""
-    from sdfserver.cluster.engine_actor import EngineActor
+    from sdfserver.cluster.engine_actor import EngineActor, free_ports
 
     remote = ray.remote(EngineActor)
     host = "127.0.0.1" if settings.cluster == "local" else ""  # "": the node the actor runs on
@@ -65,7 +57,15 @@ def start_engines(ray: Any, settings: Settings) -> list[Any]:
             for i in range(settings.engines)]
 
 
-def cluster_main(settings: Settings, conn: Any) -> int:
+def publish(path: str | None, described: list[dict]) -> None:
+    """Write the engines' addresses where the API processes look (atomically: whole or not at all)."""
+    if path is None:
+        return
+    entries = [{"index": d["index"], "input": d["input"], "output": d["output"]} for d in described]
+    write_atomic(path, json.dumps(entries).encode())
+
+
+def cluster_main(settings: Settings, conn: Any, addresses_file: str | None = None) -> int:
     """The cluster process's body (after fork); its exit status."""
     die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -93,15 +93,17 @@ def cluster_main(settings: Settings, conn: Any) -> int:
         return 1
     for d in described:
         log.info("engine %d: %s on %s (pid %d), %s", d["index"], d["device"], d["node"], d["pid"], d["input"])
+    publish(addresses_file, described)
     conn.send(("ready", [EngineAddress(d["index"], d["device"], d["input"], d["output"]) for d in described]))
     try:
-        watch(ray, actors, described, stop)
+        watch(ray, actors, described, stop, addresses_file)
     finally:
         _leave(ray, local)
     return 0
 
 
-def watch(ray: Any, actors: list[Any], described: list[dict], stop: threading.Event) -> None:
+def watch(ray: Any, actors: list[Any], described: list[dict], stop: threading.Event,
+          addresses_file: str | None = None) -> None:
     pids = [d["pid"] for d in described]
     while not stop.wait(WATCH_EVERY_S):
         for i, actor in enumerate(actors):
@@ -115,6 +117,10 @@ def watch(ray: Any, actors: list[Any], described: list[dict], stop: threading.Ev
                 log.warning("engine %d was restarted (pid %d, then %d); serving again %.1f s after it was missed",
                             i, pids[i], now["pid"], time.monotonic() - asked)
                 pids[i] = now["pid"]
+                if (now["input"], now["output"]) != (described[i]["input"], described[i]["output"]):
+                    log.warning("engine %d now listens at %s on %s", i, now["input"], now["node"])
+                    described[i] = now
+                    publish(addresses_file, described)
 
 
 def _leave(ray: Any, local: bool) -> None:

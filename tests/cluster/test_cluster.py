@@ -188,6 +188,53 @@ def test_a_world_moves_between_engine_actors_under_a_writer_losing_and_doubling_
     np.testing.assert_array_equal(read(server, world, "field"), oracle_distance(expected, CAP))
 
 
+def test_an_engine_restarted_at_another_address_is_followed(server):
+    """As after a restart on another node: the actor's ports are taken when Ray restarts it, so
+    it listens elsewhere; the API processes follow the address the cluster process publishes."""
+    import socket
+
+    world = new_world(server)
+    batch = [{"op": "box", "min": [2, 2, 2], "max": [9, 9, 9], "colour": 77}]
+    assert httpx.post(f"{server.url}/v1/worlds/{world}/edits", json={"edits": batch}, timeout=30).status_code == 200
+    victim = next(e for e in engines(server) if world in e["world_ids"])
+    port = int(victim["address"].rsplit(":", 1)[1])
+    os.kill(victim["pid"], signal.SIGKILL)
+    blocker = socket.socket()
+    blocker.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # its connections linger in TIME_WAIT
+    deadline = time.monotonic() + 10
+    while True:  # the dead process's listening socket is gone at once
+        try:
+            blocker.bind(("", port))
+            blocker.listen()
+            break
+        except OSError:
+            assert time.monotonic() < deadline, f"port {port} stayed taken"
+            time.sleep(0.02)
+    try:
+        second = [{"op": "sphere", "center": [16.0, 8.0, 16.0], "radius": 3.0, "colour": 5}]
+        deadline = time.monotonic() + 120
+        while True:
+            try:
+                r = httpx.post(f"{server.url}/v1/worlds/{world}/edits", json={"edits": second}, timeout=30,
+                               headers={"idempotency-key": f"follow-{world}"})
+                if r.status_code == 200:
+                    break
+                assert r.status_code == 503, r.text
+            except httpx.TransportError:
+                pass
+            assert time.monotonic() < deadline, "the restarted engine was not reached at its new address"
+            time.sleep(0.2)
+        moved = next(e for e in engines(server) if e["engine"] == victim["engine"])
+        assert moved["address"] != victim["address"] and moved["pid"] != victim["pid"], moved
+        assert r.json()["version"] == 2
+        expected = np.zeros(SIZE[::-1], np.uint8)
+        for b in (batch, second):
+            apply_edits(expected, b)
+        np.testing.assert_array_equal(read(server, world, "field"), oracle_distance(expected, CAP))
+    finally:
+        blocker.close()
+
+
 def test_engines_asking_for_gpus_the_cluster_lacks_stop_the_server_with_why(tmp_path):
     process = ServerProcess(tmp_path / "data", "--cluster", "local", "--engines", "2", "--engine-gpus", "8",
                             "--no-warm-up")

@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import secrets
 
+import httpx
 import numpy as np
 import pytest
+
+from sdfserver import wire
 
 
 @pytest.fixture
@@ -35,3 +38,14 @@ def random_batch(rng: np.random.Generator, size_xyz, brick: int) -> list[dict]:
     rows = np.stack([rng.integers(0, s, 8) for s in size] + [rng.integers(0, 256, 8)], axis=1)
     batch.append({"op": "voxels", "voxels": rows.tolist()})
     return batch
+
+
+def read(http: httpx.Client, world_id: str, what: str, lo, hi) -> np.ndarray:
+    """A box of a world's ``field`` (packed) or ``voxels`` through the API, as an array."""
+    params = {"min": ",".join(map(str, lo)), "max": ",".join(map(str, hi))}
+    if what == "field":
+        params["format"] = "packed"
+    r = http.get(f"/v1/worlds/{world_id}/{what}", params=params, headers={"accept": wire.CONTENT_TYPE})
+    assert r.status_code == 200, r.text
+    msg = wire.decode(r.content)
+    return np.frombuffer(msg["data"], dtype=msg["dtype"]).reshape(msg["shape"])

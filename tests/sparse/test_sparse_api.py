@@ -11,21 +11,13 @@ import websockets.sync.client
 from references import apply_edits, oracle_distance
 from server_process import ServerProcess
 
+from .conftest import read
+
 from sdfserver import wire
 
 FLAGS = ["--memory-budget-bytes", str(256 << 20), "--max-read-voxels", str(1 << 20), "--workers", "1",
          "--snapshot-every-batches", "2", "--snapshot-min-interval-s", "0"]
 SIZE, BRICK, CAP = [65536, 256, 65536], 32, 7
-
-
-def read(http: httpx.Client, world_id: str, what: str, lo, hi) -> np.ndarray:
-    params = {"min": ",".join(map(str, lo)), "max": ",".join(map(str, hi))}
-    if what == "field":
-        params["format"] = "packed"
-    r = http.get(f"/v1/worlds/{world_id}/{what}", params=params, headers={"accept": wire.CONTENT_TYPE})
-    assert r.status_code == 200, r.text
-    msg = wire.decode(r.content)
-    return np.frombuffer(msg["data"], dtype=msg["dtype"]).reshape(msg["shape"])
 
 
 @pytest.fixture(scope="module")

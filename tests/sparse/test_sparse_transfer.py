@@ -14,9 +14,8 @@ import pytest
 from references import oracle_distance
 from server_process import ServerProcess
 
-from sdfserver import wire
 
-from .conftest import random_batch
+from .conftest import random_batch, read
 
 SIZE, BRICK, CAP = [256, 64, 192], 16, 6
 FLAGS = ["--memory-budget-bytes", str(256 << 20), "--max-read-voxels", str(1 << 22), "--workers", "1"]
@@ -31,13 +30,7 @@ def server(tmp_path_factory):
 
 
 def whole(http: httpx.Client, world_id: str, what: str) -> np.ndarray:
-    params = {"min": "0,0,0", "max": ",".join(map(str, SIZE))}
-    if what == "field":
-        params["format"] = "packed"
-    r = http.get(f"/v1/worlds/{world_id}/{what}", params=params, headers={"accept": wire.CONTENT_TYPE})
-    assert r.status_code == 200, r.text
-    msg = wire.decode(r.content)
-    return np.frombuffer(msg["data"], dtype=msg["dtype"]).reshape(msg["shape"])
+    return read(http, world_id, what, (0, 0, 0), SIZE)
 
 
 def edited_world(http: httpx.Client, rng: np.random.Generator, batches: int = 6) -> str:

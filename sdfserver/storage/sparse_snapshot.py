@@ -71,7 +71,10 @@ def parse_sparse(raw: bytes, blocks_bytes: int, bricks: int, brick: int, fail) -
         at += 4 * n
         if (codes >= bricks).any() or (codes < -257).any():
             raise fail(at, "a block names a brick the snapshot does not hold")
-        blocks[(int(kx), int(ky), int(kz))] = int(codes[0]) if n == 1 else codes.reshape((16, 16, 16))
+        key = (int(kx), int(ky), int(kz))
+        if key in blocks:
+            raise fail(at, f"block {list(key)} appears twice")
+        blocks[key] = int(codes[0]) if n == 1 else codes.reshape((16, 16, 16))
     size = brick ** 3
     voxels = np.frombuffer(view[at:at + bricks * size], dtype=np.uint8).reshape(bricks, brick, brick, brick)
     field = np.frombuffer(view[at + bricks * size:at + 3 * bricks * size], dtype="<u2").reshape(
@@ -82,18 +85,32 @@ def parse_sparse(raw: bytes, blocks_bytes: int, bricks: int, brick: int, fail) -
 def check_upload(content: SparseContent, size: tuple[int, int, int], cap: int, fail) -> None:
     """Refuse (``fail(reason)``) a sparse snapshot a client sent unless its bricks are a world of
     ``size`` whose field is exactly the capped Manhattan distance of its voxels: blocks inside the
-    world's table, uniform blocks with uniform codes, each stored brick's colours its voxels' and
+    world's table, uniform blocks with uniform codes, every stored brick named exactly once and
+    inside the world (two bricks sharing a slot would change together), no solid brick of colour
+    0, each stored brick's colours its voxels' and
     each of its voxels 0 on a solid and min(cap, 1 + its least face neighbour) on air (neighbours in
     other bricks, stored or implicit, included), and no implicit air brick where that fails for it
     (beside an implicit solid brick, or a stored voxel nearer than cap - 1)."""
     b = content.brick
     dims = [-(-(s // b) // BLOCK_CODES_SIDE) for s in size]
+    grid = _BrickGrid(content, [s // b for s in size])
+    named = np.zeros(int(content.voxels.shape[0]), dtype=np.int64)
     for key, block in content.blocks.items():  # one loop over kept blocks
         if not all(0 <= k < n for k, n in zip(key, dims)):
             raise fail(f"block {list(key)} lies outside the world's {dims} blocks")
-        if isinstance(block, int) and block >= 0:
-            raise fail(f"block {list(key)} is uniform but names a stored brick")
-    grid = _BrickGrid(content, [s // b for s in size])
+        codes = np.asarray(block)
+        if (codes == SOLID_AIR_CODE).any():
+            raise fail(f"block {list(key)} holds a solid brick of colour 0 (air)")
+        if isinstance(block, int):
+            if block >= 0:
+                raise fail(f"block {list(key)} is uniform but names a stored brick")
+            continue
+        if (grid.outside(key) & (codes >= 0)).any():  # uniform codes there are harmless: never read
+            raise fail(f"block {list(key)} stores a brick beyond the world's side")
+        np.add.at(named, codes[codes >= 0], 1)
+    if (named != 1).any():  # two bricks sharing a slot would change together
+        which = int(np.flatnonzero(named != 1)[0])
+        raise fail(f"stored brick {which} is named {int(named[which])} times by the brick table; each once")
     for key in content.blocks:
         codes = grid.codes_around(key)  # the block's codes, one brick of its neighbours around
         inner = codes[1:-1, 1:-1, 1:-1]
@@ -109,6 +126,7 @@ def check_upload(content: SparseContent, size: tuple[int, int, int], cap: int, f
 
 BLOCK_CODES_SIDE = 16
 AIR_CODE = -1
+SOLID_AIR_CODE = -2  # "solid of colour 0": not a brick any world holds
 OUTSIDE_CODE = -(1 << 20)  # a brick beyond the world's side, in a block that reaches past it
 
 
@@ -134,6 +152,12 @@ class _BrickGrid:
             return None
         block = self.content.blocks.get(key, AIR_CODE)
         return np.full((n, n, n), block, dtype=np.int64) if isinstance(block, int) else block.astype(np.int64)
+
+    def outside(self, key: tuple[int, int, int]) -> np.ndarray:
+        """(16, 16, 16) (z, y, x): which bricks of a block lie beyond the world's sides."""
+        n = BLOCK_CODES_SIDE
+        z, y, x = np.ogrid[key[2] * n:key[2] * n + n, key[1] * n:key[1] * n + n, key[0] * n:key[0] * n + n]
+        return np.broadcast_to((x >= self.bricks[0]) | (y >= self.bricks[1]) | (z >= self.bricks[2]), (n, n, n))
 
     def codes_around(self, key: tuple[int, int, int]) -> np.ndarray:
         """(18, 18, 18) codes (z, y, x) of a block and the face layers of its six neighbours (the

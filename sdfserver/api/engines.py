@@ -55,6 +55,14 @@ class Placement(Protocol):
     def forget(self, world_id: str) -> None: ...
 
 
+async def worlds_of(engine: BaseClient) -> list[dict[str, Any]] | None:
+    """Every world an engine holds, described; None when it does not answer in STATUS_TIMEOUT_S."""
+    try:
+        return await asyncio.wait_for(engine.call(msg.Describe(engine.next_id(), None)), STATUS_TIMEOUT_S)
+    except asyncio.TimeoutError:
+        return None
+
+
 class LocalPlacement:
     def __init__(self, engines: Sequence[BaseClient]):
         self.engines = list(engines)
@@ -65,7 +73,7 @@ class LocalPlacement:
             return self.engines[0]
         engine = self._where.get(world_id)
         if engine is None:  # created by another API process, restored or moved: ask every engine
-            lists = await asyncio.gather(*(self._worlds_of(e) for e in self.engines))
+            lists = await asyncio.gather(*(worlds_of(e) for e in self.engines))
             epochs: dict[str, int] = {}
             for candidate, worlds in zip(self.engines, lists):
                 for world in worlds or ():  # an engine that missed its world being taken over has an older epoch
@@ -80,13 +88,6 @@ class LocalPlacement:
         if engine is None:
             raise NotFound(f"no world {world_id!r}")
         return engine
-
-    @staticmethod
-    async def _worlds_of(engine: BaseClient) -> list[dict[str, Any]] | None:
-        try:
-            return await asyncio.wait_for(engine.call(msg.Describe(engine.next_id(), None)), STATUS_TIMEOUT_S)
-        except asyncio.TimeoutError:
-            return None
 
     async def place(self, config: dict[str, Any]) -> BaseClient:
         if len(self.engines) == 1:
@@ -216,7 +217,7 @@ class Engines:
         smallest world that fits to the engine with the most free memory (which stays above the
         mark). Returns the moves made: [{world, from, to, bytes, ms}]."""
         statuses = await self.status()
-        lists = await asyncio.gather(*(e.call(msg.Describe(e.next_id(), None)) for e in self.clients))
+        lists = [worlds or [] for worlds in await asyncio.gather(*(worlds_of(e) for e in self.clients))]
         free = [s.free_bytes if s.ready else 0 for s in statuses]
         moves = []
         for short, status in enumerate(statuses):

@@ -55,7 +55,8 @@ def summary(values: list[float]) -> dict:
         return {}
     ordered = sorted(values)
     return {"median": statistics.median(ordered), "p90": ordered[min(len(ordered) - 1, int(0.9 * len(ordered)))],
-            "min": ordered[0], "max": ordered[-1], "n": len(ordered)}
+            "p99": ordered[min(len(ordered) - 1, int(0.99 * len(ordered)))], "min": ordered[0],
+            "max": ordered[-1], "n": len(ordered), "largest": ordered[-5:]}
 
 
 def surface_points(world, rng: np.random.Generator, count: int) -> list[tuple[int, int, int]]:
@@ -71,16 +72,26 @@ def surface_points(world, rng: np.random.Generator, count: int) -> list[tuple[in
     return points
 
 
+def pool_shape(world) -> list[int]:
+    """A sparse world's pool segment capacities (a dense world has none)."""
+    return [seg.capacity for seg in world.pool.segments] if hasattr(world, "pool") else []
+
+
 def time_brushes(world, points) -> dict:
-    wall, device = [], []
+    wall, device, grew = [], [], []
     for i, (x, y, z) in enumerate(points):
         edit = SphereEdit((float(x), float(y), float(z)), float(BRUSH_RADIUS), 0 if i % 2 else 0xE0)
+        segments = pool_shape(world)
         start = time.perf_counter()
         world.apply_edits([edit])
         result = world.recompute()
         wall.append((time.perf_counter() - start) * 1e3)
         device.append(result.device_ms)
-    return {"wall_ms": summary(wall[1:]), "device_ms": summary(device[1:])}  # the first builds kernels
+        if pool_shape(world) != segments:
+            grew.append(i)
+    # the first builds kernels; a brush that grew the pool copied a segment's bricks (reported apart)
+    return {"wall_ms": summary(wall[1:]), "device_ms": summary(device[1:]),
+            "pool_grew_at": grew, "wall_ms_without_growth": summary([w for i, w in enumerate(wall) if i and i not in grew])}
 
 
 def check_windows(world, points, cap: int) -> dict:

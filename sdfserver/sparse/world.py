@@ -73,6 +73,7 @@ class SparseWorld:
         gpu.check_fits(self._scratch_sizes(smallest[0] * smallest[1] * smallest[2], smallest[2]),
                        f"a sparse {'x'.join(map(str, config.size))} world's scratch box")
         self.table = BrickTable(config.chunks)
+        self.classify_results = kernels.ClassifyResults(gpu)  # kept between recomputes (terrain tiles too)
         self.pool = BrickPool(gpu, self.brick, segment_bricks)
         self.scratch: WorldBuffers | None = None
         self._scratch_sizes_held: list[int] = []
@@ -125,6 +126,7 @@ class SparseWorld:
 
     def release(self) -> None:
         self._release_scratch()
+        self.classify_results.release()
         self.pool.release()
         self.device_table.release()
 
@@ -326,7 +328,8 @@ class SparseWorld:
         local = Box(tuple(r - b for r, b in zip(region.lo, box.lo)), tuple(r - b for r, b in zip(region.hi, box.lo)))
         view = WorldBuffers(box.shape_xyz, s.voxels, s.field, s.work, s.work2)
         run = algorithm.run(self.gpu, RegionJob.seeded_region(view, local, cap))
-        mixed, first = kernels.classify(self.gpu, s.voxels, s.field, box.shape_xyz, local, cap, self.brick)
+        mixed, first = kernels.classify(self.gpu, s.voxels, s.field, box.shape_xyz, local, cap, self.brick,
+                                        self.classify_results)
         region_bricks = region.chunk_range(self.brick)
         old = self.table.get(region_bricks)
         new = np.where(first == 0, AIR, solid_code(first)).astype(np.int32)

@@ -191,7 +191,6 @@ class StreamSession:
         try:
             await self._follow(region, fmt, dtype)
         except SdfServerError as exc:
-            self.subscription = None
             with contextlib.suppress(WebSocketDisconnect, RuntimeError):
                 await self.send({"type": "error", "id": None, "error": body_for(exc)["error"]})
 

@@ -81,9 +81,10 @@ async def import_world(request: Request,
     limit = settings.max_world_voxels
 
     def parse() -> tuple[WorldConfig, Any]:
-        if format == "snapshot" and upload_config(data)[0]:  # a sparse world: its engine checks the bricks
+        sparse, header_config = upload_config(data) if format == "snapshot" else (False, {})
+        if sparse:  # a sparse world: its engine checks the bricks
             try:
-                return config_from_dict(upload_config(data)[1]), None
+                return config_from_dict(header_config), None
             except (KeyError, TypeError, ValueError) as exc:
                 raise InvalidInput(f"uploaded snapshot: bad configuration: {exc!r}") from None
         if format == "snapshot":

@@ -32,7 +32,7 @@ The engine calls these on its own thread, in the order things happen:
 
 - ``epoch_of(world_id)``: the epoch under which this engine holds the world (0: none);
   ``fenced(world_id)``: whether another engine has taken it over since (its batches then
-  fail with ``WorldMoved`` instead of being acknowledged); ``forget(world_id)``: drop a
+  fail with ``WorldFenced`` instead of being acknowledged); ``forget(world_id)``: drop a
   world taken over, its files left to their new holder.
 
 A journal must not call back into the engine.

@@ -17,16 +17,11 @@ from sdfserver.errors import StorageError
 def lock_data_dir(data_dir: Path) -> IO[str]:
     """Take ``data_dir/serve.lock`` exclusively; the returned file must stay open while serving."""
     path = Path(data_dir) / "serve.lock"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle = open(path, "a+")
-    try:
-        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        handle.seek(0)
-        holder = handle.read().strip() or "another process"
-        handle.close()
+    handle = try_lock(path)
+    if handle is None:
+        holder = path.read_text().strip() or "another process"
         raise StorageError(f"data directory {data_dir} is in use by {holder}; "
-                           "give each server its own --data-dir") from None
+                           "give each server its own --data-dir")
     handle.seek(0)
     handle.truncate()
     handle.write(f"sdfserver serve pid {os.getpid()}\n")

@@ -38,7 +38,6 @@ class Recovered:
     segment_end: int = 0  # its valid length (a torn tail beyond this is truncated)
     torn: str = ""  # what was truncated, for the log
     stale_segments: list[Path] = field(default_factory=list)
-    epoch: int = 0  # the newest epoch that wrote the log
     fenced_records: int = 0  # records an older epoch wrote after a newer one took the world over
 
 
@@ -50,7 +49,6 @@ def recover_world(directory: Path) -> Recovered:
     result = Recovered(base, snap.voxels if snap else None, last_version=base)
     written = sorted(directory.glob(SEGMENT_PATTERN), key=history_order)
     segments = _history(written)
-    result.epoch = max((segment_epoch(s) for s in written), default=0)
     # Segment i holds versions base_i + 1 .. base_{i+1}; it matters only if base_{i+1} > base.
     relevant = [s for s, nxt in zip(segments, segments[1:] + [None])
                 if nxt is None or segment_base(nxt) > base]

@@ -34,6 +34,7 @@ from sdfserver.storage.sparse_snapshot import SparseContent, check_upload, parse
 SNAPSHOT_MAGIC = b"SDFSNAP1"
 SNAPSHOT_PATTERN = "snap-*.sdfsnap"
 _HEADER_LENGTH = struct.Struct("<I")
+HEADER_AT = len(SNAPSHOT_MAGIC) + _HEADER_LENGTH.size  # the JSON header follows the magic and its length
 MAX_HEADER_BYTES = 1 << 16
 MAX_SIDE = 1 << 16  # a bound before any arithmetic on sizes; worlds are far smaller (world_config)
 MAX_VERSION = (1 << 62) - 1  # versions are u64 in log records; far beyond any world's batches
@@ -82,6 +83,20 @@ def _encode_sparse(version: int, config: dict[str, Any], content: SparseContent)
     return SNAPSHOT_MAGIC + _HEADER_LENGTH.pack(len(header)) + header + body
 
 
+def _read_header(view: memoryview, fail) -> tuple[Any, int]:
+    """(the JSON header, the body's offset) of a snapshot; ``fail(offset, reason)`` refuses it."""
+    head = HEADER_AT
+    if len(view) < head or bytes(view[:8]) != SNAPSHOT_MAGIC:
+        raise fail(0, "not an sdfserver snapshot (bad magic)")
+    (header_len,) = _HEADER_LENGTH.unpack_from(view, 8)
+    if header_len > MAX_HEADER_BYTES or head + header_len > len(view):
+        raise fail(8, f"header length {header_len} is out of range")
+    try:
+        return json.loads(bytes(view[head:head + header_len])), head + header_len
+    except (ValueError, RecursionError) as exc:  # a hostile header nests deeply
+        raise fail(head, f"bad header: {type(exc).__name__}: {str(exc)[:200]}") from None
+
+
 def decode_snapshot(data: bytes | memoryview, where: str = "snapshot", *,
                     max_voxels: int | None = None, corrupt=CorruptData, allow_sparse: bool = True) -> Snapshot:
     """Parse and check a snapshot. ``corrupt`` picks the error: ``CorruptData`` for files on
@@ -91,14 +106,9 @@ def decode_snapshot(data: bytes | memoryview, where: str = "snapshot", *,
     def fail(offset: int | None, reason: str):
         return corrupt(where, offset, reason) if corrupt is CorruptData else corrupt(f"{where}: {reason}")
 
-    head = len(SNAPSHOT_MAGIC) + _HEADER_LENGTH.size
-    if len(view) < head or bytes(view[:8]) != SNAPSHOT_MAGIC:
-        raise fail(0, "not an sdfserver snapshot (bad magic)")
-    (header_len,) = _HEADER_LENGTH.unpack_from(view, 8)
-    if header_len > MAX_HEADER_BYTES or head + header_len > len(view):
-        raise fail(8, f"header length {header_len} is out of range")
+    header, body_at = _read_header(view, fail)
+    head = HEADER_AT  # where the header's own defects are reported
     try:
-        header = json.loads(bytes(view[head:head + header_len]))
         version, config = int(header["version"]), dict(header["config"])
         size = [int(v) for v in config["size"]]
         body_bytes, body_crc = int(header["body_bytes"]), int(header["body_crc32"])
@@ -128,7 +138,6 @@ def decode_snapshot(data: bytes | memoryview, where: str = "snapshot", *,
     if max_voxels is not None and sparse and max(bricks * brick ** 3, blocks_bytes) > max_voxels:
         raise TooLarge(f"{where}: {bricks} stored bricks of {brick}^3 and {blocks_bytes} table bytes; the "
                        f"limit is {max_voxels} voxels")  # before anything is inflated
-    body_at = head + header_len
     body = view[body_at:]
     if len(body) != body_bytes:
         raise fail(body_at, f"body is {len(body)} bytes, header says {body_bytes}")
@@ -157,17 +166,10 @@ def decode_upload(data: bytes, max_voxels: int | None = None) -> Snapshot:
 def upload_config(data: bytes) -> tuple[bool, dict[str, Any]]:
     """(whether it is a sparse world's snapshot, its configuration), from the header alone: the
     body is checked where the world is made (``sparse_upload``, ``decode_upload``)."""
-    view = memoryview(data)
-    head = len(SNAPSHOT_MAGIC) + _HEADER_LENGTH.size
-    if len(view) < head or bytes(view[:8]) != SNAPSHOT_MAGIC:
-        raise InvalidInput("uploaded snapshot: not an sdfserver snapshot (bad magic)")
-    (header_len,) = _HEADER_LENGTH.unpack_from(view, 8)
-    if header_len > MAX_HEADER_BYTES or head + header_len > len(view):
-        raise InvalidInput(f"uploaded snapshot: header length {header_len} is out of range")
+    header, _ = _read_header(memoryview(data), lambda at, reason: InvalidInput(f"uploaded snapshot: {reason}"))
     try:
-        header = json.loads(bytes(view[head:head + header_len]))
         return header["format"] == 2, dict(header["config"])
-    except (ValueError, KeyError, TypeError, RecursionError) as exc:
+    except (KeyError, TypeError, ValueError) as exc:
         raise InvalidInput(f"uploaded snapshot: bad header: {type(exc).__name__}") from None
 
 

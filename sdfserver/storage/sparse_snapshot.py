@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-BLOCK_CODES = 16 ** 3  # sparse/table.py's BLOCK_BRICKS cubed
+BLOCK_CODES_SIDE = 16  # sparse/table.py's BLOCK_BRICKS
+BLOCK_CODES = BLOCK_CODES_SIDE ** 3
 
 
 @dataclass
@@ -105,7 +106,8 @@ def check_upload(content: SparseContent, size: tuple[int, int, int], cap: int, f
             if block >= 0:
                 raise fail(f"block {list(key)} is uniform but names a stored brick")
             continue
-        if (grid.outside(key) & (codes >= 0)).any():  # uniform codes there are harmless: never read
+        beyond = grid.outside([k * BLOCK_CODES_SIDE for k in key], BLOCK_CODES_SIDE)
+        if (beyond & (codes >= 0)).any():  # uniform codes there are harmless: never read
             raise fail(f"block {list(key)} stores a brick beyond the world's side")
         np.add.at(named, codes[codes >= 0], 1)
     if (named != 1).any():  # two bricks sharing a slot would change together
@@ -124,7 +126,6 @@ def check_upload(content: SparseContent, size: tuple[int, int, int], cap: int, f
         _check_brick(content, grid, row, where, cap, fail)
 
 
-BLOCK_CODES_SIDE = 16
 AIR_CODE = -1
 SOLID_AIR_CODE = -2  # "solid of colour 0": not a brick any world holds
 OUTSIDE_CODE = -(1 << 20)  # a brick beyond the world's side, in a block that reaches past it
@@ -153,11 +154,13 @@ class _BrickGrid:
         block = self.content.blocks.get(key, AIR_CODE)
         return np.full((n, n, n), block, dtype=np.int64) if isinstance(block, int) else block.astype(np.int64)
 
-    def outside(self, key: tuple[int, int, int]) -> np.ndarray:
-        """(16, 16, 16) (z, y, x): which bricks of a block lie beyond the world's sides."""
-        n = BLOCK_CODES_SIDE
-        z, y, x = np.ogrid[key[2] * n:key[2] * n + n, key[1] * n:key[1] * n + n, key[0] * n:key[0] * n + n]
-        return np.broadcast_to((x >= self.bricks[0]) | (y >= self.bricks[1]) | (z >= self.bricks[2]), (n, n, n))
+    def outside(self, lo: list[int], side: int) -> np.ndarray:
+        """(side, side, side) (z, y, x): which bricks of the cube at brick ``lo`` lie beyond the
+        world's sides."""
+        z, y, x = np.ogrid[lo[2]:lo[2] + side, lo[1]:lo[1] + side, lo[0]:lo[0] + side]
+        beyond = ((x < 0) | (x >= self.bricks[0]) | (y < 0) | (y >= self.bricks[1]) | (z < 0)
+                  | (z >= self.bricks[2]))
+        return np.broadcast_to(beyond, (side, side, side))
 
     def codes_around(self, key: tuple[int, int, int]) -> np.ndarray:
         """(18, 18, 18) codes (z, y, x) of a block and the face layers of its six neighbours (the
@@ -175,10 +178,7 @@ class _BrickGrid:
                 index = [slice(1, -1)] * 3
                 index[2 - axis] = n + 1 if sign > 0 else 0
                 out[tuple(index)] = np.take(codes, 0 if sign > 0 else n - 1, axis=2 - axis)
-        lo = [k * n - 1 for k in key]
-        z, y, x = np.ogrid[lo[2]:lo[2] + n + 2, lo[1]:lo[1] + n + 2, lo[0]:lo[0] + n + 2]
-        outside = (x < 0) | (x >= self.bricks[0]) | (y < 0) | (y >= self.bricks[1]) | (z < 0) | (z >= self.bricks[2])
-        out[np.broadcast_to(outside, out.shape)] = OUTSIDE_CODE
+        out[self.outside([k * n - 1 for k in key], n + 2)] = OUTSIDE_CODE
         return out
 
     def stored_bricks(self):

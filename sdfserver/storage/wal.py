@@ -144,16 +144,21 @@ class Committer:
         GIL). ``fence``, asked after the sync, may refuse this file's records (its world moved
         to another engine): the future fails with what it returns, the other files go on."""
         future: Future = Future()
-        if not self.sync or self.inline:
-            if self.inline:
-                self.check()
-            error = (self._sync_one((fd, path)) if self.inline else None) or self._after_sync({fd: path})
+        if not self.sync:
+            problem = self._after_sync({fd: path})
+            if problem is not None:
+                future.set_exception(self.fail(*problem))
+            else:
+                _complete(future, fence() if fence is not None else None)
+            return future
+        if self.inline:
+            self.check()
+            error = self._sync_one((fd, path)) or self._after_sync({fd: path})
             if error is not None:
                 future.set_exception(self.fail(*error))
                 return future
-            if self.inline:
-                self.syncs += 1
-                self.records += 1
+            self.syncs += 1
+            self.records += 1
             _complete(future, fence() if fence is not None else None)
             return future
         with self._cond:
@@ -260,12 +265,12 @@ class WorldLog:
     """Appends to the newest segment of one world's log directory."""
 
     def __init__(self, directory: Path, committer: Committer, segment: Path, end: int, last_version: int,
-                 segment_limit: int = SEGMENT_LIMIT_BYTES, fence: Fence | None = None):
+                 segment_limit: int = SEGMENT_LIMIT_BYTES):
         self.directory = Path(directory)
         self.committer = committer
         self.segment_limit = segment_limit
         self.epoch = segment_epoch(segment)  # new segments carry it too
-        self.fence = fence
+        self.fence: Fence | None = None  # set by the world's store (WorldStore.check_fence)
         self._lock = threading.Lock()
         self._path = segment
         self._fd = os.open(segment, os.O_WRONLY | os.O_APPEND)

@@ -63,6 +63,11 @@ class Mailbox:
             return Update(self._version, chunks, ended)
 
     @property
+    def pending(self) -> bool:
+        """Something waits to be taken: chunks, or the news that no update follows."""
+        return bool(self._chunks) or self._ended is not None
+
+    @property
     def pending_chunks(self) -> int:
         return len(self._chunks)
 

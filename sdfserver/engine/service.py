@@ -307,7 +307,7 @@ class EngineService:
             return
         with self._credit_lock:
             self._credit[key] = True
-        if subscription.mailbox.pending_chunks:  # what merged meanwhile goes now
+        if subscription.mailbox.pending:  # what merged meanwhile goes now, or that it ended
             self.send(client, SubscriptionNews(m.subscription, subscription))
 
     def _admit(self, client: bytes, m: msg.Admit) -> None:

@@ -59,7 +59,8 @@ def move(server, world: str, engine: int, headers=ADMIN) -> httpx.Response:
 def random_batch(rng: np.random.Generator) -> list[dict]:
     colour = int(rng.integers(0, 256)) if rng.random() < 0.7 else 0  # some remove voxels
     lo = [int(rng.integers(-2, s)) for s in SIZE]
-    return [{"op": "box", "min": lo, "max": [v + int(rng.integers(1, 7)) for v in lo], "colour": colour}]
+    # always inside the world in part: a box clipped to nothing changes no chunk, so no stream frame follows it
+    return [{"op": "box", "min": lo, "max": [max(1, v + int(rng.integers(1, 7))) for v in lo], "colour": colour}]
 
 
 def field_of(server, world: str) -> np.ndarray:

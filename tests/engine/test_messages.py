@@ -120,6 +120,18 @@ def test_a_subscription_gets_the_current_chunks_then_the_changed_ones(served):
     assert not service.subscriptions
 
 
+def test_a_subscription_told_it_ended_while_its_update_is_unsent_hears_it_when_taken(served):
+    service, ask, outbox = served
+    world = ask(msg.CreateWorld(1, CONFIG)).result["id"]
+    assert ask(msg.Subscribe(2, world, 7, (0, 0, 0), (8, 8, 8), "distance")).failure is None
+    service.engine.subscriptions.drop_world(world, "moved to engine 1")  # its first update not yet taken
+    assert not [i for _, i in outbox.items if isinstance(i, msg.ChunkUpdate) and i.ended]
+    service.handle(b"api-1", msg.Taken(0, 7))
+    with outbox.arrived:
+        assert outbox.arrived.wait_for(
+            lambda: any(isinstance(i, msg.ChunkUpdate) and i.ended for _, i in outbox.items), 10)
+
+
 def test_an_answer_that_cannot_be_encoded_is_answered_with_its_failure():
     import numpy as np
 

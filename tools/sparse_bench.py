@@ -14,7 +14,7 @@ end of ``recompute`` (wall) with the recompute's kernel time (device, from profi
 the render kernel's device time, the frame's wall time and its pixels' SHA-256 (so that two
 builds can be shown to draw the same image); and windows around the brushes
 checked against scipy's taxicab transform (a window's oracle reads the window grown by the cap
-plus one, so it is exact). A dense 512^3 world (cap 31) takes the same brushes for comparison
+plus one, so it is exact); with ``--places``, the brush at its worst place (``time_places``). A dense 512^3 world (cap 31) takes the same brushes for comparison
 with dense worlds. A size that does not fit is reported as refused (507); sizes after it are
 skipped, as are sizes once ``--budget-s`` has passed. Everything goes to the JSON file
 ``--out``, a summary to stderr.
@@ -59,16 +59,20 @@ def summary(values: list[float]) -> dict:
             "max": ordered[-1], "n": len(ordered), "largest": ordered[-5:]}
 
 
+def surface_at(world, x: int, z: int) -> tuple[int, int, int] | None:
+    column = world.read_voxels(Box((x, 0, z), (x + 1, world.config.size[1], z + 1)))[0, :, 0]
+    solid = np.flatnonzero(column)
+    return (x, int(solid[-1]), z) if solid.size else None
+
+
 def surface_points(world, rng: np.random.Generator, count: int) -> list[tuple[int, int, int]]:
     """Random columns' highest solid voxel (read through the world's own reads)."""
-    sx, sy, sz = world.config.size
+    sx, _, sz = world.config.size
     points = []
     while len(points) < count:
-        x, z = int(rng.integers(64, sx - 64)), int(rng.integers(64, sz - 64))
-        column = world.read_voxels(Box((x, 0, z), (x + 1, sy, z + 1)))[0, :, 0]
-        solid = np.flatnonzero(column)
-        if solid.size:
-            points.append((x, int(solid[-1]), z))
+        point = surface_at(world, int(rng.integers(64, sx - 64)), int(rng.integers(64, sz - 64)))
+        if point is not None:
+            points.append(point)
     return points
 
 
@@ -92,6 +96,40 @@ def time_brushes(world, points) -> dict:
     # the first builds kernels; a brush that grew the pool copied a segment's bricks (reported apart)
     return {"wall_ms": summary(wall[1:]), "device_ms": summary(device[1:]),
             "pool_grew_at": grew, "wall_ms_without_growth": summary([w for i, w in enumerate(wall) if i and i not in grew])}
+
+
+def time_places(world, rng: np.random.Generator, places: int, repeats: int) -> dict:
+    """The brush at its worst place: ``repeats`` brushes (adding, then erasing, ...) at each of
+    ``places`` surface places, half of them on a corner where four brick columns meet (the most
+    bricks a radius-8 brush can touch); each place's median, and the worst of those medians. A
+    place's median is its cost; a single slow brush anywhere is a host stall, not a place."""
+    brick = world.config.chunk_size
+    sx, _, sz = world.config.size
+    found = []
+    while len(found) < places:
+        x, z = int(rng.integers(64, sx - 64)), int(rng.integers(64, sz - 64))
+        if len(found) % 2:
+            x, z = x // brick * brick, z // brick * brick
+        point = surface_at(world, x, z)
+        if point is not None:
+            found.append(point)
+    results = []
+    for x, y, z in found:
+        wall, device = [], []
+        for k in range(repeats):
+            edit = SphereEdit((float(x), float(y), float(z)), float(BRUSH_RADIUS), 0 if k % 2 else 0xE0)
+            start = time.perf_counter()
+            world.apply_edits([edit])
+            result = world.recompute()
+            wall.append((time.perf_counter() - start) * 1e3)
+            device.append(result.device_ms)
+        results.append({"place": [x, y, z], "on_corner": x % brick == 0 and z % brick == 0,
+                        "wall_ms": summary(wall[1:]), "device_ms": summary(device[1:])})
+    worst = max(results, key=lambda r: r["wall_ms"]["median"])
+    medians = sorted(r["wall_ms"]["median"] for r in results)
+    return {"repeats": repeats, "worst_place": worst["place"], "worst_median_ms": worst["wall_ms"]["median"],
+            "worst_p90_ms": worst["wall_ms"]["p90"], "worst_device_median_ms": worst["device_ms"]["median"],
+            "median_of_medians_ms": statistics.median(medians), "medians_ms": medians, "places": results}
 
 
 def check_windows(world, points, cap: int) -> dict:
@@ -160,10 +198,15 @@ def run_size(gpu, size, cap: int, args, rng, first: bool) -> dict:
             entry["brush"]["after_bytes_per_stored_voxel"] = world.bytes_per_stored_voxel
             log(f"    brush r{BRUSH_RADIUS}: wall {entry['brush']['wall_ms'].get('median', 0):.3f} ms, "
                 f"device {entry['brush']['device_ms'].get('median', 0):.3f} ms (median)")
+            if args.places:
+                entry["places"] = time_places(world, rng, args.places, args.repeats)
+                log(f"    worst of {args.places} places: median {entry['places']['worst_median_ms']:.3f} ms, "
+                    f"p90 {entry['places']['worst_p90_ms']:.3f} ms at {entry['places']['worst_place']}")
             entry["frames"] = time_frames(gpu, world, args.frames)
             for name, f in entry["frames"].items():
                 log(f"    frame {name}: device {f['device_ms']['median']:.3f} ms, wall {f['wall_ms']['median']:.3f} ms")
-            entry["check"] = check_windows(world, points[: args.check_windows], cap)
+            worst = [tuple(entry["places"]["worst_place"])] if args.places else []
+            entry["check"] = check_windows(world, points[: args.check_windows] + worst, cap)
             log(f"    scipy windows: {entry['check']}")
     finally:
         world.release()
@@ -191,6 +234,8 @@ def main() -> None:
     parser.add_argument("--brushes", type=int, default=50)
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--check-windows", type=int, default=4)
+    parser.add_argument("--places", type=int, default=0, help="places for the worst-place brush (0: none)")
+    parser.add_argument("--repeats", type=int, default=21, help="brushes at each place")
     parser.add_argument("--dense-side", type=int, default=512)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--budget-s", type=float, default=420.0, help="start no new size after this")

@@ -16,7 +16,9 @@ builds can be shown to draw the same image); and windows around the brushes
 checked against scipy's taxicab transform (a window's oracle reads the window grown by the cap
 plus one, so it is exact); with ``--places``, the brush at its worst place (``time_places``). A dense 512^3 world (cap 31) takes the same brushes for comparison
 with dense worlds. A size that does not fit is reported as refused (507); sizes after it are
-skipped, as are sizes once ``--budget-s`` has passed. Everything goes to the JSON file
+skipped, as are sizes once ``--budget-s`` has passed. The device is warmed up first as an engine
+warms it up before serving (``--no-warm-up``: brushes compile the kernels they first need, and
+``built_programs_at`` lists them). Everything goes to the JSON file
 ``--out``, a summary to stderr.
 """
 
@@ -34,6 +36,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_cdt
 
 from sdfserver.edits import SphereEdit
+from sdfserver.engine.lifetime import warm_up
 from sdfserver.errors import DeviceMemoryExceeded
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
@@ -82,10 +85,10 @@ def pool_shape(world) -> list[int]:
 
 
 def time_brushes(world, points) -> dict:
-    wall, device, grew = [], [], []
+    wall, device, grew, built = [], [], [], []
     for i, (x, y, z) in enumerate(points):
         edit = SphereEdit((float(x), float(y), float(z)), float(BRUSH_RADIUS), 0 if i % 2 else 0xE0)
-        segments = pool_shape(world)
+        segments, programs = pool_shape(world), len(world.gpu.programs)
         start = time.perf_counter()
         world.apply_edits([edit])
         result = world.recompute()
@@ -93,9 +96,13 @@ def time_brushes(world, points) -> dict:
         device.append(result.device_ms)
         if pool_shape(world) != segments:
             grew.append(i)
-    # the first builds kernels; a brush that grew the pool copied a segment's bricks (reported apart)
+        if len(world.gpu.programs) != programs:
+            built.append(i)
+    # the first may build kernels; a brush that grew the pool copied a segment's bricks, one that
+    # built a program compiled it (a server builds them all at warm-up): each reported apart
     return {"wall_ms": summary(wall[1:]), "device_ms": summary(device[1:]),
-            "pool_grew_at": grew, "wall_ms_without_growth": summary([w for i, w in enumerate(wall) if i and i not in grew])}
+            "pool_grew_at": grew, "built_programs_at": built,
+            "wall_ms_without_growth": summary([w for i, w in enumerate(wall) if i and i not in grew])}
 
 
 def time_places(world, rng: np.random.Generator, places: int, repeats: int) -> dict:
@@ -240,9 +247,13 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--budget-s", type=float, default=420.0, help="start no new size after this")
     parser.add_argument("--device", default=None)
+    parser.add_argument("--no-warm-up", dest="warm_up", action="store_false",
+                        help="skip the engine's warm-up: brushes then compile kernels as they first need them")
     args = parser.parse_args()
     started = time.perf_counter()
     gpu = GpuContext.create(args.device)
+    if args.warm_up:  # as an engine does before it serves: every exact variant a region can need
+        warm_up(gpu)
     rng = np.random.default_rng(args.seed)
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
     report = {"date": datetime.now(timezone.utc).isoformat(), "device": gpu.device_name,

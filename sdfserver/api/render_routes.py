@@ -11,8 +11,8 @@
   width, height, data, render_ms, field_ms, seq}`` whenever the view or the field changed,
   at most ``max_fps`` a second. Frames are rendered by the engine between steps (one field
   version each; a ``Render`` request carries the view as plain data), encoded here, in this
-  API process's thread pool, and wait in a single slot: a client that reads slowly gets the
-  newest frame, never a backlog.
+  API process's thread pool, while the engine renders the next, and wait in a single slot: a
+  client that reads slowly gets the newest frame, never a backlog.
 """
 
 from __future__ import annotations
@@ -107,7 +107,12 @@ async def pick(request: Request, world_id: str) -> Response:
 
 
 class FrameStream:
-    """One WebSocket client's frames: render -> encode -> single slot -> send."""
+    """One WebSocket client's frames: render -> encode -> single slot -> send.
+
+    Rendering and encoding are two stages that overlap: while one frame is encoded here, the
+    engine renders the next, so a frame costs the longer of the two, not their sum. One
+    rendered frame waits for the encoder at most (the renderer starts the next only once the
+    encoder has taken it); frames are paced on a fixed schedule of ``max_fps``."""
 
     def __init__(self, engine: Engines, world_id: str, send: Callable[[dict[str, Any]], Awaitable[None]],
                  access: Access | None = None):
@@ -118,6 +123,10 @@ class FrameStream:
         self.view: tuple | None = None  # (camera, options, format, quality, max_fps)
         self.view_serial = 0
         self.view_changed = asyncio.Event()
+        self.rendered: tuple | dict[str, Any] | None = None  # what waits for the encoder
+        self.rendered_filled = asyncio.Event()
+        self.encoder_free = asyncio.Event()
+        self.encoder_free.set()
         self.slot: dict[str, Any] | None = None
         self.slot_filled = asyncio.Event()
         self.seq = 0
@@ -135,7 +144,8 @@ class FrameStream:
         self.view_serial += 1
         self.view_changed.set()
         if not self._tasks:
-            self._tasks = [asyncio.create_task(self._produce()), asyncio.create_task(self._deliver())]
+            self._tasks = [asyncio.create_task(self._produce()), asyncio.create_task(self._encode()),
+                           asyncio.create_task(self._deliver())]
 
     async def close(self) -> None:
         for task in self._tasks:
@@ -148,34 +158,56 @@ class FrameStream:
     async def _produce(self) -> None:
         loop = asyncio.get_running_loop()
         last: tuple[int, int] | None = None
+        due = loop.time()
         while True:
-            started = loop.time()
+            await self.encoder_free.wait()  # until the encoder has taken the frame before this one
             serial, view = self.view_serial, self.view
             try:
                 unless = last[1] if last is not None and last[0] == serial else None
                 frame = await self.engine.render(self.world_id, view[1], unless, self.access)
             except SdfServerError as exc:  # the world was deleted, the device lost: say so, stop
-                self.slot = {"type": "error", "id": None, **body_for(exc)[1]}
-                self.slot_filled.set()
+                self._hand_over({"type": "error", "id": None, **body_for(exc)[1]})  # after the frame before
                 self._tasks = [t for t in self._tasks if t is not asyncio.current_task()]
                 return
             if frame is not None:
                 last = (serial, frame.field_version)
-                camera, _, fmt, quality, _ = view
+                self._hand_over((frame, view))
+            # At most max_fps frames a second, on a fixed schedule (a late frame does not push the
+            # later ones back); a new view wakes the loop early only after that.
+            period = 1.0 / view[4]
+            due = max(due + period, loop.time())
+            await asyncio.sleep(due - loop.time())
+            if frame is None:
+                self.view_changed.clear()
+                try:
+                    await asyncio.wait_for(self.view_changed.wait(), timeout=period)
+                except asyncio.TimeoutError:
+                    pass
+                due = loop.time()
+
+    def _hand_over(self, rendered: tuple | dict[str, Any]) -> None:
+        """To the encoder: a (frame, view), or an error message that follows it in order."""
+        self.encoder_free.clear()
+        self.rendered = rendered
+        self.rendered_filled.set()
+
+    async def _encode(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            await self.rendered_filled.wait()
+            self.rendered_filled.clear()
+            rendered, self.rendered = self.rendered, None
+            self.encoder_free.set()  # the engine may render the next frame while this one is encoded
+            if isinstance(rendered, dict):
+                self.slot = rendered
+            else:
+                frame, (camera, _, fmt, quality, _) = rendered
                 data = await loop.run_in_executor(encode_pool(), encode_frame, frame.pixels.numpy(), fmt, quality)
                 self.seq += 1
                 self.slot = {"type": "frame", "world": self.world_id, "version": frame.field_version,
                              "format": fmt, "width": camera.width, "height": camera.height, "data": data,
                              "render_ms": frame.device_ms, "field_ms": frame.field_ms, "seq": self.seq}
-                self.slot_filled.set()
-            # At most max_fps frames a second; a new view wakes the loop early only after that.
-            await asyncio.sleep(max(0.0, started + 1.0 / view[4] - loop.time()))
-            if frame is None:
-                self.view_changed.clear()
-                try:
-                    await asyncio.wait_for(self.view_changed.wait(), timeout=1.0 / view[4])
-                except asyncio.TimeoutError:
-                    pass
+            self.slot_filled.set()
 
     async def _deliver(self) -> None:
         while True:

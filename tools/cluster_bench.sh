@@ -7,13 +7,15 @@
 # On the GPU machine, after `source .whl/activate.sh` (with ray-site.tar.xz among the wheels,
 # ../shared/gpu/fetch-ray.sh), from the checkout's root:
 #   bash tools/cluster_bench.sh
-# K, C, DUR, SIZE, KILL_WORLDS, KILL_SIZE and WORKERS override 16 generators x 4 clients, 15 s,
-# 128^3 worlds, 10 worlds of 256^3 for the kill, 4 API processes; a CPU smoke run:
+# K, C, DUR, SIZE, KILL_WORLDS, KILL_SIZE, WORKERS and STAGGER override 16 generators x 4 clients,
+# 15 s, 128^3 worlds, 10 worlds of 256^3 for the kill, 4 API processes, 0.2 s between generators'
+# starts (64 clients over 64 worlds: K=64 C=1 STAGGER=0.02); a CPU smoke run:
 #   DEVICE= GPU=0 K=2 C=2 DUR=3 SIZE=32 KILL_WORLDS=2 KILL_SIZE=32 WORKERS=1 bash tools/cluster_bench.sh
 # Results: $OUT/cluster-*.json and a table on stdout.
 set -uo pipefail
 port=8767; K=${K:-16}; C=${C:-4}; DUR=${DUR:-15}; SIZE=${SIZE:-128}; WORKERS=${WORKERS:-4}
 KILL_WORLDS=${KILL_WORLDS:-10}; KILL_SIZE=${KILL_SIZE:-256}; DEVICE=${DEVICE-nvidia}; GPU=${GPU:-1}
+STAGGER=${STAGGER:-0.2}
 FINAL=${OUT:-/tmp/sdfserver-out}; mkdir -p "$FINAL"
 export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
 url=http://127.0.0.1:$port
@@ -41,7 +43,7 @@ measure() {  # measure TAG FLAGS...
     timeout $((DUR + 60)) $load --clients "$C" --duration "$DUR" --read-every 0 \
       --json "$FINAL/cluster-$tag-load$k.json" > /dev/null 2>&1 &
     pids+=($!)
-    sleep 0.2
+    sleep "$STAGGER"
   done
   wait "${pids[@]}"
   kill $server; wait $server 2>/dev/null

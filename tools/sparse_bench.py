@@ -14,8 +14,8 @@ end of ``recompute`` (wall) with the recompute's kernel time (device, from profi
 the render kernel's device time, the frame's wall time and its pixels' SHA-256 (so that two
 builds can be shown to draw the same image); and windows around the brushes
 checked against scipy's taxicab transform (a window's oracle reads the window grown by the cap
-plus one, so it is exact); with ``--places``, the brush at its worst place (``time_places``). A dense 512^3 world (cap 31) takes the same brushes for comparison
-with dense worlds. A size that does not fit is reported as refused (507); sizes after it are
+plus one, so it is exact); with ``--places``, the brush at its worst place (``time_places``).
+A dense 512^3 world (cap 31) takes the same brushes for comparison with dense worlds. A size that does not fit is reported as refused (507); sizes after it are
 skipped, as are sizes once ``--budget-s`` has passed. The device is warmed up first as an engine
 warms it up before serving (``--no-warm-up``: brushes compile the kernels they first need, and
 ``built_programs_at`` lists them). Everything goes to the JSON file
@@ -84,16 +84,23 @@ def pool_shape(world) -> list[int]:
     return [seg.capacity for seg in world.pool.segments] if hasattr(world, "pool") else []
 
 
+def time_brush(world, point: tuple[int, int, int], adding: bool) -> tuple[float, float]:
+    """One radius-8 sphere brush at ``point``, adding or erasing: (wall ms from ``apply_edits`` to
+    the end of ``recompute``, the recompute's kernel ms)."""
+    edit = SphereEdit(tuple(float(v) for v in point), float(BRUSH_RADIUS), 0xE0 if adding else 0)
+    start = time.perf_counter()
+    world.apply_edits([edit])
+    result = world.recompute()
+    return (time.perf_counter() - start) * 1e3, result.device_ms
+
+
 def time_brushes(world, points) -> dict:
     wall, device, grew, built = [], [], [], []
-    for i, (x, y, z) in enumerate(points):
-        edit = SphereEdit((float(x), float(y), float(z)), float(BRUSH_RADIUS), 0 if i % 2 else 0xE0)
+    for i, point in enumerate(points):
         segments, programs = pool_shape(world), len(world.gpu.programs)
-        start = time.perf_counter()
-        world.apply_edits([edit])
-        result = world.recompute()
-        wall.append((time.perf_counter() - start) * 1e3)
-        device.append(result.device_ms)
+        wall_ms, device_ms = time_brush(world, point, adding=i % 2 == 0)
+        wall.append(wall_ms)
+        device.append(device_ms)
         if pool_shape(world) != segments:
             grew.append(i)
         if len(world.gpu.programs) != programs:
@@ -122,14 +129,7 @@ def time_places(world, rng: np.random.Generator, places: int, repeats: int) -> d
             found.append(point)
     results = []
     for x, y, z in found:
-        wall, device = [], []
-        for k in range(repeats):
-            edit = SphereEdit((float(x), float(y), float(z)), float(BRUSH_RADIUS), 0 if k % 2 else 0xE0)
-            start = time.perf_counter()
-            world.apply_edits([edit])
-            result = world.recompute()
-            wall.append((time.perf_counter() - start) * 1e3)
-            device.append(result.device_ms)
+        wall, device = zip(*(time_brush(world, (x, y, z), adding=k % 2 == 0) for k in range(repeats)))
         results.append({"place": [x, y, z], "on_corner": x % brick == 0 and z % brick == 0,
                         "wall_ms": summary(wall[1:]), "device_ms": summary(device[1:])})
     worst = max(results, key=lambda r: r["wall_ms"]["median"])

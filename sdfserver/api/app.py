@@ -20,7 +20,7 @@ from fastapi.openapi.utils import get_openapi
 from prometheus_client import CollectorRegistry
 
 from sdfserver import __version__
-from sdfserver.api import auth, errors, health, models, render_routes, routes, stream, transfer
+from sdfserver.api import auth, bodies, errors, health, models, render_routes, routes, stream, transfer
 from sdfserver.api.engine_client import BaseClient, LocalEngineClient
 from sdfserver.api.engines import Engines, LocalPlacement
 from sdfserver.api.gcpauses import GcPauses, freeze_startup_objects
@@ -192,7 +192,7 @@ def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[Base
             schema = get_openapi(title=app.title, version=app.version, description=app.description,
                                  routes=app.routes)
             schema.setdefault("components", {}).setdefault("schemas", {}).update(models.SCHEMAS)
-            app.openapi_schema = errors.document(schema)
+            app.openapi_schema = errors.document(bodies.document_answers(schema))
         return app.openapi_schema
 
     app.openapi = openapi

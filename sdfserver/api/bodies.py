@@ -4,9 +4,10 @@ Requests: ``Content-Type: application/json`` (the default) or
 ``application/msgpack``; a body over ``max_request_bytes`` is refused with 413
 before it is read in full. JSON must not contain NaN or Infinity.
 
-Responses: ``Accept: application/msgpack`` gets msgpack with arrays as blobs;
-otherwise JSON, where arrays are nested lists (small answers) — field and
-voxel reads choose their own formats (see routes.py).
+Responses: ``Accept: application/msgpack`` (or, with no Accept naming either, a
+msgpack request body) gets msgpack with arrays as blobs; otherwise JSON, where
+arrays are nested lists (small answers) — field and voxel reads choose their own
+formats (see routes.py). ``document_answers`` says so in the OpenAPI schema.
 """
 
 from __future__ import annotations
@@ -103,6 +104,21 @@ def wants_msgpack(request: Request) -> bool:
     if JSON in accept:
         return False
     return media_type(header(request, b"content-type")) == MSGPACK
+
+
+def document_answers(schema: dict[str, Any]) -> dict[str, Any]:
+    """Every ``/v1`` success answer documented as JSON can come as msgpack instead (``respond``
+    and the array reads negotiate it): add msgpack, with the same schema, to the OpenAPI schema
+    (in place)."""
+    for path, operations in schema.get("paths", {}).items():
+        if not path.startswith("/v1/"):
+            continue
+        for operation in operations.values():
+            for status, response in operation.get("responses", {}).items():
+                content = response.get("content", {})
+                if status.startswith("2") and JSON in content:
+                    content.setdefault(MSGPACK, content[JSON])
+    return schema
 
 
 def _jsonable(value: Any) -> Any:

@@ -212,7 +212,8 @@ def _array_response(request: Request, result: Any, dtype: str) -> Response:
     return response
 
 
-@router.get("/worlds/{world_id}/field", summary="Read the field of a box (max exclusive)")
+@router.get("/worlds/{world_id}/field", summary="Read the field of a box (max exclusive)",
+            responses={200: {"content": {OCTET: {}}}})
 async def read_field(request: Request, world_id: str,
                      min: str | None = Query(None, description="x,y,z (inclusive); default 0,0,0"),
                      max: str | None = Query(None, description="x,y,z (exclusive); default the world size"),
@@ -230,7 +231,8 @@ async def field_response(request: Request, world_id: str, box: Box | None, forma
     return _array_response(request, result, "uint8" if format == "distance" else "uint16")
 
 
-@router.get("/worlds/{world_id}/voxels", summary="Read the voxels of a box (max exclusive)")
+@router.get("/worlds/{world_id}/voxels", summary="Read the voxels of a box (max exclusive)",
+            responses={200: {"content": {OCTET: {}}}})
 async def read_voxels(request: Request, world_id: str,
                       min: str | None = Query(None, description="x,y,z (inclusive)"),
                       max: str | None = Query(None, description="x,y,z (exclusive)"),

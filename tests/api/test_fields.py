@@ -148,3 +148,19 @@ def test_openapi_and_health(server):
     # The server process froze its start-up objects (tens of thousands) out of the collector.
     frozen = re.search(r"^sdfserver_gc_frozen_objects (\S+)$", metrics, re.M)
     assert frozen and float(frozen.group(1)) > 10_000
+
+
+def test_every_answer_type_the_server_negotiates_is_in_its_openapi(server):
+    """A msgpack request without an Accept header is answered in msgpack, and a read with no
+    Accept header too: the schema documents both, as schemathesis checks (tests/durability)."""
+    paths = server.http.get("/openapi.json").json()["paths"]
+    r = server.http.post("/v1/worlds", content=wire.encode({"size": [16, 16, 16], "chunk_size": 8}),
+                         headers={"content-type": wire.CONTENT_TYPE})
+    assert r.status_code == 201 and r.headers["content-type"] == wire.CONTENT_TYPE
+    assert wire.CONTENT_TYPE in paths["/v1/worlds"]["post"]["responses"]["201"]["content"]
+    world = wire.decode(r.content)["id"]
+    for accept in (None, "application/octet-stream", "application/json"):
+        read = server.http.get(f"/v1/worlds/{world}/field", headers={"accept": accept} if accept else {})
+        assert read.status_code == 200
+        documented = paths["/v1/worlds/{world_id}/field"]["get"]["responses"]["200"]["content"]
+        assert read.headers["content-type"].split(";")[0] in documented, (accept, read.headers["content-type"])

@@ -12,6 +12,9 @@ from sdfserver.world_config import WorldConfig
 # whole chunk mask lets go of the GIL and, with other busy threads, waits up to a switch interval
 # to get it back, several times a step.
 SMALL_DIRTY_CHUNKS = 4096
+# From this many boxes a step's regions are grown on arrays: a few numpy calls cost less than
+# the plain-int loop over that many boxes.
+VECTOR_BOXES = 8
 
 
 class DirtySet:
@@ -43,6 +46,8 @@ class DirtySet:
             cap = 0  # each chunk is computed alone: an edit changes only the chunks it touches
         # In plain ints (b.grow(cap).snap(cs).intersect(world) made three Boxes an edit). Under a
         # large cap many edits grow to the same region: merge each once.
+        if len(self.boxes) >= VECTOR_BOXES:
+            return merge_regions(self._grown_vectorized(cap, cs, config.size), max_regions)
         grown = {}
         for b in self.boxes:
             (x0, y0, z0), (x1, y1, z1) = b.lo, b.hi
@@ -51,6 +56,15 @@ class DirtySet:
                   max(lo[2], min(sz, -(-(z1 + cap) // cs) * cs)))
             grown[lo, hi] = None
         return merge_regions((Box(lo, hi) for lo, hi in grown), max_regions)
+
+    def _grown_vectorized(self, cap: int, cs: int, size: tuple[int, int, int]) -> list[Box]:
+        """The boxes grown by ``cap``, snapped to chunks and clipped, each region once: the same
+        sums as the loop in ``regions``, on arrays (a step of many brushes)."""
+        corners = np.array([b.lo + b.hi for b in self.boxes], dtype=np.int64)
+        lo = np.maximum(0, (corners[:, :3] - cap) // cs * cs)
+        hi = np.maximum(lo, np.minimum(np.asarray(size, dtype=np.int64), -(-(corners[:, 3:] + cap) // cs) * cs))
+        rows = dict.fromkeys(map(tuple, np.concatenate([lo, hi], axis=1).tolist()))
+        return [Box(row[:3], row[3:]) for row in rows]
 
     def chunk_count(self, config: WorldConfig) -> int:
         if self.all:

@@ -69,6 +69,8 @@ Edit = Union[VoxelsEdit, BoxEdit, SphereEdit]
 
 
 def _colour(value: Any, where: str) -> int:
+    if type(value) is int and 0 <= value <= 255:  # the common case, no ABC checks
+        return value
     if isinstance(value, bool) or not isinstance(value, Integral):
         raise InvalidEdit(f"{where}: colour must be an integer 0..255, got {value!r}")
     if not 0 <= int(value) <= 255:
@@ -79,6 +81,10 @@ def _colour(value: Any, where: str) -> int:
 def _int3(value: Any, where: str) -> Vec3:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
         raise InvalidEdit(f"{where}: expected three integers [x, y, z], got {incoming.short(value)}")
+    x, y, z = value
+    if type(x) is int and type(y) is int and type(z) is int and (  # the common case, no ABC checks
+            INT64_MIN <= x <= INT64_MAX and INT64_MIN <= y <= INT64_MAX and INT64_MIN <= z <= INT64_MAX):
+        return x, y, z
     for v in value:
         if isinstance(v, bool) or not isinstance(v, Integral):
             raise InvalidEdit(f"{where}: expected integers, got {incoming.short(v)}")
@@ -170,14 +176,14 @@ def validate_batch(edits: list[Edit], dims: Vec3, limits: EditLimits) -> None:
                     f"edits[{i}]: radius must be 0..{limits.max_brush_radius_vox:g}, got {e.radius:g}"
                 )
             _check_colour(e.colour, i)
-            _check_coordinates(e.center, limits, f"edits[{i}].center")
+            _check_coordinates(e.center, limits, i, "center")
         elif kind is BoxEdit:
             (x0, y0, z0), (x1, y1, z1) = e.min, e.max
             if x0 > x1 or y0 > y1 or z0 > z1:
                 raise InvalidEdit(f"edits[{i}]: box min {list(e.min)} exceeds max {list(e.max)}")
             _check_colour(e.colour, i)
-            _check_coordinates(e.min, limits, f"edits[{i}].min")
-            _check_coordinates(e.max, limits, f"edits[{i}].max")
+            _check_coordinates(e.min, limits, i, "min")
+            _check_coordinates(e.max, limits, i, "max")
         elif kind is VoxelsEdit:
             where = f"edits[{i}]"
             if len(e.voxels) == 0:
@@ -195,11 +201,11 @@ def validate_batch(edits: list[Edit], dims: Vec3, limits: EditLimits) -> None:
             raise InvalidEdit(f"edits[{i}]: not an edit: {e!r}")
 
 
-def _check_coordinates(values: tuple, limits: EditLimits, where: str) -> None:
+def _check_coordinates(values: tuple, limits: EditLimits, index: int, field: str) -> None:
     bound = limits.max_coordinate_vox
     if not (-bound - 1 <= values[0] <= bound and -bound - 1 <= values[1] <= bound
             and -bound - 1 <= values[2] <= bound):
-        raise InvalidEdit(f"{where}: {list(values)} is out of range (coordinates are "
+        raise InvalidEdit(f"edits[{index}].{field}: {list(values)} is out of range (coordinates are "
                           f"{-bound - 1:.0f}..{bound:.0f})")
 
 

@@ -55,10 +55,9 @@ class Box:
         return Box(lo, hi)
 
     def union(self, other: "Box") -> "Box":
-        return Box(
-            tuple(min(a, b) for a, b in zip(self.lo, other.lo)),
-            tuple(max(a, b) for a, b in zip(self.hi, other.hi)),
-        )
+        (ax0, ay0, az0), (ax1, ay1, az1) = self.lo, self.hi
+        (bx0, by0, bz0), (bx1, by1, bz1) = other.lo, other.hi
+        return Box((min(ax0, bx0), min(ay0, by0), min(az0, bz0)), (max(ax1, bx1), max(ay1, by1), max(az1, bz1)))
 
     def overlaps(self, other: "Box") -> bool:
         return not self.intersect(other).empty
@@ -109,7 +108,7 @@ def merge_regions(boxes: Iterable[Box], max_regions: int = 32) -> list[Box]:
         result: list[Box] = []
         for box in pending:
             for i, other in enumerate(result):
-                if box.grow(1).overlaps(other):
+                if touch(box, other):
                     result[i] = other.union(box)
                     merged = True
                     break
@@ -117,3 +116,11 @@ def merge_regions(boxes: Iterable[Box], max_regions: int = 32) -> list[Box]:
                 result.append(box)
         pending = result
     return pending
+
+
+def touch(a: Box, b: Box) -> bool:
+    """Whether two non-empty boxes overlap or share a face (``a.grow(1).overlaps(b)``), in
+    plain ints: ``merge_regions`` asks it for every pair of a step's regions."""
+    (ax0, ay0, az0), (ax1, ay1, az1) = a.lo, a.hi
+    (bx0, by0, bz0), (bx1, by1, bz1) = b.lo, b.hi
+    return ax1 >= bx0 and bx1 >= ax0 and ay1 >= by0 and by1 >= ay0 and az1 >= bz0 and bz1 >= az0

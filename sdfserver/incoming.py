@@ -19,6 +19,11 @@ def short(value: Any) -> str:
 def finite(value: Any, where: str, error: type[InvalidInput] = InvalidInput) -> float:
     """``value`` as a finite float; ``error`` for anything else, an integer too large for a
     float included (``float()`` would raise OverflowError on it)."""
+    kind = type(value)
+    if kind is float:  # the common case, without the ABC check
+        if value - value == 0.0:  # neither inf nor NaN
+            return value
+        raise error(f"{where} must be a finite number, got {short(value)}")
     if isinstance(value, bool) or not isinstance(value, Real):
         raise error(f"{where} must be a finite number, got {short(value)}")
     try:

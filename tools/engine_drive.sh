@@ -4,7 +4,8 @@
 # summarized thread by thread (tools/profile_threads.py).
 # Usage on the GPU machine, from the project root:
 #   source .whl/activate.sh; bash tools/engine_drive.sh ["1 16 64 128"] [serve flags...]
-# DEVICE, SIZE, DUR override the device (nvidia), the world's side (256), each run's seconds (5).
+# DEVICE, SIZE, DUR override the device (nvidia), the world's side (256), each run's seconds (5);
+# PROFILE="" skips the profiles.
 # Results: $OUT/engine-drive/ (each run's JSON and log, the profile) and a table on stdout.
 set -uo pipefail
 export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD:${PYTHONPATH:-}
@@ -18,7 +19,7 @@ drive() {  # name clients seconds [serve flags]
     --json "$out/$name.json" -- ${device:+--device "$device"} "$@" > "$out/$name.log" 2>&1
 }
 for c in $counts; do drive "clients-$c" "$c" "$dur" "$@"; done
-for mode in idle gil; do  # waits included; then only samples holding the GIL
+for mode in ${PROFILE-idle gil}; do  # waits included; then only samples holding the GIL
   drive "profiled-$mode-64" 64 10 "$@" &
   driver=$!; pid=
   for _ in $(seq 240); do pid=$(grep -o 'engine process [0-9]*' "$out/profiled-$mode-64.log" 2>/dev/null | cut -d' ' -f3)
@@ -36,4 +37,4 @@ for path in sorted(pathlib.Path(sys.argv[1]).glob("*.json"), key=lambda p: (len(
     print(f"| {path.stem} | {r['batches_per_s']:,.0f} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | "
           f"{r['batches_per_step'] or 0:.1f} | {r['engine_cpu_us_per_batch']:.0f} | {ph.get('apply', 0):.2f} / {ph.get('recompute', 0):.2f} |")
 PY
-python3 tools/profile_threads.py "$out"/profile-idle-64.txt "$out"/profile-gil-64.txt --cpu "$out/clients-64.json"
+[ -n "${PROFILE-x}" ] && python3 tools/profile_threads.py "$out"/profile-idle-64.txt "$out"/profile-gil-64.txt --cpu "$out/clients-64.json"

@@ -5,7 +5,8 @@
 # Usage on the GPU machine, from the project root:
 #   source .whl/activate.sh; bash tools/engine_limit.sh "default" "nosync --no-sync" "nopersist --no-persist"
 # Each argument is a row: its name, then `sdfserver serve` flags. DEVICE, SIZE, DUR override the
-# device (nvidia), the world's side (256) and the 64-client run's seconds (12); a CPU smoke run:
+# device (nvidia), the world's side (256) and the 64-client run's seconds (12), PROCS the load
+# generator's processes for the 64 clients (8); a CPU smoke run:
 #   DEVICE= SIZE=32 DUR=3 bash tools/engine_limit.sh default
 # Results: $OUT/engine-limit/ (each run's JSON, metrics and server log) and a table on stdout.
 set -uo pipefail
@@ -23,7 +24,7 @@ for row in "$@"; do
   server=$!
   for _ in $(seq 480); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
   timeout 30 $load --clients 1 --duration 6 --read-every 1 --read-size 16 --json "$out/$name-rtt.json" > /dev/null 2>&1
-  timeout $((dur + 30)) $load --clients 64 --processes 8 --duration "$dur" --read-every 0 \
+  timeout $((dur + 30)) $load --clients 64 --processes "${PROCS:-8}" --duration "$dur" --read-every 0 \
     --json "$out/$name-64.json" > /dev/null 2>&1
   curl -s http://127.0.0.1:$port/metrics > "$out/$name-metrics.txt"
   kill $server; wait $server 2>/dev/null

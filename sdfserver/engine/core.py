@@ -53,6 +53,7 @@ from sdfserver.engine.moves import Moves
 from sdfserver.engine.reads import Reads
 from sdfserver.engine.stepclock import StepClock
 from sdfserver.engine.subscriptions import Subscriptions
+from sdfserver.engine.tickets import OnDone, Ticket
 from sdfserver.engine.worlds import WorldTable, new_world_id, world_config_dict
 from sdfserver.errors import DeviceMemoryExceeded, NotReady
 from sdfserver.gpu import GpuContext
@@ -116,9 +117,10 @@ class Engine(EngineLifetime, CommandCalls):
 
     # -- submitting (any thread) ----------------------------------------------------------------
 
-    def submit(self, command: Any) -> Future:
-        """Queue a command; its result arrives in the returned Future."""
-        future = Future()
+    def submit(self, command: Any, on_done: OnDone | None = None) -> Future | Ticket:
+        """Queue a command; its result arrives in the returned Future, or with ``on_done``
+        given, in a call ``on_done(result, error)`` on the thread that completes it (a Ticket)."""
+        future = Future() if on_done is None else Ticket(on_done)
         if self._refuse_if_failed(future):
             return future
         self._commands.put((command, future))

@@ -110,21 +110,18 @@ class EngineService:
 
     def _submit(self, client: bytes, request_id: int, command: Any,
                 convert: Callable[[Any], Any] = lambda r: r) -> None:
-        future = self.engine.submit(command)
-
-        def done(future: Future) -> None:
-            exc = future.exception()
+        def done(result: Any, exc: BaseException | None) -> None:
             if exc is not None:
                 self._reply(client, request_id, failure=exc)
                 return
             try:
-                result = convert(future.result())
+                result = convert(result)
             except Exception as exc:
                 self._reply(client, request_id, failure=exc)
             else:
                 self._reply(client, request_id, result)
 
-        future.add_done_callback(done)
+        self.engine.submit(command, on_done=done)
 
     # -- the handlers -------------------------------------------------------------------------
 

@@ -58,11 +58,12 @@ class Settings(BaseSettings):
                                                             "for; a fraction shares a GPU (0: CPU devices).")
     access_log: bool = Field(False, description="Log every HTTP request (costs throughput).")
     switch_interval_ms: float = Field(
-        0.5, gt=0, le=100, description="Longest another thread of an engine process (its input or output "
-                                       "thread, the log writer) keeps Python's GIL while the engine thread waits "
-                                       "for it (sys.setswitchinterval), in milliseconds. Each time the engine "
-                                       "blocks on the device or the disk it waits up to this long to go on; "
-                                       "Python's default is 5.")
+        0.1, gt=0, le=100, description="Longest a thread of an engine process keeps Python's GIL while another "
+                                       "waits for it (sys.setswitchinterval), in milliseconds. Every socket read "
+                                       "or write of the input and output threads, every log sync of the log "
+                                       "writer and every device wait of the engine thread lets go of the GIL, "
+                                       "and each may then wait up to this long to get it back; Python's default "
+                                       "is 5.")
     max_request_bytes: int = Field(
         16 << 20, ge=1024, description="Largest request body or WebSocket frame, in bytes (413 above it); an "
                                        "import (POST /v1/worlds/import) may carry this many voxels plus its "

@@ -9,7 +9,8 @@ threads, from /proc) and the engine's own counters (steps, batches a step, step 
 
     python tools/engine_drive.py --size 64 --clients 64 --duration 5 -- --device intel --no-persist
 
-Everything after ``--`` is ``sdfserver serve`` flags. ``--json`` writes the figures.
+Everything after ``--`` is ``sdfserver serve`` flags. ``--json`` writes the figures; ``--trace FILE``
+adds where each batch's time went inside the engine process (``tools/engine_trace.py``).
 """
 
 from __future__ import annotations
@@ -133,6 +134,8 @@ def main() -> int:
     parser.add_argument("--warm-up", type=float, default=1.0)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--json")
+    parser.add_argument("--trace", help="write where each batch's time went in the engine process here "
+                                        "(tools/engine_trace.py) and add its summary to the figures")
     parser.add_argument("serve_flags", nargs="*", help="sdfserver serve flags (after --)")
     args = parser.parse_args()
     run_dir = tempfile.mkdtemp(prefix="sdfserver-drive-")
@@ -140,6 +143,10 @@ def main() -> int:
     if "--data-dir" not in flags:
         flags += ["--data-dir", os.path.join(run_dir, "data")]
     settings = settings_from(flags)
+    if args.trace:
+        import engine_trace
+
+        engine_trace.install(args.trace)
     address = EngineAddress(0, settings.device, f"ipc://{run_dir}/in", f"ipc://{run_dir}/out")
     context = multiprocessing.get_context("fork")
     receiver, sender = context.Pipe(duplex=False)
@@ -160,6 +167,10 @@ def main() -> int:
         engine.terminate()
         engine.join(10)
         shutil.rmtree(run_dir, ignore_errors=True)
+    if args.trace:  # written by the engine process as it stopped
+        import engine_trace
+
+        result["in_engine"] = engine_trace.summarize(args.trace, since_s=args.warm_up)
     print(json.dumps(result, indent=1))
     if args.json:
         with open(args.json, "w") as out:

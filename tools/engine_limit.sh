@@ -6,9 +6,12 @@
 #   source .whl/activate.sh; bash tools/engine_limit.sh "default" "nosync --no-sync" "nopersist --no-persist"
 # Each argument is a row: its name, then `sdfserver serve` flags. DEVICE, SIZE, DUR override the
 # device (nvidia), the world's side (256) and the 64-client run's seconds (12), PROCS the load
-# generator's processes for the 64 clients (8); a CPU smoke run:
+# generator's processes for the 64 clients (8), RATE adds a run at that many batches a second,
+# SERVER_TREE runs another checkout's server (an A/B: same load generator); a CPU smoke run:
 #   DEVICE= SIZE=32 DUR=3 bash tools/engine_limit.sh default
-# Results: $OUT/engine-limit/ (each run's JSON, metrics and server log) and a table on stdout.
+# Results: $OUT/engine-limit/ (each run's JSON, metrics and server log), a table on stdout and, for
+# each row, where the 64 clients' CPU went (tools/cpu_use.py); TRACE=1 adds where their batches'
+# time went inside the engine process (tools/engine_trace.py).
 set -uo pipefail
 export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD:${PYTHONPATH:-}
 out=${OUT:-/tmp/sdfserver-out}/engine-limit; mkdir -p "$out"
@@ -19,22 +22,35 @@ for row in "$@"; do
   read -r name flags <<< "$row"
   rm -rf /tmp/sdfserver-limit-data
   # shellcheck disable=SC2086  # the flags are words
-  python3 -m sdfserver serve ${device:+--device "$device"} --port $port --data-dir /tmp/sdfserver-limit-data \
-    $flags > "$out/$name-server.log" 2>&1 &
+  serve=(-m sdfserver serve)  # TRACE=1: the engine process traced (tools/engine_trace.py)
+  [ -n "${TRACE:-}" ] && serve=(-c "import sys; sys.path.insert(0, 'tools'); import engine_trace; \
+engine_trace.install('$out/$name-trace.json'); from sdfserver.api.server import main; raise SystemExit(main())")
+  # SERVER_TREE: another checkout's server (an A/B), driven by this checkout's load generator
+  (cd "${SERVER_TREE:-.}" && PYTHONPATH=$PWD:$PYTHONPATH exec python3 "${serve[@]}" ${device:+--device "$device"} \
+    --port $port --data-dir /tmp/sdfserver-limit-data $flags) > "$out/$name-server.log" 2>&1 &
   server=$!
   for _ in $(seq 480); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
   timeout 30 $load --clients 1 --duration 6 --read-every 1 --read-size 16 --json "$out/$name-rtt.json" > /dev/null 2>&1
+  python3 tools/cpu_use.py snap $server > "$out/$name-cpu-before.json"
+  loaded_at=$(python3 -c "import time; print(time.perf_counter())")
   timeout $((dur + 30)) $load --clients 64 --processes "${PROCS:-8}" --duration "$dur" --read-every 0 \
     --json "$out/$name-64.json" > /dev/null 2>&1
+  python3 tools/cpu_use.py snap $server > "$out/$name-cpu-after.json"
   curl -s http://127.0.0.1:$port/metrics > "$out/$name-metrics.txt"
+  [ -n "${RATE:-}" ] && timeout $((dur + 30)) $load --clients 64 --processes "${PROCS:-8}" --duration "$dur" \
+    --rate "$RATE" --read-every 0 --json "$out/$name-rate.json" > /dev/null 2>&1
   kill $server; wait $server 2>/dev/null
+  [ -n "${TRACE:-}" ] && python3 tools/engine_trace.py "$out/$name-trace.json" "$loaded_at" \
+    > "$out/$name-in-engine.json"  # written by the engine process as it stopped
 done
 
 python3 - "$out" "$@" <<'PY'
-import json, re, sys
+import json, os, re, sys
 out, rows = sys.argv[1], [r.split()[0] for r in sys.argv[2:]]
-print("| row | lone round trip p50 | 64 clients: batches/s, p99 | steps | batches a step | in steps (s): apply / recompute / serve |")
-print("| --- | --- | --- | ---: | ---: | --- |")
+rate = os.environ.get("RATE")
+print("| row | lone round trip p50 | 64 clients: batches/s, p99 |" + (f" a set {rate}/s: p99 |" if rate else "")
+      + " steps | batches a step | in steps (s): apply / recompute / serve |")
+print("| --- | --- | --- |" + (" --- |" if rate else "") + " ---: | ---: | --- |")
 for name in rows:
     try:
         full, rtt = (json.load(open(f"{out}/{name}-{k}.json")) for k in ("64", "rtt"))
@@ -47,6 +63,21 @@ for name in rows:
     steps, batches = total(r"\nsdfserver_engine_steps_total"), total(r"\nsdfserver_edit_batches_total")
     phase = dict(re.findall(r'sdfserver_engine_phase_seconds_total\{phase="([a-z_]+)"\}\s+([0-9.e+-]+)', metrics))
     phases = " / ".join(f"{float(phase.get(p, 0)):.2f}" for p in ("apply", "recompute", "serve"))
+    at_rate = ""
+    if rate:
+        try:
+            at_rate = f" {json.load(open(f'{out}/{name}-rate.json'))['edits']['latency_ms']['p99']:.1f} ms |"
+        except (OSError, ValueError, KeyError) as exc:
+            at_rate = f" failed: {exc} |"
     print(f"| {name} | {rtt['round_trips']['latency_ms']['p50']:.2f} ms | {full['throughput_rps']:,.0f}, "
-          f"{full['edits']['latency_ms']['p99']:.1f} ms | {steps:,.0f} | {batches / max(steps, 1):.1f} | {phases} |")
+          f"{full['edits']['latency_ms']['p99']:.1f} ms |{at_rate} {steps:,.0f} | {batches / max(steps, 1):.1f} | {phases} |")
 PY
+for row in "$@"; do  # where the 64 clients' CPU went (the load generator's own: client_cpu_us_per_request)
+  read -r name _ <<< "$row"
+  requests=$(python3 -c "import json; print(json.load(open('$out/$name-64.json'))['requests'])" 2>/dev/null || echo 0)
+  echo "$name, 64 clients:"
+  [ -f "$out/$name-in-engine.json" ] && python3 -c "import json; [print(f'  {k}: p50 {v[\"p50_ms\"]} ms, p90 \
+{v[\"p90_ms\"]} ms') for k, v in json.load(open('$out/$name-in-engine.json')).items()]"
+  python3 tools/cpu_use.py diff "$out/$name-cpu-before.json" "$out/$name-cpu-after.json" \
+    --requests "$requests" 2>/dev/null | sed 's/^/  /'
+done

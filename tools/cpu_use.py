@@ -1,0 +1,79 @@
+"""Where a load's CPU went: the host's busy share and the server's processes' CPU seconds.
+
+    python tools/cpu_use.py snap SERVER_PID > before.json
+    ... the load ...
+    python tools/cpu_use.py snap SERVER_PID > after.json
+    python tools/cpu_use.py diff before.json after.json [--requests N]
+
+``snap`` records /proc/stat's totals and the CPU seconds of the server (the launcher), its
+first child (the engine process, with one engine) and its other children (the API processes).
+``diff`` prints the host's busy share over the interval, each part's cores, and with
+``--requests`` each part's CPU per request.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+TICK = os.sysconf("SC_CLK_TCK")
+
+
+def cpu_s(pid: int) -> float:
+    try:
+        fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / TICK
+
+
+def children(pid: int) -> list[int]:
+    try:
+        return [int(c) for c in open(f"/proc/{pid}/task/{pid}/children").read().split()]
+    except OSError:
+        return []
+
+
+def snap(pid: int) -> dict:
+    cpu = open("/proc/stat").readline().split()[1:]
+    values = [int(v) for v in cpu]
+    idle = values[3] + values[4]  # idle + iowait
+    kids = children(pid)
+    return {"at": time.monotonic(), "host_busy_s": (sum(values[:8]) - idle) / TICK, "host_total_s": sum(values[:8]) / TICK,
+            "cpus": os.cpu_count(), "launcher_s": cpu_s(pid), "engine_s": cpu_s(kids[0]) if kids else 0.0,
+            "api_s": sum(cpu_s(k) for k in kids[1:])}
+
+
+def diff(before: dict, after: dict, requests: int) -> None:
+    wall = after["at"] - before["at"]
+    busy = after["host_busy_s"] - before["host_busy_s"]
+    total = after["host_total_s"] - before["host_total_s"]
+    print(f"host: {busy / total:.0%} busy of {after['cpus']} CPUs over {wall:.1f} s ({busy / wall:.1f} CPUs)")
+    for part in ("engine", "api", "launcher"):
+        used = after[f"{part}_s"] - before[f"{part}_s"]
+        per = f", {used / requests * 1e6:.0f} µs a request" if requests else ""
+        print(f"{part}: {used / wall:.2f} CPUs{per}")
+    if requests:
+        print(f"host, all processes: {busy / requests * 1e6:.0f} µs a request")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("snap").add_argument("pid", type=int)
+    d = sub.add_parser("diff")
+    d.add_argument("before")
+    d.add_argument("after")
+    d.add_argument("--requests", type=int, default=0)
+    args = parser.parse_args()
+    if args.command == "snap":
+        json.dump(snap(args.pid), sys.stdout)
+    else:
+        diff(json.load(open(args.before)), json.load(open(args.after)), args.requests)
+
+
+if __name__ == "__main__":
+    main()

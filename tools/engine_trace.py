@@ -1,0 +1,113 @@
+"""Where an edit batch's time goes inside the engine process, for ``engine_drive.py --trace``.
+
+``install(path)`` wraps, in the process that will fork the engine, the points an edit batch
+passes: the service taking the request from the input thread (``EngineService._apply``), each
+engine step's start and the end of its apply phase (``Engine.step``, ``BatchPipeline.run``), the
+reply being handed to the output side (``EngineService._reply``) and the output thread encoding
+the batch it sends (``proc.encoded``). The engine process writes what it saw to ``path`` when it
+stops. ``summarize(path)`` splits each batch's time in the engine process into: waiting
+for a step to take it, the step's apply phase, from there to its acknowledgement (the rest of
+the step, the log's sync), and from the acknowledgement to the output thread sending it.
+Nothing here runs unless a tool installs it.
+"""
+
+from __future__ import annotations
+
+import bisect
+import json
+import sys
+import time
+
+
+def install(path: str) -> None:
+    from sdfserver.engine import proc
+    from sdfserver.engine.batches import BatchPipeline
+    from sdfserver.engine.core import Engine
+    from sdfserver.engine.service import EngineService
+
+    seen: dict[str, list] = {"received": [], "steps": [], "applied": [], "answered": [], "sent": []}
+    clock = time.perf_counter
+
+    def wrap(owner, name, before=None, after=None):
+        original = getattr(owner, name)
+
+        def wrapper(*args, **kwargs):
+            if before:
+                before(*args)
+            result = original(*args, **kwargs)
+            if after:
+                after(*args)
+            return result
+
+        setattr(owner, name, wrapper)
+
+    # request ids are each API process's own: a batch is known by (its API process, its id)
+    wrap(EngineService, "_apply", before=lambda self, client, m: seen["received"].append(
+        (client.decode(), m.id, clock())))
+    wrap(Engine, "step", before=lambda self: seen["steps"].append(clock()))
+    wrap(BatchPipeline, "run", after=lambda self, batches, *_: seen["applied"].append((clock(), len(batches))))
+    wrap(EngineService, "_reply", before=lambda self, client, request_id, *_, **__: seen["answered"].append(
+        (client.decode(), request_id, clock())))
+    original_encoded = proc.encoded
+
+    def encoded(items):
+        now = clock()
+        client = sys._getframe(1).f_locals.get("client", b"").decode()  # the output thread's loop variable
+        seen["sent"].extend((client, item.id, now) for item in items if hasattr(item, "id"))
+        return original_encoded(items)
+
+    proc.encoded = encoded
+    original_serve = proc.serve_engine
+
+    def serve_engine(*args, **kwargs):
+        try:
+            return original_serve(*args, **kwargs)
+        finally:  # the engine stopped (SIGTERM): what it saw, written once
+            with open(path, "w") as out:
+                json.dump({k: list(v) for k, v in seen.items()}, out)
+
+    proc.serve_engine = serve_engine
+
+
+def summarize(path: str, since_s: float = 0.0, start: float | None = None) -> dict:
+    """Medians and p90s (ms) of each part of an edit batch's time in the engine process, for
+    the batches received ``since_s`` after the first one, or from ``start`` (``time.perf_counter``,
+    which is the same clock in every process of a Linux machine) on."""
+    seen = json.load(open(path))
+    steps = sorted(seen["steps"])
+    applied = sorted(t for t, _ in seen["applied"])
+    answered = {(c, i): t for c, i, t in seen["answered"]}
+    sent = {(c, i): t for c, i, t in seen["sent"]}
+    if start is None:
+        start = seen["received"][0][2] + since_s if seen["received"] else 0.0
+    parts: dict[str, list[float]] = {"wait for a step": [], "apply phase": [], "to acknowledgement": [],
+                                     "to the output thread's send": [], "in the engine process": []}
+    for client, request_id, received in seen["received"]:
+        request_id = (client, request_id)
+        if received < start or request_id not in sent or request_id not in answered:
+            continue
+        k = bisect.bisect_left(steps, received)
+        if k >= len(steps):
+            continue
+        step = steps[k]
+        a = bisect.bisect_left(applied, step)
+        if a >= len(applied):
+            continue
+        parts["wait for a step"].append(step - received)
+        parts["apply phase"].append(applied[a] - step)
+        parts["to acknowledgement"].append(answered[request_id] - applied[a])
+        parts["to the output thread's send"].append(sent[request_id] - answered[request_id])
+        parts["in the engine process"].append(sent[request_id] - received)
+
+    def q(values: list[float], p: float) -> float:
+        values = sorted(values)
+        return values[min(len(values) - 1, int(p * len(values)))] * 1e3 if values else float("nan")
+
+    return {name: {"p50_ms": round(q(v, 0.5), 3), "p90_ms": round(q(v, 0.9), 3), "n": len(v)}
+            for name, v in parts.items()}
+
+
+if __name__ == "__main__":
+    import sys
+
+    print(json.dumps(summarize(sys.argv[1], start=float(sys.argv[2]) if len(sys.argv) > 2 else None), indent=1))

@@ -64,7 +64,9 @@ def test_edits_reads_queries_and_the_stream(server):
             expected = np.zeros((64, 64, 64), dtype=np.uint8)
             for i in range(3):
                 centre = [int(rng.integers(l + 8, h - 8)) for l, h in zip(lo, hi)]
-                batch = [{"op": "sphere", "center": centre, "radius": float(rng.uniform(2, 7)), "colour": 30 + i},
+                # radius 3 or more: the sphere reaches past the box that cuts it (from centre - 2),
+                # so some of its voxels stay and the world keeps bricks
+                batch = [{"op": "sphere", "center": centre, "radius": float(rng.uniform(3, 7)), "colour": 30 + i},
                          {"op": "box", "min": [c - 2 for c in centre], "max": [c + 5 for c in centre], "colour": 0}]
                 r = http.post(f"/v1/worlds/{wid}/edits", json={"edits": batch})
                 assert r.status_code == 200, r.text

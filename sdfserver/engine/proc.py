@@ -239,8 +239,8 @@ def serve_engine(settings: Settings, address: EngineAddress, engines: int, conn:
     from sdfserver.gpu import GpuContext
     from sdfserver.storage.lock import lock_data_dir
 
-    # the input and output threads share the GIL with the engine thread: when the engine
-    # blocks (on the device, a read, a log write) it waits up to this long to get it back
+    # the engine process's threads share one GIL, and every socket read or write, log sync and
+    # device wait lets go of it: the thread then waits up to this long to get it back
     sys.setswitchinterval(settings.switch_interval_ms / 1e3)
     journal = lock = engine = None
     try:

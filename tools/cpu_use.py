@@ -19,22 +19,9 @@ import os
 import sys
 import time
 
+from service_overhead import children, cpu_seconds, fronts_cpu_seconds
+
 TICK = os.sysconf("SC_CLK_TCK")
-
-
-def cpu_s(pid: int) -> float:
-    try:
-        fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
-    except OSError:
-        return 0.0
-    return (int(fields[11]) + int(fields[12])) / TICK
-
-
-def children(pid: int) -> list[int]:
-    try:
-        return [int(c) for c in open(f"/proc/{pid}/task/{pid}/children").read().split()]
-    except OSError:
-        return []
 
 
 def snap(pid: int) -> dict:
@@ -43,8 +30,8 @@ def snap(pid: int) -> dict:
     idle = values[3] + values[4]  # idle + iowait
     kids = children(pid)
     return {"at": time.monotonic(), "host_busy_s": (sum(values[:8]) - idle) / TICK, "host_total_s": sum(values[:8]) / TICK,
-            "cpus": os.cpu_count(), "launcher_s": cpu_s(pid), "engine_s": cpu_s(kids[0]) if kids else 0.0,
-            "api_s": sum(cpu_s(k) for k in kids[1:])}
+            "cpus": os.cpu_count(), "launcher_s": cpu_seconds(pid), "engine_s": fronts_cpu_seconds(kids[:1]),
+            "api_s": fronts_cpu_seconds(kids[1:])}
 
 
 def diff(before: dict, after: dict, requests: int) -> None:

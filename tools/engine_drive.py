@@ -26,9 +26,12 @@ import sys
 import tempfile
 import time
 
+import numpy as np
+
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "clients"))
 
 from loadtest.config import Brushes, LoadConfig  # noqa: E402
+from service_overhead import cpu_seconds  # noqa: E402
 
 from sdfserver.api.engine_client import EngineClient  # noqa: E402
 from sdfserver.api.server import settings_from  # noqa: E402
@@ -41,25 +44,15 @@ from sdfserver.world import WorldConfig  # noqa: E402
 COUNTED = ("sdfserver_engine_steps_total", "sdfserver_edit_batches_total")
 
 
-def process_cpu_s(pid: int) -> float:
-    return process_cpu_s_of(f"/proc/{pid}/stat")
-
-
 def threads_cpu_s(pid: int) -> dict[int, tuple[str, float]]:
     """Each thread of ``pid``: (its name as the kernel knows it, CPU seconds so far)."""
     out = {}
-    for tid in os.listdir(f"/proc/{pid}/task"):
+    for tid in map(int, os.listdir(f"/proc/{pid}/task")):
         try:
-            name = open(f"/proc/{pid}/task/{tid}/comm").read().strip()
-            out[int(tid)] = (name, process_cpu_s_of(f"/proc/{pid}/task/{tid}/stat"))
+            out[tid] = (open(f"/proc/{pid}/task/{tid}/comm").read().strip(), cpu_seconds(pid, tid))
         except OSError:  # the thread ended
             continue
     return out
-
-
-def process_cpu_s_of(path: str) -> float:
-    fields = open(path).read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def counters(text: str) -> dict[str, float]:
@@ -69,11 +62,6 @@ def counters(text: str) -> dict[str, float]:
         if match and (match[1] in COUNTED or match[1] == "sdfserver_engine_phase_seconds_total"):
             out[match[3] or match[1]] = float(match[4])
     return out
-
-
-def percentile(values: list[float], q: float) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(q * len(ordered)))] if ordered else float("nan")
 
 
 async def drive(args: argparse.Namespace, address: EngineAddress, pid: int) -> dict:
@@ -94,14 +82,14 @@ async def drive(args: argparse.Namespace, address: EngineAddress, pid: int) -> d
             await client.call(msg.ApplyEdits(client.next_id(), world_id, batch))
             latencies.append(time.perf_counter() - started)
 
-    async def measured(seconds: float) -> tuple[int, float, float, dict[str, float]]:
+    async def measured(seconds: float) -> tuple[int, float, float, float, dict, dict[str, float]]:
         latencies.clear()
         before = counters(await client.call(msg.MetricsText(client.next_id())))
-        cpu, threads, started = process_cpu_s(pid), threads_cpu_s(pid), time.perf_counter()
+        cpu, threads, started = cpu_seconds(pid), threads_cpu_s(pid), time.perf_counter()
         own_cpu = time.process_time()
         stop_at[0] = started + seconds
         await asyncio.gather(*(one_client(args.seed + i) for i in range(args.clients)))
-        wall, cpu = time.perf_counter() - started, process_cpu_s(pid) - cpu
+        wall, cpu = time.perf_counter() - started, cpu_seconds(pid) - cpu
         own_cpu = time.process_time() - own_cpu
         threads = {tid: (name, cpu_s - threads[tid][1]) for tid, (name, cpu_s) in threads_cpu_s(pid).items()
                    if tid in threads}
@@ -114,8 +102,8 @@ async def drive(args: argparse.Namespace, address: EngineAddress, pid: int) -> d
     steps = engine.get("sdfserver_engine_steps_total", 0.0)
     return {
         "clients": args.clients, "size": args.size, "seconds": wall, "batches": batches,
-        "batches_per_s": batches / wall, "p50_ms": percentile(latencies, 0.5) * 1e3,
-        "p99_ms": percentile(latencies, 0.99) * 1e3, "engine_cpu_us_per_batch": cpu / batches * 1e6,
+        "batches_per_s": batches / wall, "p50_ms": float(np.percentile(latencies, 50)) * 1e3,
+        "p99_ms": float(np.percentile(latencies, 99)) * 1e3, "engine_cpu_us_per_batch": cpu / batches * 1e6,
         "engine_cpu_share": cpu / wall, "driver_cpu_share": own_cpu / wall,
         "thread_cpu_us_per_batch": {f"{tid} {name}": round(cpu_s / batches * 1e6, 1)
                                     for tid, (name, cpu_s) in sorted(threads.items(), key=lambda t: -t[1][1])

@@ -18,6 +18,8 @@ import json
 import sys
 import time
 
+import numpy as np
+
 
 def install(path: str) -> None:
     from sdfserver.engine import proc
@@ -99,12 +101,10 @@ def summarize(path: str, since_s: float = 0.0, start: float | None = None) -> di
         parts["to the output thread's send"].append(sent[request_id] - answered[request_id])
         parts["in the engine process"].append(sent[request_id] - received)
 
-    def q(values: list[float], p: float) -> float:
-        values = sorted(values)
-        return values[min(len(values) - 1, int(p * len(values)))] * 1e3 if values else float("nan")
+    def ms(values: list[float], q: float) -> float:
+        return round(float(np.percentile(values, q)) * 1e3, 3) if values else float("nan")
 
-    return {name: {"p50_ms": round(q(v, 0.5), 3), "p90_ms": round(q(v, 0.9), 3), "n": len(v)}
-            for name, v in parts.items()}
+    return {name: {"p50_ms": ms(v, 50), "p90_ms": ms(v, 90), "n": len(v)} for name, v in parts.items()}
 
 
 if __name__ == "__main__":

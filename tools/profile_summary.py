@@ -8,6 +8,15 @@ from __future__ import annotations
 
 import argparse
 import collections
+from typing import Iterator
+
+
+def read_stacks(path: str) -> Iterator[tuple[list[str], int]]:
+    """(frames, outermost first, and their sample count) for each line of py-spy's raw output."""
+    for line in open(path).read().splitlines():
+        stack, _, count = line.rpartition(" ")
+        if count.isdigit():
+            yield stack.split(";"), int(count)
 
 
 def main() -> None:
@@ -18,15 +27,11 @@ def main() -> None:
     running, on_stack, threads = collections.Counter(), collections.Counter(), collections.Counter()
     total = 0
     try:
-        lines = open(args.path).read().splitlines()
+        stacks = list(read_stacks(args.path))
     except OSError as exc:
         print(f"no samples: {exc}")
         return
-    for line in lines:
-        stack, _, count = line.rpartition(" ")
-        if not count.isdigit():
-            continue
-        samples, frames = int(count), stack.split(";")
+    for frames, samples in stacks:
         total += samples
         threads[frames[0]] += samples
         running[frames[-1]] += samples

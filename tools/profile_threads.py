@@ -12,18 +12,16 @@ import collections
 import json
 import re
 
+from profile_summary import read_stacks
+
 
 def summarize(path: str, depth: int, top: int, cpu: dict[int, float]) -> None:
     stacks: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
     total = 0
-    for line in open(path).read().splitlines():
-        stack, _, count = line.rpartition(" ")
-        if not count.isdigit():
-            continue
-        frames = stack.split(";")
+    for frames, count in read_stacks(path):
         inner = " <- ".join(f.split(" (")[0] for f in frames[-depth:][::-1])
-        stacks[frames[0]][inner] += int(count)
-        total += int(count)
+        stacks[frames[0]][inner] += count
+        total += count
     print(f"== {path}: {total} samples")
     for thread, counter in sorted(stacks.items(), key=lambda t: -sum(t[1].values())):
         tid = re.search(r"\((\d+)\)", thread)

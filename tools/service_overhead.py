@@ -25,9 +25,11 @@ COUNTERS = ("sdfserver_edit_batches_total", "sdfserver_engine_steps_total", "sdf
             "sdfserver_recompute_device_seconds_total")
 
 
-def cpu_seconds(pid: int) -> float:
-    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime, all threads
+def cpu_seconds(pid: int, tid: int | None = None) -> float:
+    """utime + stime of process ``pid`` (all its threads), or of its thread ``tid`` alone."""
+    path = f"/proc/{pid}/stat" if tid is None else f"/proc/{pid}/task/{tid}/stat"
+    fields = open(path).read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def children(pid: int) -> list[int]:

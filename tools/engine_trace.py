@@ -4,7 +4,7 @@
 passes: the service taking the request from the input thread (``EngineService._apply``), each
 engine step's start and the end of its apply phase (``Engine.step``, ``BatchPipeline.run``), the
 reply being handed to the output side (``EngineService._reply``) and the output thread encoding
-the batch it sends (``proc.encoded``). The engine process writes what it saw to ``path`` when it
+the batch it sends (``transport.encoded``). The engine process writes what it saw to ``path`` when it
 stops. ``summarize(path)`` splits each batch's time in the engine process into: waiting
 for a step to take it, the step's apply phase, from there to its acknowledgement (the rest of
 the step, the log's sync), and from the acknowledgement to the output thread sending it.
@@ -22,7 +22,7 @@ import numpy as np
 
 
 def install(path: str) -> None:
-    from sdfserver.engine import proc
+    from sdfserver.engine import proc, transport
     from sdfserver.engine.batches import BatchPipeline
     from sdfserver.engine.core import Engine
     from sdfserver.engine.service import EngineService
@@ -50,7 +50,7 @@ def install(path: str) -> None:
     wrap(BatchPipeline, "run", after=lambda self, batches, *_: seen["applied"].append((clock(), len(batches))))
     wrap(EngineService, "_reply", before=lambda self, client, request_id, *_, **__: seen["answered"].append(
         (client.decode(), request_id, clock())))
-    original_encoded = proc.encoded
+    original_encoded = transport.encoded
 
     def encoded(items):
         now = clock()
@@ -58,7 +58,7 @@ def install(path: str) -> None:
         seen["sent"].extend((client, item.id, now) for item in items if hasattr(item, "id"))
         return original_encoded(items)
 
-    proc.encoded = encoded
+    transport.encoded = encoded
     original_serve = proc.serve_engine
 
     def serve_engine(*args, **kwargs):

@@ -45,6 +45,11 @@ def install(directory: str) -> None:
     from sdfserver.api import engine_client
     from sdfserver.api.hot import HotRoutes
     from sdfserver.engine import proc
+
+    try:  # where the output thread's encoding lives (proc.py in builds before transport.py)
+        from sdfserver.engine import transport
+    except ImportError:
+        transport = proc
     from sdfserver.engine.service import EngineService
 
     seen: dict[str, list] = {"asgi_in": [], "asgi_out": [], "api_send": [], "api_take": [],
@@ -96,7 +101,7 @@ def install(directory: str) -> None:
         return original_reply(self, client, request_id, *args, **kwargs)
 
     EngineService._reply = reply
-    original_encoded = proc.encoded
+    original_encoded = transport.encoded
 
     def encoded(items):
         now = clock()
@@ -104,7 +109,7 @@ def install(directory: str) -> None:
         seen["engine_send"].extend((client, item.id, now) for item in items if hasattr(item, "id"))
         return original_encoded(items)
 
-    proc.encoded = encoded
+    transport.encoded = encoded
 
     os.register_at_fork(after_in_child=lambda: [records.clear() for records in seen.values()])
     original_engine, original_stop = proc.serve_engine, engine_client.EngineClient.stop
@@ -183,6 +188,7 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=6.0)
     parser.add_argument("--port", type=int, default=8767)
     parser.add_argument("--json", help="write the table's figures here too")
+    parser.add_argument("--server-tree", default=str(ROOT), help="another checkout's server (an A/B)")
     parser.add_argument("serve_flags", nargs="*", help="more `sdfserver serve` flags (after --)")
     args = parser.parse_args()
     directory = tempfile.mkdtemp(prefix="sdfserver-timeline-")
@@ -192,9 +198,9 @@ def main() -> int:
     command = [sys.executable, "-c", code, "--port", str(args.port), "--data-dir", data, *args.serve_flags]
     if args.device:
         command += ["--device", args.device]
-    env = dict(os.environ, PYTHONPATH=f"{ROOT}:{os.environ.get('PYTHONPATH', '')}")
+    env = dict(os.environ, PYTHONPATH=f"{Path(args.server_tree).resolve()}:{os.environ.get('PYTHONPATH', '')}")
     log = open(os.path.join(directory, "server.log"), "w")
-    server = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
+    server = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=args.server_tree)
     url = f"http://127.0.0.1:{args.port}"
     try:
         for _ in range(960):

@@ -1,9 +1,8 @@
 """An API process's side of one engine: typed requests out, replies and chunk updates in.
 
-``EngineClient`` speaks to an engine process over ZeroMQ: requests PUSHed as ``[identity,
-request]``, answers received on a DEALER that carries the same identity, read by the event loop
-when the DEALER's descriptor wakes it. Each request has an
-id; its future is completed when the ``Reply`` with that id arrives. A subscription's updates
+``EngineClient`` speaks to an engine process over two stream connections (``frames.py``):
+requests written to one, answers read from the other as the event loop hears them. Each
+request has an id; its future is completed when the ``Reply`` with that id arrives. A subscription's updates
 go to the callback given at ``subscribe``; the callback keeps them in a single-slot mailbox.
 
 ``LocalEngineClient`` is the same interface on an engine running in this process (tests and
@@ -17,19 +16,21 @@ import asyncio
 import itertools
 import logging
 import os
+import socket
 from typing import Any, Callable
 
 import msgspec
-import zmq
-from zmq.utils.monitor import recv_monitor_message
 
+from sdfserver.engine import frames
 from sdfserver.engine import messages as msg
 from sdfserver.errors import InvalidInput, NotReady
 
 log = logging.getLogger("sdfserver")
 ENCODE = msg.REQUEST_ENCODER.encode
 DECODE_OUTPUTS = msg.OUTPUTS_DECODER.decode
-HELLO_TIMEOUT_S = 30.0
+HELLO_TIMEOUT_S = 30.0  # how long an API process starting waits for its engine
+WELCOME_TIMEOUT_S = 5.0
+RECONNECT_S = 0.1
 
 
 class BaseClient:
@@ -95,105 +96,143 @@ class BaseClient:
 
 
 class EngineClient(BaseClient):
-    """Plain (blocking-capable) ZeroMQ sockets driven by the event loop: a PUSH with no
-    high-water mark never blocks, so a send completes at once; the DEALER's file descriptor
-    wakes the loop, which then takes every answer waiting (ZeroMQ's descriptor is
-    edge-triggered: drained in full each time)."""
+    """Two stream connections to one engine, driven by the event loop: requests are written to
+    its input, answers read from its output as they arrive. An engine that goes away (a
+    cluster's engine actor restarting) takes the requests it held with it: they fail at once,
+    503, rather than wait for answers that cannot come; the client reconnects, trying every
+    ``RECONNECT_S``, and meanwhile a request fails at once with the same 503."""
 
     def __init__(self, input_address: str, output_address: str):
         super().__init__()
         self.input_address, self.output_address = input_address, output_address
         self.identity = f"api-{os.getpid()}-{id(self):x}".encode()
-        self._context: zmq.Context | None = None
-        self._push: zmq.Socket | None = None
-        self._dealer: zmq.Socket | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._fd: int | None = None
-        self._monitor: zmq.Socket | None = None
-        self._monitor_fd: int | None = None
+        self._requests: asyncio.Transport | None = None
+        self._answers: asyncio.Transport | None = None
+        self._generation = 0  # which connections are the current ones
+        self._connecting: asyncio.Task | None = None
+        self._stopped = False
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
-        self._context = zmq.Context()
-        welcomed = self._loop.create_future()
-        self._connect(welcomed)
-        await asyncio.wait_for(welcomed, HELLO_TIMEOUT_S)
+        await asyncio.wait_for(self._connect(), HELLO_TIMEOUT_S)
 
     def relocate(self, input_address: str, output_address: str) -> None:
         """The engine now listens at other addresses: what it held failed when it went away;
-        new sockets there (the engine answers once it has heard this process's hello)."""
-        self._close_sockets()
+        new connections there."""
         self.input_address, self.output_address = input_address, output_address
-        self._connect(None)
-
-    def _connect(self, welcomed: asyncio.Future | None) -> None:
-        self._push = self._context.socket(zmq.PUSH)
-        self._push.setsockopt(zmq.SNDHWM, 0)
-        self._push.setsockopt(zmq.LINGER, 0)
-        self._push.connect(self.input_address)
-        self._dealer = self._context.socket(zmq.DEALER)
-        self._dealer.setsockopt(zmq.IDENTITY, self.identity)
-        self._dealer.setsockopt(zmq.RCVHWM, 0)
-        self._dealer.setsockopt(zmq.LINGER, 0)
-        self._dealer.connect(self.output_address)
-        # The engine's ROUTER can answer this process only once it has heard from it.
-        self._dealer.send(b"hello")
-        self._fd = self._dealer.getsockopt(zmq.FD)
-        self._loop.add_reader(self._fd, self._drain, welcomed)
-        self._drain(welcomed)
-        # An engine that goes away (a cluster's engine actor restarting) takes the requests it
-        # held with it: they fail at once, 503, rather than wait for answers that cannot come.
-        # ZeroMQ reconnects by itself when the engine listens again.
-        self._monitor = self._dealer.get_monitor_socket(zmq.EVENT_DISCONNECTED)
-        self._monitor_fd = self._monitor.getsockopt(zmq.FD)
-        self._loop.add_reader(self._monitor_fd, self._watch_connection)
-        self._watch_connection()
-
-    def _watch_connection(self) -> None:
-        while self._monitor.getsockopt(zmq.EVENTS) & zmq.POLLIN:
-            event = recv_monitor_message(self._monitor, zmq.NOBLOCK)
-            if event["event"] == zmq.EVENT_DISCONNECTED:
-                log.warning("engine at %s went away; %d requests fail", self.output_address, len(self._pending))
-                self.fail_all(NotReady(f"the engine at {self.output_address} went away (restarting?); "
-                                       "retry the request"))
+        self._disconnect(NotReady(f"the engine moved to {output_address}; retry the request"))
+        self._reconnect()
 
     async def stop(self) -> None:
-        self._close_sockets()
-        if self._context is not None:
-            self._context.term()
+        self._stopped = True
+        if self._connecting is not None:
+            self._connecting.cancel()
+        self._disconnect(NotReady("this API process is stopping"))
 
-    def _close_sockets(self) -> None:
-        if self._fd is not None and self._loop is not None:
-            self._loop.remove_reader(self._fd)
-            self._fd = None
-        if self._monitor is not None and self._loop is not None:
-            self._loop.remove_reader(self._monitor_fd)
-            self._dealer.disable_monitor()
-            self._monitor.close(0)
-            self._monitor = None
-        for sock in (self._push, self._dealer):
-            if sock is not None:
-                sock.close(0)
-        self._push = self._dealer = None
+    async def _connect(self) -> None:
+        """Connect, and be welcomed; until then, try again every ``RECONNECT_S``."""
+        while True:
+            try:
+                await self._open()
+                return
+            except OSError as exc:
+                log.debug("engine at %s not reachable yet: %s", self.output_address, exc)
+                await asyncio.sleep(RECONNECT_S)
+
+    async def _open(self) -> None:
+        self._generation += 1
+        generation = self._generation
+        welcomed = self._loop.create_future()
+        answers = requests = None
+        try:
+            answers, _ = await _open_connection(self._loop, self.output_address,
+                                                lambda: _Answers(self, generation, welcomed))
+            answers.write(frames.frame(self.identity))
+            requests, _ = await _open_connection(self._loop, self.input_address,
+                                                 lambda: _Requests(self, generation))
+            requests.write(frames.frame(self.identity))
+            await asyncio.wait_for(asyncio.shield(welcomed), WELCOME_TIMEOUT_S)
+        except (OSError, asyncio.TimeoutError) as exc:
+            for transport in (answers, requests):
+                if transport is not None:
+                    transport.abort()
+            raise ConnectionError(f"no welcome from the engine at {self.output_address}") from exc
+        if generation != self._generation:  # relocated meanwhile: these go to the old address
+            answers.abort()
+            requests.abort()
+            raise ConnectionError(f"the engine moved away from {self.output_address}")
+        self._answers, self._requests = answers, requests
+
+    def _reconnect(self) -> None:
+        if not self._stopped and (self._connecting is None or self._connecting.done()):
+            self._connecting = self._loop.create_task(self._connect())
+
+    def _disconnect(self, why: NotReady) -> None:
+        self._generation += 1
+        for transport in (self._requests, self._answers):
+            if transport is not None:
+                transport.abort()
+        self._requests = self._answers = None
+        self.fail_all(why)
+
+    def _went_away(self, generation: int) -> None:
+        if generation != self._generation or self._answers is None or self._stopped:
+            return  # old connections, or ones still opening (their opening fails and retries)
+        log.warning("engine at %s went away; %d requests fail", self.output_address, len(self._pending))
+        self._disconnect(NotReady(f"the engine at {self.output_address} went away (restarting?); "
+                                  "retry the request"))
+        self._reconnect()
 
     def _send(self, request: Any) -> None:
-        self._push.send_multipart([self.identity, ENCODE(request)], flags=zmq.NOBLOCK)
+        if self._requests is None:
+            raise NotReady(f"the engine at {self.input_address} is not connected (restarting?); retry the request")
+        self._requests.write(frames.frame(ENCODE(request)))
 
-    def _drain(self, welcomed: asyncio.Future | None = None) -> None:
-        dealer = self._dealer
-        while dealer.getsockopt(zmq.EVENTS) & zmq.POLLIN:
-            payload = dealer.recv(zmq.NOBLOCK)
-            try:
-                outputs = DECODE_OUTPUTS(payload)
-            except Exception:
-                log.exception("an undecodable engine output was dropped")
-                continue
-            if welcomed is not None and not welcomed.done():
-                welcomed.set_result(None)  # the welcome: an empty batch
-            try:
-                self._take(outputs)
-            except Exception:  # the rest must still be read: the descriptor wakes the loop only once
-                log.exception("delivering engine outputs failed")
+    def _arrived(self, payload: bytes) -> None:
+        try:
+            outputs = DECODE_OUTPUTS(payload)
+        except Exception:
+            log.exception("an undecodable engine output was dropped")
+            return
+        try:
+            self._take(outputs)
+        except Exception:
+            log.exception("delivering engine outputs failed")
+
+
+class _Answers(asyncio.Protocol):
+    """The engine's answers, frame by frame; the first (an empty batch) is its welcome."""
+
+    def __init__(self, client: EngineClient, generation: int, welcomed: asyncio.Future):
+        self.client, self.generation, self.welcomed = client, generation, welcomed
+        self.reader = frames.FrameReader()
+
+    def data_received(self, data: bytes) -> None:
+        for payload in self.reader.feed(data):
+            if not self.welcomed.done():
+                self.welcomed.set_result(None)
+            self.client._arrived(payload)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if not self.welcomed.done():
+            self.welcomed.set_exception(ConnectionError("the engine closed the connection"))
+        self.client._went_away(self.generation)
+
+
+class _Requests(asyncio.Protocol):
+    def __init__(self, client: EngineClient, generation: int):
+        self.client, self.generation = client, generation
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.client._went_away(self.generation)
+
+
+async def _open_connection(loop: asyncio.AbstractEventLoop, address: str, protocol: Callable[[], asyncio.Protocol]):
+    family, target = frames.family_and_target(address)
+    if family == socket.AF_UNIX:
+        return await loop.create_unix_connection(protocol, target)
+    return await loop.create_connection(protocol, *target)  # TCP_NODELAY: asyncio's and uvloop's default
 
 
 class LocalEngineClient(BaseClient):

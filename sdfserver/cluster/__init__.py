@@ -3,8 +3,8 @@ embedded server and ``import sdfserver`` never import Ray.
 
 ``manager.py`` is the launcher's cluster process: it joins or starts the Ray cluster, creates
 the named, detached engine actors (``engine_actor.py``) and reports their addresses; API
-processes then reach each engine straight over its own ZeroMQ sockets, as they reach engine
+processes then reach each engine straight over its own sockets, as they reach engine
 processes on this machine. Ray places the engines (their GPUs), and restarts one that dies:
 the new incarnation restores its worlds from the data directory and listens on the same
-address, where the API processes' sockets reconnect by themselves.
+address, where the API processes reconnect by themselves.
 """

@@ -1,9 +1,9 @@
 """One engine as a Ray actor: the engine process's body (``engine/proc.serve_engine``) on a
-thread of the actor's process, its ZeroMQ sockets on TCP ports given by the launcher.
+thread of the actor's process, its sockets on TCP ports given by the launcher.
 
 Ray re-runs the constructor when it restarts the actor (``max_restarts=-1``), with the same
 arguments: the same ports and the same data directory, so the new incarnation restores every
-world the old one acknowledged and listens where the API processes' sockets reconnect. Where
+world the old one acknowledged and listens where the API processes reconnect. Where
 those ports are taken (another node, or another program since) it listens on free ones; the
 cluster process sees the new address in ``describe`` and the API processes follow it.
 """
@@ -23,7 +23,7 @@ READY_TIMEOUT_S = 600.0  # restore and warm-up of every world this engine holds
 
 
 def port_is_free(port: int) -> bool:
-    """Whether ZeroMQ could listen on ``port`` (it binds with SO_REUSEADDR, so the old
+    """Whether the engine could listen on ``port`` (it binds with SO_REUSEADDR, so the old
     incarnation's connections lingering in TIME_WAIT do not count; another listener does)."""
     with socket.socket() as probe:
         probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)

@@ -1,4 +1,4 @@
-"""The typed messages between API processes and an engine process (msgspec over ZeroMQ).
+"""The typed messages between API processes and an engine process (msgspec, framed on stream sockets: ``frames.py``).
 
 Every request is plain data the engine can log, replay and answer from any process: no
 closures, never pickle. Requests are one tagged union (``type`` names the class); the engine

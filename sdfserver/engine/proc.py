@@ -1,14 +1,10 @@
 """The engine process: one per device, owning its GpuContext, every World, the renderer and
-the journal, speaking only typed messages (``messages.py``) over ZeroMQ.
+the journal, speaking only typed messages (``messages.py``) over stream sockets.
 
-Around the engine thread's ``step()`` loop run two threads that do all the socket work:
-
-- the input thread reads requests from a PULL socket (every API process PUSHes to it, each
-  message ``[client identity, request]``) and hands each to ``EngineService.handle``, which
-  checks access and queues an engine command;
-- the output thread sends what the engine answered, from one queue, through a ROUTER socket
-  to the API process that asked (its DEALER says hello first, so the ROUTER knows it): all
-  that waited for one API process leaves as one ``Outputs`` batch.
+Around the engine thread's ``step()`` loop run two threads that do all the socket work
+(``transport.py``): the input thread reads every API process's requests and hands each to
+``EngineService.handle``, which checks access and queues an engine command; the output thread
+sends what the engine answered, one batch per API process.
 
 ``engine_main`` is the process's body: open the data directory, choose the device, restore
 the stored worlds, warm up, then serve until SIGTERM. What it tells the launcher goes over a
@@ -18,39 +14,32 @@ pipe: ``("ready", device)``, ``("failed", why)`` or, should the engine thread di
 
 from __future__ import annotations
 
-import collections
 import ctypes
 import logging
-import queue
 import signal
 import sys
 import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import msgspec
-import zmq
-
-from sdfserver.engine import messages as msg
 from sdfserver.engine.access import Doorkeeper, RateLimiter
 from sdfserver.engine.commands import EngineLimits
 from sdfserver.engine.core import Engine
 from sdfserver.engine.metrics import EngineMetrics
-from sdfserver.engine.service import EngineService, SubscriptionNews
+from sdfserver.engine.service import EngineService
+from sdfserver.engine.transport import EngineTransport
 from sdfserver.errors import NoOpenCLDevice, SdfServerError
 from sdfserver.settings import Settings
 
 log = logging.getLogger("sdfserver.engine")
 DEVICE_ADVICE = "`sdfserver devices` lists the usable OpenCL devices and --device picks one"
-IDLE_POLL_S = 0.05  # how often an idle output thread looks for API processes saying hello
-UNREACHABLE_GRACE_S = 10.0  # how long answers wait for an API process that is not connected
 
 
 @dataclass(frozen=True)
 class EngineAddress:
-    """Where one engine listens: its input (PULL) and output (ROUTER) sockets."""
+    """Where one engine listens (``ipc:///path`` or ``tcp://host:port``): API processes send
+    requests to ``input`` and take answers from ``output``."""
 
     index: int
     device: str  # the device spec this engine runs on ("" chooses)
@@ -90,135 +79,6 @@ def die_with_parent() -> None:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
         pass
-
-
-class EngineTransport:
-    """The input and output threads of one engine process."""
-
-    def __init__(self, service_of, address: EngineAddress):
-        self.context = zmq.Context.instance()
-        self.outputs: queue.SimpleQueue = queue.SimpleQueue()
-        self.service: EngineService = service_of(self.send)
-        self.address = address
-        self._stopping = False
-        self._undelivered: dict[bytes, tuple[float, list[bytes]]] = {}  # client -> (since, payloads)
-        self._input = self.context.socket(zmq.PULL)
-        self._input.setsockopt(zmq.RCVHWM, 0)
-        self._input.bind(address.input)
-        self._output = self.context.socket(zmq.ROUTER)
-        self._output.setsockopt(zmq.ROUTER_MANDATORY, 1)
-        self._output.setsockopt(zmq.SNDHWM, 0)
-        self._output.bind(address.output)
-        self._threads = [threading.Thread(target=self._read, name="sdfserver-engine-input", daemon=True),
-                         threading.Thread(target=self._write, name="sdfserver-engine-output", daemon=True)]
-
-    def start(self) -> None:
-        for thread in self._threads:
-            thread.start()
-
-    def stop(self) -> None:
-        self._stopping = True
-
-    def send(self, client: bytes, item: Any) -> None:
-        """Any thread: queue a Reply or a subscription's news for ``client``."""
-        self.outputs.put((client, item))
-
-    def _read(self) -> None:
-        decode, handle = msg.REQUEST_DECODER.decode, self.service.handle
-        while not self._stopping:
-            try:
-                client, payload = self._input.recv_multipart(copy=True)
-                request = decode(payload)
-            except (ValueError, msgspec.DecodeError) as exc:
-                log.warning("an undecodable request was dropped: %s", exc)
-                continue
-            handle(client, request)
-
-    def _write(self) -> None:
-        while not self._stopping:
-            try:
-                self._write_once()
-            except Exception:  # a bug here must not leave every later answer unsent
-                log.exception("the engine's output thread failed to send; it goes on")
-
-    def _write_once(self) -> None:
-        """Wait for an answer, take every other one waiting, send them: one batch per API process."""
-        self._welcome()
-        if self._undelivered:
-            self._send_undelivered()
-        try:
-            first = self.outputs.get(timeout=IDLE_POLL_S)
-        except queue.Empty:
-            return
-        batches: dict[bytes, list] = collections.defaultdict(list)
-        news_sent: set[tuple[bytes, int]] = set()
-        item: Any = first
-        while True:
-            client, out = item
-            if isinstance(out, SubscriptionNews):
-                if (client, out.number) not in news_sent:  # one update a batch holds all its news
-                    news_sent.add((client, out.number))
-                    update = self.service.update_for(client, out)
-                    if update is not None:
-                        batches[client].append(update)
-            else:
-                batches[client].append(out)
-            try:
-                item = self.outputs.get_nowait()
-            except queue.Empty:
-                break
-        for client, items in batches.items():
-            payload = encoded(items)
-            if client in self._undelivered:  # after what waits for it, in order
-                self._undelivered[client][1].append(payload)
-                continue
-            try:
-                self._output.send_multipart([client, payload])
-            except zmq.ZMQError as exc:
-                if exc.errno != zmq.EHOSTUNREACH:
-                    raise
-                self._undelivered[client] = (time.monotonic(), [payload])
-
-    def _send_undelivered(self) -> None:
-        """Answers for an API process not connected: not yet again, when this engine was just
-        restarted (a cluster's engine actor) and the API process's socket is reconnecting, or
-        never again, when it is gone (its subscriptions are dropped after the grace)."""
-        for client, (since, payloads) in list(self._undelivered.items()):
-            try:
-                while payloads:
-                    self._output.send_multipart([client, payloads[0]])
-                    payloads.pop(0)
-                del self._undelivered[client]
-            except zmq.ZMQError as exc:
-                if exc.errno != zmq.EHOSTUNREACH:
-                    raise
-                if time.monotonic() - since > UNREACHABLE_GRACE_S:
-                    del self._undelivered[client]
-                    self.service.forget(client)
-
-    def _welcome(self) -> None:
-        """Answer the hello of API processes: from then on the ROUTER can reach them."""
-        while self._output.poll(0):
-            client, _ = self._output.recv_multipart()
-            self._output.send_multipart([client, msg.REQUEST_ENCODER.encode(msg.Outputs([]))])
-
-
-def encoded(items: list[Any]) -> bytes:
-    """One API process's batch of outputs; an answer that cannot be encoded (a bug) is replaced
-    by its failure, so that its request is answered and the others still go."""
-    try:
-        return msg.REQUEST_ENCODER.encode(msg.Outputs(items))
-    except (TypeError, ValueError, OverflowError, msgspec.EncodeError):
-        kept = []
-        for item in items:
-            try:
-                msg.REQUEST_ENCODER.encode(item)
-                kept.append(item)
-            except (TypeError, ValueError, OverflowError, msgspec.EncodeError) as exc:
-                log.exception("an engine answer could not be encoded", exc_info=exc)
-                if isinstance(item, msg.Reply):
-                    kept.append(msg.Reply(item.id, None, msg.failure_of(exc)))
-        return msg.REQUEST_ENCODER.encode(msg.Outputs(kept))
 
 
 def engine_main(settings: Settings, address: EngineAddress, engines: int, conn: Any) -> int:

@@ -135,7 +135,7 @@ def test_a_subscription_told_it_ended_while_its_update_is_unsent_hears_it_when_t
 def test_an_answer_that_cannot_be_encoded_is_answered_with_its_failure():
     import numpy as np
 
-    from sdfserver.engine.proc import encoded
+    from sdfserver.engine.transport import encoded
 
     items = [msg.Reply(1, {"n": np.int64(3)}), msg.Reply(2, 5)]  # a numpy integer: msgspec refuses it
     replies = msg.OUTPUTS_DECODER.decode(encoded(items)).items

@@ -7,7 +7,8 @@
 # Each argument is a row: its name, then `sdfserver serve` flags. DEVICE, SIZE, DUR override the
 # device (nvidia), the world's side (256) and the 64-client run's seconds (12), PROCS the load
 # generator's processes for the 64 clients (8), RATE adds a run at that many batches a second,
-# SERVER_TREE runs another checkout's server (an A/B: same load generator); a CPU smoke run:
+# SERVER_TREE runs another checkout's server (an A/B: same load generator), LOAD_FLAGS adds load
+# generator flags (--http httptools); a CPU smoke run:
 #   DEVICE= SIZE=32 DUR=3 bash tools/engine_limit.sh default
 # Results: $OUT/engine-limit/ (each run's JSON, metrics and server log), a table on stdout and, for
 # each row, where the 64 clients' CPU went (tools/cpu_use.py); TRACE=1 adds where their batches'
@@ -16,7 +17,7 @@ set -uo pipefail
 export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD:${PYTHONPATH:-}
 out=${OUT:-/tmp/sdfserver-out}/engine-limit; mkdir -p "$out"
 device=${DEVICE-nvidia}; size=${SIZE:-256}; dur=${DUR:-12}; port=8765
-load="python3 clients/loadtest --url http://127.0.0.1:$port --size $size $size $size --quiet"
+load="python3 clients/loadtest --url http://127.0.0.1:$port --size $size $size $size --quiet ${LOAD_FLAGS:-}"
 
 for row in "$@"; do
   read -r name flags <<< "$row"

@@ -127,16 +127,16 @@ def install(directory: str) -> None:
     proc.serve_engine, engine_client.EngineClient.stop = serve_engine, stop
 
 
-async def lone_client(url: str, world: str, size: int, duration_s: float) -> list[tuple]:
+async def lone_client(url: str, world: str, size: int, duration_s: float, http: str) -> list[tuple]:
     """(kind, sent, answered) for each request of one client: an edit, then its read."""
     sys.path.insert(0, str(ROOT / "clients"))
-    from loadtest.connection import Connection
+    from loadtest.game import LEAN_CLIENTS
 
     from loadtest.config import Brushes, LoadConfig
 
     brushes = Brushes(7, LoadConfig(url, world, (size, size, size)))
     done: list[tuple] = []
-    async with Connection(url) as client:
+    async with LEAN_CLIENTS[http](url) as client:
         end = time.perf_counter() + duration_s
         while time.perf_counter() < end:
             batch, center = brushes.batch()
@@ -188,6 +188,7 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=6.0)
     parser.add_argument("--port", type=int, default=8767)
     parser.add_argument("--json", help="write the table's figures here too")
+    parser.add_argument("--http", choices=("aiohttp", "httptools"), default="aiohttp", help="the client's connection")
     parser.add_argument("--server-tree", default=str(ROOT), help="another checkout's server (an A/B)")
     parser.add_argument("serve_flags", nargs="*", help="more `sdfserver serve` flags (after --)")
     args = parser.parse_args()
@@ -214,7 +215,7 @@ def main() -> int:
         request = urllib.request.Request(url + "/v1/worlds", method="POST", headers={"content-type": "application/json"},
                                          data=json.dumps({"size": [args.size] * 3}).encode())
         world = json.load(urllib.request.urlopen(request))["id"]
-        requests = asyncio.run(lone_client(url, world, args.size, args.duration))
+        requests = asyncio.run(lone_client(url, world, args.size, args.duration, args.http))
     finally:
         server.send_signal(signal.SIGTERM)
         server.wait(60)

@@ -41,9 +41,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--read-format", choices=("distance", "packed"), default="distance")
     ap.add_argument("--edits-over", choices=("http", "ws"), default="http",
                     help="post edits over HTTP or send them over each client's WebSocket stream")
-    ap.add_argument("--http", choices=("aiohttp", "httpx"), default="aiohttp",
+    ap.add_argument("--http", choices=("aiohttp", "httptools", "httpx"), default="aiohttp",
                     help="each client's HTTP connection: loadtest.connection.Connection (aiohttp, little "
-                         "client CPU) or sdfclient.AsyncClient (httpx)")
+                         "client CPU), loadtest.parsed.ParsedConnection (httptools' parser on an asyncio "
+                         "protocol, less) or sdfclient.AsyncClient (httpx)")
     ap.add_argument("--loop", choices=("uvloop", "asyncio"), default="uvloop",
                     help="the load generator's event loop (uvloop falls back to asyncio when not installed)")
     ap.add_argument("--ops-per-batch", type=int, default=1, help="brushes per edit batch")

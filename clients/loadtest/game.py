@@ -15,10 +15,12 @@ import httpx
 
 from loadtest.config import Brushes, LoadConfig
 from loadtest.connection import Connection
+from loadtest.parsed import ParsedConnection
 from sdfclient import AsyncClient, RateLimited, SdfClientError, ServerError
 from sdfclient.stream import Stream
 
 T = TypeVar("T")
+LEAN_CLIENTS = {"aiohttp": Connection, "httptools": ParsedConnection}  # each bounds a whole exchange
 
 
 @dataclass
@@ -80,8 +82,8 @@ async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget,
     next_at = start + interval * index / cfg.clients
     edits_sent = 0
     async with contextlib.AsyncExitStack() as stack:
-        if cfg.http == "aiohttp":
-            client = Connection(cfg.url, api_key=cfg.api_key, timeout=cfg.timeout_s)
+        if cfg.http in LEAN_CLIENTS:
+            client = LEAN_CLIENTS[cfg.http](cfg.url, api_key=cfg.api_key, timeout=cfg.timeout_s)
         else:
             client = AsyncClient(cfg.url, api_key=cfg.api_key, timeout=cfg.timeout_s,
                                  limits=httpx.Limits(max_connections=1))
@@ -92,7 +94,7 @@ async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget,
         else:
             edit = functools.partial(client.edit, cfg.world_id)
         # Connection's timeout bounds the whole exchange; httpx's are per phase, the stream has none.
-        if cfg.http == "aiohttp" and cfg.edits_over == "http":
+        if cfg.http in LEAN_CLIENTS and cfg.edits_over == "http":
             send_edit = edit
         else:
             def send_edit(batch: list[dict]):

@@ -1,5 +1,6 @@
-"""The load test's connection (``loadtest.connection.Connection``, aiohttp): the same answers and
-errors as ``sdfclient.AsyncClient`` from a real server."""
+"""The load test's connections (``loadtest.connection.Connection``, aiohttp, and
+``loadtest.parsed.ParsedConnection``, httptools): the same answers and errors as
+``sdfclient.AsyncClient`` from a real server."""
 
 from __future__ import annotations
 
@@ -15,6 +16,9 @@ from sdfclient import AsyncClient, Client, InvalidEdit, NotFound, ServerError, e
 
 sys.path.insert(0, str(CLIENTS))
 from loadtest.connection import Connection  # noqa: E402
+from loadtest.parsed import ParsedConnection  # noqa: E402
+
+LEAN = pytest.mark.parametrize("Lean", [Connection, ParsedConnection])
 
 SIZE, CAP = (32, 32, 16), 12
 
@@ -31,7 +35,8 @@ def two_worlds(server_url):
             client.delete_world(world_id)
 
 
-def test_same_results_as_async_client(server_url, two_worlds):
+@LEAN
+def test_same_results_as_async_client(server_url, two_worlds, Lean):
     seed = secrets.randbits(32)
     rng = np.random.default_rng(seed)
     batches = [random_batch(rng, SIZE) for _ in range(5)]
@@ -43,9 +48,9 @@ def test_same_results_as_async_client(server_url, two_worlds):
     points = rng.uniform(0, 15.9, (20, 3))
 
     async def run():
-        async with Connection(server_url) as mine, AsyncClient(server_url) as reference:
+        async with Lean(server_url) as mine, AsyncClient(server_url) as reference:
             out = {}
-            for name, client, world_id in (("aiohttp", mine, mine_id), ("httpx", reference, httpx_id)):
+            for name, client, world_id in (("lean", mine, mine_id), ("httpx", reference, httpx_id)):
                 versions = [await client.edit(world_id, batch) for batch in batches]
                 whole = await client.read_field(world_id, min_version=versions[-1])
                 part = await client.read_field(world_id, box, format="packed", min_version=versions[-1])
@@ -55,7 +60,7 @@ def test_same_results_as_async_client(server_url, two_worlds):
             return out
 
     out = asyncio.run(run())
-    versions, whole, part, voxels, hits = out["aiohttp"]
+    versions, whole, part, voxels, hits = out["lean"]
     assert versions == list(range(1, 6)) == out["httpx"][0], seed
     np.testing.assert_array_equal(whole.distance, oracle_distance(expected, CAP), err_msg=f"seed {seed}")
     np.testing.assert_array_equal(voxels.data, expected, err_msg=f"seed {seed}")
@@ -66,7 +71,8 @@ def test_same_results_as_async_client(server_url, two_worlds):
     np.testing.assert_array_equal(hits.gradients, out["httpx"][4].gradients)
 
 
-def test_same_errors_as_async_client(server_url, two_worlds):
+@LEAN
+def test_same_errors_as_async_client(server_url, two_worlds, Lean):
     world_id = two_worlds[0]
     outside = np.array([[1, 1, 1, 5], [SIZE[0], 0, 0, 5]])
     calls = [
@@ -82,7 +88,7 @@ def test_same_errors_as_async_client(server_url, two_worlds):
         return info.value
 
     async def run():
-        async with Connection(server_url) as mine, AsyncClient(server_url) as reference:
+        async with Lean(server_url) as mine, AsyncClient(server_url) as reference:
             pairs = [(await caught(mine, call), await caught(reference, call)) for call in calls]
             after = await mine.read_voxels(world_id)  # the connection still serves after errors
             return pairs, after

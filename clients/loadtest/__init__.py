@@ -22,15 +22,17 @@ sent to its answer; with ``--rate`` a client that falls behind sends at once.
 With ``--processes P`` the clients are spread over P processes (one Python
 process tops out at a few thousand requests per second).
 
-Each game client holds one connection. With ``--http aiohttp`` (the default) it is
-a ``loadtest.connection.Connection`` (aiohttp, whose C parser costs the generator little next to
-the server it measures); ``--http httpx`` uses ``sdfclient.AsyncClient`` instead. The report
+Each game client holds one connection. With ``--http httptools`` (the default) it is a
+``loadtest.parsed.ParsedConnection`` (an asyncio protocol read by httptools' parser, the one
+uvicorn serves with), so that the generator costs little next to the server it measures;
+``--http aiohttp`` uses ``loadtest.connection.Connection`` (aiohttp's client, about twice the
+generator CPU a request), ``--http httpx`` ``sdfclient.AsyncClient``. The report
 says what the load generator itself cost: its processes' CPU time per request
 (``client_cpu_us_per_request``).
 
 Modules: ``config`` (the run's settings, the brushes), ``game`` (one game client, a worker's
 clients on one event loop), ``drive`` (spreading them over processes), ``report`` (percentiles,
-the progress line, the result document), ``connection`` (the aiohttp connection), ``cli``.
+the progress line, the result document), ``parsed`` (the httptools connection), ``connection`` (the aiohttp one), ``cli``.
 """
 
 from __future__ import annotations

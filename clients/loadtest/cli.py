@@ -41,7 +41,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--read-format", choices=("distance", "packed"), default="distance")
     ap.add_argument("--edits-over", choices=("http", "ws"), default="http",
                     help="post edits over HTTP or send them over each client's WebSocket stream")
-    ap.add_argument("--http", choices=("aiohttp", "httptools", "httpx"), default="aiohttp",
+    ap.add_argument("--http", choices=("aiohttp", "httptools", "httpx"), default="httptools",
                     help="each client's HTTP connection: loadtest.connection.Connection (aiohttp, little "
                          "client CPU), loadtest.parsed.ParsedConnection (httptools' parser on an asyncio "
                          "protocol, less) or sdfclient.AsyncClient (httpx)")

@@ -28,7 +28,7 @@ class LoadConfig:
     seed: int = 0
     timeout_s: float = 30.0
     edits_over: str = "http"  # http: POST /edits; ws: the WebSocket stream (reads stay HTTP)
-    http: str = "aiohttp"  # aiohttp: loadtest.connection.Connection; httptools: loadtest.parsed; httpx: sdfclient.AsyncClient
+    http: str = "httptools"  # httptools: loadtest.parsed.ParsedConnection; aiohttp: loadtest.connection; httpx: sdfclient.AsyncClient
     loop: str = "uvloop"  # the generator's event loop: uvloop (when installed) or asyncio
     api_key: str | None = field(default=None, repr=False)  # sent as a bearer token; never reported
 

@@ -92,7 +92,7 @@ def test_short_run_reports_sane_numbers(server_url, tmp_path):
     assert trips["latency_ms"]["min"] >= reads["latency_ms"]["min"] + edits["latency_ms"]["min"] - 1e-9
     assert trips["latency_ms"]["max"] <= reads["latency_ms"]["max"] + edits["latency_ms"]["max"] + 1e-9
     assert "requests/s" in proc.stdout and "p99" in proc.stdout and "edit+read" in proc.stdout
-    assert result["config"]["http"] == "aiohttp" and result["config"]["loop"] == "uvloop"  # installed here
+    assert result["config"]["http"] == "httptools" and result["config"]["loop"] == "uvloop"  # installed here
     timeline = result["edit_timeline"]  # each second's edits and their p99
     seconds = [t["second"] for t in timeline]
     assert seconds == sorted(set(seconds)) and 0 <= seconds[0] and seconds[-1] <= result["elapsed_s"]

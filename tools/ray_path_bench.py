@@ -1,11 +1,12 @@
 """Which request path to an engine running as a Ray actor is faster: a Ray actor method call, or
-the engine's own ZeroMQ sockets (what the API processes use)?
+the engine's own sockets (what the API processes use)?
 
 One EngineActor on a private local Ray cluster; requests that do no engine work, sequential
 (each reply awaited before the next request) and pipelined (batches of --window in flight):
 
   ray: ray.get(actor.describe.remote())                       (the cluster process's call)
-  zmq: EngineClient.call(msg.Status(...)) on its input/output  (the API processes' call)
+  zmq: EngineClient.call(msg.Status(...)) on its input/output  (the API processes' call; the name
+       is from when the engine's sockets were ZeroMQ's, kept so that results compare)
 
 The paths alternate within each round (and swap order every round) so that both see the same
 machine state. Times are in microseconds; a pipelined call's time is its batch's time / window.

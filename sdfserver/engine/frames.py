@@ -66,8 +66,8 @@ class FrameReader:
         self._large: bytearray | None = None  # a frame larger than what has come, being filled
         self._filled = 0
 
-    def feed(self, data: bytes) -> list[bytes]:
-        frames: list[bytes] = []
+    def feed(self, data: bytes) -> list[bytes | bytearray]:
+        frames: list[bytes | bytearray] = []
         view = memoryview(data)
         if self._large is not None:
             take = min(len(view), len(self._large) - self._filled)
@@ -76,7 +76,7 @@ class FrameReader:
             view = view[take:]
             if self._filled < len(self._large):
                 return frames
-            frames.append(bytes(self._large))
+            frames.append(self._large)  # handed over whole, not copied again
             self._large = None
         buffer = self._buffer
         buffer += view

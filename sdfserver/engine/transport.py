@@ -56,6 +56,7 @@ class EngineTransport:
         self.address = address
         self._stopping = False
         self._wake = os.eventfd(0, os.EFD_NONBLOCK)
+        self._waiting = False  # the output thread is (about to be) waiting in select
         self._input = frames.listen(address.input)
         self._output = frames.listen(address.output)
         self._output.setblocking(False)
@@ -77,9 +78,13 @@ class EngineTransport:
                 thread.join(timeout_s)
 
     def send(self, client: bytes, item: Any) -> None:
-        """Any thread: queue a Reply or a subscription's news for ``client``."""
+        """Any thread: queue a Reply or a subscription's news for ``client``; the output thread
+        is woken only when it waits (it sets ``_waiting`` before it last looks at the queue, so
+        either it sees this item or this sees it waiting)."""
         self.outputs.append((client, item))
-        os.eventfd_write(self._wake, 1)
+        if self._waiting:
+            self._waiting = False
+            os.eventfd_write(self._wake, 1)
 
     # -- input -----------------------------------------------------------------------------------
 
@@ -137,13 +142,15 @@ class EngineTransport:
             for key in list(selector.get_map().values()):
                 if key.data != "wake":
                     key.fileobj.close()
-            selector.close()
-            os.close(self._wake)
+            selector.close()  # the wake descriptor stays open: a late answer may still be queued
 
     def _write_once(self, selector: selectors.BaseSelector) -> None:
         """Wait for answers (or a connection, or room in a backlogged one), then send every
         answer waiting: one frame per API process."""
-        for key, events in selector.select(0 if self.outputs else IDLE_POLL_S):
+        self._waiting = True
+        ready = selector.select(0 if self.outputs else IDLE_POLL_S)
+        self._waiting = False
+        for key, events in ready:
             if key.data == "wake":
                 try:
                     os.eventfd_read(self._wake)

@@ -2,8 +2,9 @@
 
 ``EngineClient`` speaks to an engine process over two stream connections (``frames.py``):
 requests written to one, answers read from the other as the event loop hears them. Each
-request has an id; its future is completed when the ``Reply`` with that id arrives. A subscription's updates
-go to the callback given at ``subscribe``; the callback keeps them in a single-slot mailbox.
+request has an id; its future is completed when the ``Reply`` with that id arrives. A
+subscription's updates go to the callback given at ``subscribe``; the callback keeps them in a
+single-slot mailbox.
 
 ``LocalEngineClient`` is the same interface on an engine running in this process (tests and
 tools): the same messages, encoded and decoded as on the wire, handed to the same
@@ -154,6 +155,7 @@ class EngineClient(BaseClient):
             requests.write(frames.frame(self.identity))
             await asyncio.wait_for(asyncio.shield(welcomed), WELCOME_TIMEOUT_S)
         except (OSError, asyncio.TimeoutError) as exc:
+            welcomed.cancel()  # a welcome or a close that comes later is nobody's news
             for transport in (answers, requests):
                 if transport is not None:
                     transport.abort()

@@ -113,6 +113,7 @@ class EngineClient(BaseClient):
         self._generation = 0  # which connections are the current ones
         self._connecting: asyncio.Task | None = None
         self._stopped = False
+        self._outbox: list[bytes] | None = None  # this turn's requests, written as it ends
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
@@ -176,6 +177,7 @@ class EngineClient(BaseClient):
             if transport is not None:
                 transport.abort()
         self._requests = self._answers = None
+        self._outbox = None  # its requests were the connection's: they fail with it
         self.fail_all(why)
 
     def _went_away(self, generation: int) -> None:
@@ -187,9 +189,21 @@ class EngineClient(BaseClient):
         self._reconnect()
 
     def _send(self, request: Any) -> None:
+        """The requests of one turn of the event loop leave in one write at its end: one system
+        call, and one wake of the engine's input thread, for all of them."""
         if self._requests is None:
             raise NotReady(f"the engine at {self.input_address} is not connected (restarting?); retry the request")
-        self._requests.write(frames.frame(ENCODE(request)))
+        data = frames.frame(ENCODE(request))
+        if self._outbox is None:
+            self._outbox = [data]
+            self._loop.call_soon(self._flush_outbox)
+        else:
+            self._outbox.append(data)
+
+    def _flush_outbox(self) -> None:
+        outbox, self._outbox = self._outbox, None
+        if outbox and self._requests is not None:
+            self._requests.write(outbox[0] if len(outbox) == 1 else b"".join(outbox))
 
     def _arrived(self, payload: bytes) -> None:
         try:

@@ -59,8 +59,13 @@ class BaseClient:
         return await future
 
     def tell(self, request: Any) -> None:
-        """Send a request nobody waits for (its id is 0: the engine answers nothing)."""
-        self._send(request)
+        """Send a request nobody waits for (its id is 0: the engine answers nothing). One told
+        while the engine is not connected is dropped, and logged: what it said (a count, a
+        subscription's credit or its end) died with that engine's state."""
+        try:
+            self._send(request)
+        except NotReady as exc:
+            log.info("%s not sent: %s", type(request).__name__, exc)
 
     def on_updates(self, number: int, deliver: Callable[[msg.ChunkUpdate], None] | None) -> None:
         if deliver is None:

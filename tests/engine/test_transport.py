@@ -102,6 +102,7 @@ def test_an_engine_that_goes_away_fails_what_it_held_and_is_found_again():
             failed_in = time.monotonic() - gone_at
             with pytest.raises(NotReady, match="not connected"):
                 await client.call(msg.Status(2))
+            client.tell(msg.Taken(0, 7))  # nobody waits for it: dropped, not raised
             engines.append(await asyncio.to_thread(_serve, address))
             for _ in range(100):
                 try:

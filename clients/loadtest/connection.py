@@ -45,29 +45,33 @@ class Answer:
         return httpx.Request(self._method, self._url)
 
 
-class Connection:
+class HotCalls:
+    """What the load test's connections share: the checked base URL, the headers every request
+    carries (the API key's among them), the timeout, and ``AsyncClient``'s hot calls, each sent
+    through the connection's own ``_send``."""
+
     def __init__(self, base_url: str = "http://127.0.0.1:8000", *, api_key: str | None = None,
                  timeout: float = DEFAULT_TIMEOUT_S):
-        url = urlsplit(base_url)
-        if url.scheme != "http" or not url.hostname:
+        self.url = urlsplit(base_url)
+        if self.url.scheme != "http" or not self.url.hostname:
             raise ValueError(f"the load test speaks plain http://host:port only, got {base_url!r}")
         self.base_url = base_url.rstrip("/")
         self.timeout = timeout
-        self._headers = {"user-agent": "sdfclient-loadtest"}
+        self.headers = {"user-agent": "sdfclient-loadtest"}
         if api_key is not None:
-            self._headers["authorization"] = f"Bearer {_checked_key(api_key)}"
-        self._session: aiohttp.ClientSession | None = None
+            self.headers["authorization"] = f"Bearer {_checked_key(api_key)}"
 
-    async def __aenter__(self) -> "Connection":
+    async def __aenter__(self) -> "HotCalls":
         return self
 
     async def __aexit__(self, *exc_info: Any) -> None:
         await self.aclose()
 
     async def aclose(self) -> None:
-        session, self._session = self._session, None
-        if session is not None:
-            await session.close()
+        raise NotImplementedError
+
+    async def _send(self, call: p.Call) -> Any:
+        raise NotImplementedError
 
     async def edit(self, world_id: str, edits: Any) -> int:
         return await self._send(p.edit(world_id, edits))
@@ -82,12 +86,24 @@ class Connection:
     async def query(self, world_id: str, points: Any, *, min_version: int | None = None) -> QueryResult:
         return await self._send(p.query(world_id, points, min_version))
 
+
+class Connection(HotCalls):
+    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, api_key: str | None = None,
+                 timeout: float = DEFAULT_TIMEOUT_S):
+        super().__init__(base_url, api_key=api_key, timeout=timeout)
+        self._session: aiohttp.ClientSession | None = None
+
+    async def aclose(self) -> None:
+        session, self._session = self._session, None
+        if session is not None:
+            await session.close()
+
     def _session_now(self) -> aiohttp.ClientSession:
         if self._session is None or self._session.closed:
             # one connection, kept alive: the clients of a load test each hold their own
             self._session = aiohttp.ClientSession(
                 connector=aiohttp.TCPConnector(limit=1, force_close=False, enable_cleanup_closed=False),
-                headers=self._headers, skip_auto_headers=("accept-encoding",), auto_decompress=False)
+                headers=self.headers, skip_auto_headers=("accept-encoding",), auto_decompress=False)
         return self._session
 
     async def _send(self, call: p.Call) -> Any:

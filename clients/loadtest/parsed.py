@@ -1,8 +1,8 @@
 """``ParsedConnection``: one keep-alive HTTP/1.1 connection on an asyncio protocol, its answers
 read by httptools' parser (the one uvicorn serves with), with ``Connection``'s hot calls.
 
-It writes the same ``sdfclient._protocol`` calls and reads their answers with the same parse
-functions as ``Connection`` (so the same results and errors), without a client session, its
+It makes the same calls as ``Connection`` (``HotCalls``) and reads their answers with the same
+parse functions (so the same results and errors), without a client session, its
 connector and its response objects around each exchange: a lone client's latency is more the
 server's and less the load generator's own.
 """
@@ -11,15 +11,14 @@ from __future__ import annotations
 
 import asyncio
 from typing import Any
-from urllib.parse import urlencode, urlsplit
+from urllib.parse import urlencode
 
 import httptools
 
-from loadtest.connection import Answer
+from loadtest.connection import Answer, HotCalls
 from sdfclient import _protocol as p
-from sdfclient.client import DEFAULT_TIMEOUT_S, _checked_key
+from sdfclient.client import DEFAULT_TIMEOUT_S
 from sdfclient.errors import ProtocolError, Timeout, TransportError
-from sdfclient.models import Block, QueryResult
 
 
 class _Exchange(asyncio.Protocol):
@@ -61,44 +60,18 @@ class _Exchange(asyncio.Protocol):
             self.waiting.set_exception(exc)
 
 
-class ParsedConnection:
+class ParsedConnection(HotCalls):
     def __init__(self, base_url: str = "http://127.0.0.1:8000", *, api_key: str | None = None,
                  timeout: float = DEFAULT_TIMEOUT_S):
-        url = urlsplit(base_url)
-        if url.scheme != "http" or not url.hostname:
-            raise ValueError(f"the load test speaks plain http://host:port only, got {base_url!r}")
-        self.base_url = base_url.rstrip("/")
-        self.host, self.port = url.hostname, url.port or 80
-        self.timeout = timeout
-        fixed = [f"host: {url.netloc}", "user-agent: sdfclient-loadtest"]
-        if api_key is not None:
-            fixed.append(f"authorization: Bearer {_checked_key(api_key)}")
-        self._fixed = "\r\n".join(fixed)
+        super().__init__(base_url, api_key=api_key, timeout=timeout)
+        self.host, self.port = self.url.hostname, self.url.port or 80
+        self._fixed = "\r\n".join([f"host: {self.url.netloc}", *(f"{k}: {v}" for k, v in self.headers.items())])
         self._exchange: _Exchange | None = None
-
-    async def __aenter__(self) -> "ParsedConnection":
-        return self
-
-    async def __aexit__(self, *exc_info: Any) -> None:
-        await self.aclose()
 
     async def aclose(self) -> None:
         exchange, self._exchange = self._exchange, None
         if exchange is not None and exchange.transport is not None:
             exchange.transport.close()
-
-    async def edit(self, world_id: str, edits: Any) -> int:
-        return await self._send(p.edit(world_id, edits))
-
-    async def read_field(self, world_id: str, box: p.BoxArg = None, *, format: str = "distance",  # noqa: A002
-                         min_version: int | None = None) -> Block:
-        return await self._send(p.read_field(world_id, box, format, min_version, self.timeout))
-
-    async def read_voxels(self, world_id: str, box: p.BoxArg = None, *, min_version: int | None = None) -> Block:
-        return await self._send(p.read_voxels(world_id, box, min_version, self.timeout))
-
-    async def query(self, world_id: str, points: Any, *, min_version: int | None = None) -> QueryResult:
-        return await self._send(p.query(world_id, points, min_version))
 
     async def _connected(self) -> _Exchange:
         if self._exchange is None or self._exchange.transport is None:

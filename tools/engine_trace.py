@@ -21,6 +21,35 @@ import time
 import numpy as np
 
 
+def wrap(owner, name, before=None, after=None) -> None:
+    """Replace ``owner.name`` by a call that runs ``before(*args)`` and ``after(*args)`` around it."""
+    original = getattr(owner, name)
+
+    def wrapper(*args, **kwargs):
+        if before:
+            before(*args)
+        result = original(*args, **kwargs)
+        if after:
+            after(*args)
+        return result
+
+    setattr(owner, name, wrapper)
+
+
+def record_sends(owner, records: list, clock) -> None:
+    """Append (API process, request id, time) to ``records`` for each answer the output thread
+    encodes (``owner.encoded``; the API process is the output thread's loop variable)."""
+    original = owner.encoded
+
+    def encoded(items):
+        now = clock()
+        client = sys._getframe(1).f_locals.get("client", b"").decode()
+        records.extend((client, item.id, now) for item in items if hasattr(item, "id"))
+        return original(items)
+
+    owner.encoded = encoded
+
+
 def install(path: str) -> None:
     from sdfserver.engine import proc, transport
     from sdfserver.engine.batches import BatchPipeline
@@ -30,19 +59,6 @@ def install(path: str) -> None:
     seen: dict[str, list] = {"received": [], "steps": [], "applied": [], "answered": [], "sent": []}
     clock = time.perf_counter
 
-    def wrap(owner, name, before=None, after=None):
-        original = getattr(owner, name)
-
-        def wrapper(*args, **kwargs):
-            if before:
-                before(*args)
-            result = original(*args, **kwargs)
-            if after:
-                after(*args)
-            return result
-
-        setattr(owner, name, wrapper)
-
     # request ids are each API process's own: a batch is known by (its API process, its id)
     wrap(EngineService, "_apply", before=lambda self, client, m: seen["received"].append(
         (client.decode(), m.id, clock())))
@@ -50,15 +66,7 @@ def install(path: str) -> None:
     wrap(BatchPipeline, "run", after=lambda self, batches, *_: seen["applied"].append((clock(), len(batches))))
     wrap(EngineService, "_reply", before=lambda self, client, request_id, *_, **__: seen["answered"].append(
         (client.decode(), request_id, clock())))
-    original_encoded = transport.encoded
-
-    def encoded(items):
-        now = clock()
-        client = sys._getframe(1).f_locals.get("client", b"").decode()  # the output thread's loop variable
-        seen["sent"].extend((client, item.id, now) for item in items if hasattr(item, "id"))
-        return original_encoded(items)
-
-    transport.encoded = encoded
+    record_sends(transport, seen["sent"], clock)
     original_serve = proc.serve_engine
 
     def serve_engine(*args, **kwargs):
@@ -108,6 +116,4 @@ def summarize(path: str, since_s: float = 0.0, start: float | None = None) -> di
 
 
 if __name__ == "__main__":
-    import sys
-
     print(json.dumps(summarize(sys.argv[1], start=float(sys.argv[2]) if len(sys.argv) > 2 else None), indent=1))

@@ -35,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
+from engine_trace import record_sends, wrap
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
@@ -71,45 +73,19 @@ def install(directory: str) -> None:
             seen["asgi_out"].append((scope.get("method"), clock()))
 
     HotRoutes.__call__ = call
-    original_send = engine_client.EngineClient._send
+    wrap(engine_client.EngineClient, "_send", before=lambda self, request: seen["api_send"].append(
+        (self.identity.decode(), request.id, type(request).__name__, clock())))
 
-    def api_send(self, request):
-        seen["api_send"].append((self.identity.decode(), request.id, type(request).__name__, clock()))
-        return original_send(self, request)
-
-    engine_client.EngineClient._send = api_send
-    original_take = engine_client.BaseClient._take
-
-    def take(self, outputs):
-        now = clock()
-        identity = getattr(self, "identity", b"").decode()
+    def took(self, outputs):
+        now, identity = clock(), getattr(self, "identity", b"").decode()
         seen["api_take"].extend((identity, item.id, now) for item in outputs.items if hasattr(item, "id"))
-        return original_take(self, outputs)
 
-    engine_client.BaseClient._take = take
-    original_handle = EngineService.handle
-
-    def handle(self, client, request):
-        seen["engine_in"].append((client.decode(), request.id, clock()))
-        return original_handle(self, client, request)
-
-    EngineService.handle = handle
-    original_reply = EngineService._reply
-
-    def reply(self, client, request_id, *args, **kwargs):
-        seen["engine_reply"].append((client.decode(), request_id, clock()))
-        return original_reply(self, client, request_id, *args, **kwargs)
-
-    EngineService._reply = reply
-    original_encoded = transport.encoded
-
-    def encoded(items):
-        now = clock()
-        client = sys._getframe(1).f_locals.get("client", b"").decode()  # the output thread's loop variable
-        seen["engine_send"].extend((client, item.id, now) for item in items if hasattr(item, "id"))
-        return original_encoded(items)
-
-    transport.encoded = encoded
+    wrap(engine_client.BaseClient, "_take", before=took)
+    wrap(EngineService, "handle", before=lambda self, client, request: seen["engine_in"].append(
+        (client.decode(), request.id, clock())))
+    wrap(EngineService, "_reply", before=lambda self, client, request_id, *_: seen["engine_reply"].append(
+        (client.decode(), request_id, clock())))
+    record_sends(transport, seen["engine_send"], clock)
 
     os.register_at_fork(after_in_child=lambda: [records.clear() for records in seen.values()])
     original_engine, original_stop = proc.serve_engine, engine_client.EngineClient.stop

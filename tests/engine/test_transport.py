@@ -54,8 +54,12 @@ class Service:
         self.forgotten.append(client)
 
 
-def _address(directory: str) -> EngineAddress:
-    return EngineAddress(0, "", f"ipc://{directory}/in", f"ipc://{directory}/out")
+@pytest.fixture
+def address():
+    """A short directory of its own (a Unix socket's path has a length limit that pytest's
+    per-test directories can pass)."""
+    with tempfile.TemporaryDirectory() as directory:
+        yield EngineAddress(0, "", f"ipc://{directory}/in", f"ipc://{directory}/out")
 
 
 def _serve(address: EngineAddress) -> EngineTransport:
@@ -64,88 +68,82 @@ def _serve(address: EngineAddress) -> EngineTransport:
     return transport
 
 
-def test_answers_of_every_size_arrive_in_full_and_to_their_requests():
-    with tempfile.TemporaryDirectory() as directory:
-        address = _address(directory)
-        engine = _serve(address)
+def test_answers_of_every_size_arrive_in_full_and_to_their_requests(address):
+    engine = _serve(address)
 
-        async def main():
-            client = EngineClient(address.input, address.output)
-            await client.start()
-            ids = [2 * rng for rng in random.sample(range(1, 3000), 60)]  # up to 6 MB an answer
-            answers = await asyncio.wait_for(asyncio.gather(*(client.call(msg.Status(i)) for i in ids)), 30)
-            await client.stop()
-            return ids, answers
+    async def main():
+        client = EngineClient(address.input, address.output)
+        await client.start()
+        ids = [2 * rng for rng in random.sample(range(1, 3000), 60)]  # up to 6 MB an answer
+        answers = await asyncio.wait_for(asyncio.gather(*(client.call(msg.Status(i)) for i in ids)), 30)
+        await client.stop()
+        return ids, answers
 
-        try:
-            ids, answers = asyncio.run(main())
-        finally:
-            engine.stop()
-        assert [len(a) for a in answers] == [i * 997 for i in ids]
+    try:
+        ids, answers = asyncio.run(main())
+    finally:
+        engine.stop()
+    assert [len(a) for a in answers] == [i * 997 for i in ids]
 
 
-def test_an_engine_that_goes_away_fails_what_it_held_and_is_found_again():
-    with tempfile.TemporaryDirectory() as directory:
-        address = _address(directory)
-        engines = [_serve(address)]
+def test_an_engine_that_goes_away_fails_what_it_held_and_is_found_again(address):
+    engines = [_serve(address)]
 
-        async def main():
-            client = EngineClient(address.input, address.output)
-            await client.start()
-            held = asyncio.ensure_future(client.call(msg.Status(1)))  # never answered
-            await asyncio.sleep(0.1)
-            assert not held.done()
-            gone_at = time.monotonic()
-            await asyncio.to_thread(engines[0].stop)
-            with pytest.raises(NotReady, match="went away"):
-                await asyncio.wait_for(held, 5)
-            failed_in = time.monotonic() - gone_at
-            with pytest.raises(NotReady, match="not connected"):
-                await client.call(msg.Status(2))
-            client.tell(msg.Taken(0, 7))  # nobody waits for it: dropped, not raised
-            engines.append(await asyncio.to_thread(_serve, address))
-            for _ in range(100):
-                try:
-                    answer = await client.call(msg.Status(4))
-                    break
-                except NotReady:
-                    await asyncio.sleep(0.05)
-            await client.stop()
-            return failed_in, answer
+    async def main():
+        client = EngineClient(address.input, address.output)
+        await client.start()
+        held = asyncio.ensure_future(client.call(msg.Status(1)))  # never answered
+        await asyncio.sleep(0.1)
+        assert not held.done()
+        gone_at = time.monotonic()
+        await asyncio.to_thread(engines[0].stop)
+        with pytest.raises(NotReady, match="went away"):
+            await asyncio.wait_for(held, 5)
+        failed_in = time.monotonic() - gone_at
+        with pytest.raises(NotReady, match="not connected"):
+            await client.call(msg.Status(2))
+        client.tell(msg.Taken(0, 7))  # nobody waits for it: dropped, not raised
+        engines.append(await asyncio.to_thread(_serve, address))
+        for _ in range(100):
+            try:
+                answer = await client.call(msg.Status(4))
+                break
+            except NotReady:
+                await asyncio.sleep(0.05)
+        await client.stop()
+        return failed_in, answer
 
-        try:
-            failed_in, answer = asyncio.run(main())
-        finally:
-            engines[-1].stop()
-        assert failed_in < 2.0
-        assert answer == b"x" * 4 * 997
+    try:
+        failed_in, answer = asyncio.run(main())
+    finally:
+        engines[-1].stop()
+    assert failed_in < 2.0
+    assert answer == b"x" * 4 * 997
 
 
-def test_answers_for_an_api_process_that_went_away_are_dropped_after_the_grace(monkeypatch):
+def test_answers_for_an_api_process_that_went_away_are_dropped_after_the_grace(monkeypatch, address):
     monkeypatch.setattr(transport_module, "UNREACHABLE_GRACE_S", 0.2)
-    with tempfile.TemporaryDirectory() as directory:
-        address = _address(directory)
-        engine = _serve(address)
+    engine = _serve(address)
 
-        async def main():
-            client = EngineClient(address.input, address.output)
-            await client.start()
-            asyncio.ensure_future(client.call(msg.Status(1)))
-            for _ in range(100):
-                if engine.service.held:
-                    break
-                await asyncio.sleep(0.01)
-            await client.stop()
-            return client.identity
+    async def main():
+        client = EngineClient(address.input, address.output)
+        await client.start()
+        asyncio.ensure_future(client.call(msg.Status(1)))
+        for _ in range(100):
+            if engine.service.held:
+                break
+            await asyncio.sleep(0.01)
+        await client.stop()
+        return client.identity
 
-        try:
-            identity = asyncio.run(main())
-            assert engine.service.held == [(identity, 1)]
-            engine.send(identity, msg.Reply(1, "late"))  # its API process is gone
-            deadline = time.monotonic() + 5
-            while not engine.service.forgotten and time.monotonic() < deadline:
-                time.sleep(0.02)
-        finally:
-            engine.stop()
-        assert engine.service.forgotten == [identity]
-        assert not any(t.is_alive() for t in threading.enumerate() if t.name.startswith("sdfserver-engine-"))
+    try:
+        identity = asyncio.run(main())
+        assert engine.service.held == [(identity, 1)]
+        engine.send(identity, msg.Reply(1, "late"))  # its API process is gone
+        deadline = time.monotonic() + 5
+        while not engine.service.forgotten and time.monotonic() < deadline:
+            time.sleep(0.02)
+    finally:
+        engine.stop()
+    assert engine.service.forgotten == [identity]
+    assert not any(t.is_alive() for t in threading.enumerate() if t.name.startswith("sdfserver-engine-"))

@@ -15,6 +15,11 @@ field read of 16³ at its version) and prints, per request kind, the median and 
   API answer                  from the reply to the ASGI response sent
   API → client                the response to the load generator having parsed it
 
+Then, per request kind, when the engine passed each point of its step (``install_engine_steps``),
+counted from the engine taking the request: the step's start, planning, the log written and
+handed to the committer, the sync and the check after it, the brushes launched, the recompute, a
+read, the step's end.
+
 Every process reads ``time.perf_counter`` (CLOCK_MONOTONIC on Linux, one clock for all of them).
 Each timestamp costs a list append; the records are written when the server stops (SIGTERM).
 """
@@ -23,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import bisect
 import json
 import os
 import signal
@@ -55,8 +61,9 @@ def install(directory: str) -> None:
     from sdfserver.engine.service import EngineService
 
     seen: dict[str, list] = {"asgi_in": [], "asgi_out": [], "api_send": [], "api_take": [],
-                             "engine_in": [], "engine_reply": [], "engine_send": []}
+                             "engine_in": [], "engine_reply": [], "engine_send": [], "engine_steps": []}
     clock = time.perf_counter
+    install_engine_steps(seen["engine_steps"], clock)
 
     def dump(*_):
         if any(seen.values()):
@@ -103,6 +110,44 @@ def install(directory: str) -> None:
     proc.serve_engine, engine_client.EngineClient.stop = serve_engine, stop
 
 
+def install_engine_steps(events: list, clock) -> None:
+    """Record (point, time) as the engine process passes the points of a step: its start, each
+    batch planned, the log written and handed to the committer, the sync, the check after it,
+    the brushes launched, the recompute, the publishing, a read, the step's end. A lone client
+    has one request in the engine at a time, so each point belongs to the request whose engine
+    span holds it."""
+    from sdfserver.engine.batches import BatchPipeline
+    from sdfserver.engine.core import Engine
+    from sdfserver.engine.reads import Reads
+    from sdfserver.engine.subscriptions import Subscriptions
+    from sdfserver.storage.journal import StorageJournal
+    from sdfserver.storage.wal import Committer
+    from sdfserver.world import World
+
+    def mark(name):
+        return lambda *_: events.append((name, clock()))
+
+    wrap(Engine, "step", before=mark("step start"), after=mark("step end"))
+    wrap(BatchPipeline, "plan", after=mark("planned"))
+    wrap(StorageJournal, "record_batches", after=mark("log written"))
+    wrap(StorageJournal, "start_syncs", after=mark("handed to the committer"))
+    wrap(World, "apply_plans", after=mark("brushes launched"))
+    wrap(Engine, "_recompute", after=mark("recomputed"))
+    wrap(Subscriptions, "publish", after=mark("published"))
+    wrap(Reads, "read", before=mark("read start"), after=mark("read end"))
+    sync_one = Committer._sync_one
+
+    def timed_sync(item):
+        events.append(("sync start", clock()))
+        try:
+            return sync_one(item)
+        finally:
+            events.append(("sync end", clock()))
+
+    Committer._sync_one = staticmethod(timed_sync)
+    wrap(Committer, "_after_sync", after=mark("checked after the sync"))
+
+
 async def lone_client(url: str, world: str, size: int, duration_s: float, http: str) -> list[tuple]:
     """(kind, sent, answered) for each request of one client: an edit, then its read."""
     sys.path.insert(0, str(ROOT / "clients"))
@@ -135,7 +180,9 @@ def timeline(directory: str, requests: list[tuple], skip: int = 50) -> dict:
     sends = sorted(records.get("api_send", []), key=lambda r: r[3])
     by_id = {name: {(c, i): t for c, i, t in records.get(name, [])}
              for name in ("api_take", "engine_in", "engine_reply", "engine_send")}
+    steps = sorted(records.get("engine_steps", []), key=lambda r: r[1])
     hops: dict[str, dict[str, list[float]]] = {}
+    engine_points: dict[str, dict[str, list[float]]] = {}
     for kind, sent, answered in requests[skip:]:
         inside = lambda rows, at: [r for r in rows if sent <= r[at] <= answered]  # noqa: E731
         came, went, out = inside(asgi_in, 1), inside(asgi_out, 1), inside(sends, 3)
@@ -152,9 +199,27 @@ def timeline(directory: str, requests: list[tuple], skip: int = 50) -> dict:
         for name, a, b in zip(names, points, points[1:]):
             per[name].append(b - a)
         per["whole"].append(answered - sent)
-    return {kind: {name: {"p50_us": round(float(np.percentile(v, 50)) * 1e6, 1),
-                          "p90_us": round(float(np.percentile(v, 90)) * 1e6, 1), "n": len(v)}
-                   for name, v in per.items()} for kind, per in hops.items()}
+        span = engine_points.setdefault(kind, {})
+        for name, at in steps_between(steps, points[3], points[5]):
+            span.setdefault(name, []).append(at - points[3])
+    figures = {kind: {name: {"p50_us": round(float(np.percentile(v, 50)) * 1e6, 1),
+                             "p90_us": round(float(np.percentile(v, 90)) * 1e6, 1), "n": len(v)}
+                      for name, v in per.items()} for kind, per in hops.items()}
+    for kind, span in engine_points.items():  # each point's time after the engine took the request
+        figures.setdefault(kind, {})["engine points"] = {
+            name: {"p50_us": round(float(np.percentile(v, 50)) * 1e6, 1), "n": len(v)}
+            for name, v in sorted(span.items(), key=lambda item: np.median(item[1]))}
+    return figures
+
+
+def steps_between(steps: list[tuple[str, float]], start: float, end: float) -> list[tuple[str, float]]:
+    """The first time each engine point was passed between ``start`` and ``end``."""
+    first: dict[str, float] = {}
+    for name, at in steps[bisect.bisect_left(steps, start, key=lambda r: r[1]):]:
+        if at > end:
+            break
+        first.setdefault(name, at)
+    return list(first.items())
 
 
 def main() -> int:
@@ -197,7 +262,11 @@ def main() -> int:
         server.wait(60)
     figures = timeline(directory, requests)
     for kind, per in figures.items():
+        points = per.pop("engine points", {})
         print(f"{kind}: " + ", ".join(f"{name} {v['p50_us']:.0f} µs (p90 {v['p90_us']:.0f})" for name, v in per.items()))
+        print(f"{kind}, in the engine after it took the request (p50): "
+              + ", ".join(f"{name} {v['p50_us']:.0f} µs (n {v['n']})" for name, v in points.items()))
+        per["engine points"] = points
     if args.json:
         Path(args.json).write_text(json.dumps(figures, indent=1))
     return 0

@@ -30,12 +30,13 @@ warm-up and its failures: ``lifetime.py``.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import queue
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass
-from typing import Any, Callable, TypeVar
+from typing import Any, Callable, ContextManager, TypeVar
 
 import numpy as np
 import pyopencl as cl
@@ -108,6 +109,9 @@ class Engine(EngineLifetime, CommandCalls):
         self.last_recompute_ms = self.table.last_recompute_ms
         self._dirty_gauge_at = -DIRTY_GAUGE_EVERY_S
         self.metrics.queue_depth.set_function(self._commands.qsize)
+        # a step's answers are completed inside this: the engine process's transport sends them
+        # together (EngineTransport.holding)
+        self.answering: Callable[[], ContextManager[Any]] = contextlib.nullcontext
 
     # -- lifetime -----------------------------------------------------------------------------
 
@@ -188,10 +192,11 @@ class Engine(EngineLifetime, CommandCalls):
         except Exception as exc:
             self._fail_step(exc, self._unanswered(commands + serve + self._waiting))
             self._waiting, answers = [], []
+        with self.answering():  # before the step's bookkeeping: they need not wait for it
+            for future, result in answers:
+                future.set_result(result)
         self.subscriptions.count_pending()
         clock.stop(self.metrics, self.limits.slow_step_ms)
-        for future, result in answers:  # last: a receiver may need the GIL this thread holds
-            future.set_result(result)
         return report
 
     def _unanswered(self, pending: list[Pending]) -> list[Pending]:

@@ -143,6 +143,9 @@ def serve_engine(settings: Settings, address: EngineAddress, engines: int, conn:
         transport = EngineTransport(lambda send: EngineService(
             engine, doorkeeper, send, writes_failure=writes_failure, data_dir_of=peer_dir if engines > 1 else None,
             epoch=journal.storage.epoch if journal is not None else 0), address)
+        engine.answering = transport.holding
+        if journal is not None:
+            journal.storage.committer.completing = transport.holding
         transport.start()
         conn.send(("ready", gpu.device_name))
         while not stop.wait(0.5):

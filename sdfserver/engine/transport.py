@@ -9,6 +9,13 @@
   non-blocking: what an API process does not take at once waits in its backlog while the
   others are served.
 
+A thread that completes several answers at once (the engine thread ending a step, the log's
+committer acknowledging a sync's batches) does it inside ``holding()``: its answers leave together
+as the block ends, from that thread itself when the output thread is idle. The output thread,
+woken, would first wait for the GIL that the engine thread holds while it recomputes; the
+answering thread holds it already. Whoever sends holds ``_sending``, so answers leave in the
+order they were queued.
+
 Answers for an API process that is not connected wait ``UNREACHABLE_GRACE_S`` (a restarted
 engine's API processes reconnecting); after that its subscriptions are dropped.
 """
@@ -16,13 +23,14 @@ engine's API processes reconnecting); after that its subscriptions are dropped.
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import os
 import selectors
 import socket
 import threading
 import time
-from typing import Any
+from typing import Any, Iterator
 
 import msgspec
 
@@ -57,6 +65,9 @@ class EngineTransport:
         self._stopping = False
         self._wake = os.eventfd(0, os.EFD_NONBLOCK)
         self._waiting = False  # the output thread is (about to be) waiting in select
+        self._sending = threading.Lock()  # held by whichever thread sends and by the output thread's work
+        self._held = threading.local()  # depth: this thread is inside holding()
+        self._selector = selectors.DefaultSelector()  # the output side's
         self._input = frames.listen(address.input)
         self._output = frames.listen(address.output)
         self._output.setblocking(False)
@@ -78,10 +89,37 @@ class EngineTransport:
                 thread.join(timeout_s)
 
     def send(self, client: bytes, item: Any) -> None:
-        """Any thread: queue a Reply or a subscription's news for ``client``; the output thread
-        is woken only when it waits (it sets ``_waiting`` before it last looks at the queue, so
-        either it sees this item or this sees it waiting)."""
+        """Any thread: queue a Reply or a subscription's news for ``client``. Inside
+        ``holding()`` it leaves as the block ends; otherwise the output thread is woken, only
+        when it waits (it sets ``_waiting`` before it last looks at the queue, so either it
+        sees this item or this sees it waiting)."""
         self.outputs.append((client, item))
+        if not getattr(self._held, "depth", 0):
+            self._wake_output()
+
+    @contextlib.contextmanager
+    def holding(self) -> Iterator[None]:
+        """The answers this thread queues within the block leave together as it ends: sent by
+        this thread when the output thread is idle, else handed to it."""
+        held = self._held
+        depth = getattr(held, "depth", 0)
+        held.depth = depth + 1
+        try:
+            yield
+        finally:
+            held.depth = depth
+            if not depth and self.outputs:
+                if self._waiting and not self._stopping and self._sending.acquire(blocking=False):
+                    try:
+                        self._send_outputs()
+                    except Exception:  # as in the output thread: later answers must still go
+                        log.exception("sending the engine's answers failed")
+                    finally:
+                        self._sending.release()
+                if self.outputs:
+                    self._wake_output()
+
+    def _wake_output(self) -> None:
         if self._waiting:
             self._waiting = False
             os.eventfd_write(self._wake, 1)
@@ -129,7 +167,7 @@ class EngineTransport:
     # -- output ----------------------------------------------------------------------------------
 
     def _write(self) -> None:
-        selector = selectors.DefaultSelector()
+        selector = self._selector
         selector.register(self._wake, selectors.EVENT_READ, "wake")
         selector.register(self._output, selectors.EVENT_READ, "listen")
         try:
@@ -139,10 +177,11 @@ class EngineTransport:
                 except Exception:  # a bug here must not leave every later answer unsent
                     log.exception("the engine's output thread failed to send; it goes on")
         finally:
-            for key in list(selector.get_map().values()):
-                if key.data != "wake":
-                    key.fileobj.close()
-            selector.close()  # the wake descriptor stays open: a late answer may still be queued
+            with self._sending:
+                for key in list(selector.get_map().values()):
+                    if key.data != "wake":
+                        key.fileobj.close()
+                selector.close()  # the wake descriptor stays open: a late answer may still be queued
 
     def _write_once(self, selector: selectors.BaseSelector) -> None:
         """Wait for answers (or a connection, or room in a backlogged one), then send every
@@ -150,20 +189,25 @@ class EngineTransport:
         self._waiting = True
         ready = selector.select(0 if self.outputs else IDLE_POLL_S)
         self._waiting = False
-        for key, events in ready:
-            if key.data == "wake":
-                try:
-                    os.eventfd_read(self._wake)
-                except BlockingIOError:
-                    pass
-            elif key.data == "listen":
-                self._accept(selector)
-            elif events & selectors.EVENT_WRITE:
-                self._flush(selector, key.data)
-            else:
-                self._hear(selector, key.data)
-        if self._undelivered:
-            self._send_undelivered(selector)
+        with self._sending:
+            for key, events in ready:
+                if key.data == "wake":
+                    try:
+                        os.eventfd_read(self._wake)
+                    except BlockingIOError:
+                        pass
+                elif key.data == "listen":
+                    self._accept(selector)
+                elif events & selectors.EVENT_WRITE:
+                    self._flush(selector, key.data)
+                else:
+                    self._hear(selector, key.data)
+            if self._undelivered:
+                self._send_undelivered(selector)
+            self._send_outputs()
+
+    def _send_outputs(self) -> None:
+        """Every answer queued, one frame per API process (with ``_sending`` held)."""
         batches: dict[bytes, list] = collections.defaultdict(list)
         news_sent: set[tuple[bytes, int]] = set()
         outputs = self.outputs
@@ -178,7 +222,7 @@ class EngineTransport:
             else:
                 batches[client].append(out)
         for client, items in batches.items():
-            self._deliver(selector, client, frames.frame(encoded(items)))
+            self._deliver(self._selector, client, frames.frame(encoded(items)))
 
     def _accept(self, selector: selectors.BaseSelector) -> None:
         try:
@@ -212,8 +256,10 @@ class EngineTransport:
             self._deliver(selector, peer.identity, WELCOME, first=True)
 
     def _lost(self, selector: selectors.BaseSelector, peer: Peer) -> None:
-        """Its half-sent answers go with it: the API process failed its waiting requests."""
-        selector.unregister(peer.sock)
+        """Its half-sent answers go with it: the API process failed its waiting requests. (An
+        event the output thread saw before another thread lost the peer may bring it here again.)"""
+        with contextlib.suppress(KeyError, ValueError):
+            selector.unregister(peer.sock)
         peer.sock.close()
         if peer.identity is not None and self._answers.get(peer.identity) is peer:
             del self._answers[peer.identity]

@@ -38,13 +38,14 @@ the committer fails as for a failed sync and the batches are not acknowledged.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable, ContextManager
 
 from sdfserver.errors import WritesDisabled
 from sdfserver.storage.framing import encode_record, encode_segment_header
@@ -96,6 +97,9 @@ class Committer:
         self.syncs = 0  # fdatasync calls made
         self.records = 0  # records made durable
         self._pool = ThreadPoolExecutor(max_workers=SYNC_THREADS, thread_name_prefix="sdfserver-fdatasync")
+        # a round's futures are completed inside this: the engine process's transport sends the
+        # acknowledgements they release together (EngineTransport.holding)
+        self.completing: Callable[[], ContextManager[Any]] = contextlib.nullcontext
         self._thread = threading.Thread(target=self._run, name="sdfserver-wal-sync", daemon=True)
         self._thread.start()
 
@@ -208,18 +212,19 @@ class Committer:
             errors = [e for e in results if e is not None]
             if not errors:
                 errors = [e for e in (self._after_sync(files),) if e is not None]
-            if errors:
-                failure = self.fail(*errors[0])
-                for _, _, future, _ in batch:
-                    future.set_exception(failure)
-            else:
-                self.syncs += len(files)
-                self.records += len(batch)
-                refusals: dict[int, Exception | None] = {}  # one fence check per file and round
-                for fd, _, future, fence in batch:
-                    if fence is not None and fd not in refusals:
-                        refusals[fd] = fence()
-                    _complete(future, refusals.get(fd))
+            with self.completing():
+                if errors:
+                    failure = self.fail(*errors[0])
+                    for _, _, future, _ in batch:
+                        future.set_exception(failure)
+                else:
+                    self.syncs += len(files)
+                    self.records += len(batch)
+                    refusals: dict[int, Exception | None] = {}  # one fence check per file and round
+                    for fd, _, future, fence in batch:
+                        if fence is not None and fd not in refusals:
+                            refusals[fd] = fence()
+                        _complete(future, refusals.get(fd))
 
     @staticmethod
     def _sync_one(item: tuple[int, str]) -> SyncError | None:

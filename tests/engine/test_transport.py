@@ -147,3 +147,53 @@ def test_answers_for_an_api_process_that_went_away_are_dropped_after_the_grace(m
         engine.stop()
     assert engine.service.forgotten == [identity]
     assert not any(t.is_alive() for t in threading.enumerate() if t.name.startswith("sdfserver-engine-"))
+
+
+def test_answers_held_by_a_thread_leave_from_it_while_the_output_thread_idles_and_in_order(monkeypatch, address):
+    """The held requests (odd ids) are answered by this thread inside ``holding()``: with the
+    output thread idle they leave from this thread; the rest from the output thread; every
+    answer reaches its request, the held ones in the order they were completed."""
+    senders: list[str] = []
+    encode = transport_module.encoded
+
+    def recorded(items):
+        senders.append(threading.current_thread().name)
+        return encode(items)
+
+    monkeypatch.setattr(transport_module, "encoded", recorded)
+    engine = _serve(address)
+
+    async def main():
+        client = EngineClient(address.input, address.output)
+        await client.start()
+        got: list[int] = []
+        calls = [asyncio.ensure_future(client.call(msg.Status(i))) for i in range(1, 41)]
+        for call, i in zip(calls, range(1, 41)):
+            call.add_done_callback(lambda _, i=i: got.append(i))
+        for _ in range(200):
+            if len(engine.service.held) == 20 and len(got) == 20:
+                break
+            await asyncio.sleep(0.01)
+        await asyncio.sleep(0.2)  # the output thread goes back to waiting
+        sent_before = len(senders)
+        for start in (0, 10):
+            def answer(start=start):
+                with engine.holding():
+                    for client_id, request_id in engine.service.held[start:start + 10]:
+                        engine.send(client_id, msg.Reply(request_id, request_id))
+            await asyncio.to_thread(answer)
+            await asyncio.sleep(0.2)
+        answers = await asyncio.wait_for(asyncio.gather(*calls), 10)
+        await client.stop()
+        return answers, got, sent_before
+
+    try:
+        answers, got, sent_before = asyncio.run(main())
+    finally:
+        engine.stop()
+    assert answers[1::2] == [b"x" * i * 997 for i in range(2, 41, 2)]
+    assert answers[0::2] == list(range(1, 41, 2))
+    assert got[20:] == list(range(1, 41, 2))
+    assert set(senders[:sent_before]) == {"sdfserver-engine-output"}
+    assert len(senders[sent_before:]) == 2  # each held block's answers in one frame, from its thread
+    assert all(name.startswith("asyncio_") for name in senders[sent_before:]), senders

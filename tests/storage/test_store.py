@@ -1,6 +1,7 @@
 """The data directory with real files: recovery, snapshots and trimming, the catalog,
 group commit, and the failed state after a write or sync error."""
 
+import contextlib
 import os
 import threading
 
@@ -243,6 +244,36 @@ def test_hand_over_returns_once_an_idle_committer_has_taken_every_world(storage,
         assert storage.committer.waiting == 0
         for future in durable:
             future.result()  # the committer is idle again for the next
+    for store in stores:
+        store.close()
+
+
+def test_a_round_of_syncs_completes_its_futures_inside_one_completing_block(storage, monkeypatch):
+    """The engine process sends the acknowledgements a round releases together, as that block
+    ends (EngineTransport.holding): every future of the round completes inside one block."""
+    monkeypatch.setattr(wal, "HANDOVER_TIMEOUT_S", 30.0)
+    blocks, inside = [], threading.local()
+
+    @contextlib.contextmanager
+    def completing():
+        inside.block = len(blocks)
+        blocks.append("open")
+        try:
+            yield
+        finally:
+            blocks[inside.block] = "closed"
+            inside.block = None
+
+    storage.committer.completing = completing
+    stores = [storage.create_world(name, {"config": CONFIG}) for name in "abc"]
+    seen = []
+    durable = [store.append_many(1, [b"batch"], wake=False) for store in stores]
+    for future in durable:
+        future.add_done_callback(lambda _: seen.append(getattr(inside, "block", None)))
+    storage.committer.hand_over()
+    for future in durable:
+        future.result()
+    assert seen == [0, 0, 0] and blocks == ["closed"]
     for store in stores:
         store.close()
 

@@ -128,13 +128,7 @@ class Exact:
     @staticmethod
     def enqueue(gpu: GpuContext, job: RegionJob, kernel, global_, local):
         """Launch one pass over the job's work box; returns its event."""
-        b = job.buffers
-        return kernel(
-            gpu.queue, global_, local, b.work, b.voxels, b.field,
-            int4(b.dims), int4(job.work_box.lo), int4(job.work_box.shape_xyz),
-            int4(job.region.lo), int4(job.region.hi),
-            np.int32(job.seeded), np.int32(job.cap), np.int32(work_plane(job)),
-        )
+        return kernel(gpu.queue, global_, local, *pass_args(job))
 
     def prebuild(self, gpu: GpuContext, max_line: int = 2048) -> int:
         """Build every pass variant a line of up to max_line voxels can need; returns how many.
@@ -166,6 +160,16 @@ class Exact:
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         run = AlgorithmRun(bytes_moved=bytes_moved(job))
+        args = pass_args(job)  # the three passes take the same arguments
+        queue = gpu.queue
         for kernel, _, global_, local in self.passes(gpu, job.work_box.shape_xyz):
-            run.events.append(self.enqueue(gpu, job, kernel, global_, local))
+            run.events.append(kernel(queue, global_, local, *args))
         return run
+
+
+def pass_args(job: RegionJob) -> tuple:
+    """The arguments of every pass over ``job`` (kernels/exact.cl)."""
+    b, work_box = job.buffers, job.work_box
+    return (b.work, b.voxels, b.field, int4(b.dims), int4(work_box.lo), int4(work_box.shape_xyz),
+            int4(job.region.lo), int4(job.region.hi),
+            np.int32(job.seeded), np.int32(job.cap), np.int32(work_plane(job)))

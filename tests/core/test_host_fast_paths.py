@@ -1,0 +1,75 @@
+"""The engine thread's shortcuts give what the general code gives: the dirty set's regions when
+one box grows to the whole world, the changed-chunk count, kernel times read straight from an
+event, a log record framed in one pass."""
+
+from __future__ import annotations
+
+import random
+import struct
+import zlib
+
+import pyopencl as cl
+
+from sdfserver.dirty import DirtySet
+from sdfserver.geometry import Box, merge_regions
+from sdfserver.gpu.profiling import event_ms
+from sdfserver.storage.framing import encode_record
+from sdfserver.world import RecomputeResult, WorldConfig
+
+
+def _random_box(rng: random.Random, size: tuple[int, int, int]) -> Box:
+    lo = tuple(rng.randrange(s) for s in size)
+    return Box(lo, tuple(min(s, v + rng.randrange(1, 12)) for v, s in zip(lo, size)))
+
+
+def _reference_regions(boxes: list[Box], config: WorldConfig) -> list[Box]:
+    cap = 0 if config.borders == "padded" else config.max_distance
+    world = Box.of_size(config.size)
+    return merge_regions([b.grow(cap).snap(config.chunk_size).intersect(world) for b in boxes])
+
+
+def test_dirty_regions_match_grow_snap_clip_merge():
+    rng = random.Random()
+    for _ in range(300):
+        size = tuple(rng.choice((16, 48, 64, 128)) for _ in range(3))
+        config = WorldConfig(size=size, chunk_size=rng.choice((8, 16)),
+                             max_distance=rng.choice((0, 3, 16, 40, 64, 255)),
+                             borders=rng.choice(("exact", "padded")), algorithm="brute")
+        dirty = DirtySet()
+        dirty.add([_random_box(rng, size) for _ in range(rng.randrange(1, 20))])
+        assert sorted(dirty.regions(config), key=str) == sorted(_reference_regions(dirty.boxes, config), key=str)
+
+
+def test_one_box_growing_to_the_whole_world_gives_the_whole_world():
+    config = WorldConfig(size=(64, 48, 32), chunk_size=16, max_distance=40)
+    dirty = DirtySet()
+    dirty.add([Box((20, 20, 10), (22, 22, 12)), Box((0, 0, 0), (1, 1, 1))])
+    assert dirty.regions(config) == [Box((0, 0, 0), (64, 48, 32))]
+    near_corner = DirtySet()  # grows to the world's far side only past a chunk boundary: not all of it
+    near_corner.add([Box((0, 0, 0), (1, 1, 1))])
+    assert near_corner.regions(config) == [Box((0, 0, 0), (48, 48, 32))]
+    one_chunk_short = DirtySet()  # reaches every side but x's low one, by one chunk
+    one_chunk_short.add([Box((56, 0, 0), (57, 1, 1))])
+    assert one_chunk_short.regions(config) == [Box((16, 0, 0), (64, 48, 32))]
+
+
+def test_changed_chunk_count_is_the_chunk_ranges_volume():
+    rng = random.Random()
+    for _ in range(100):
+        size = (128, 128, 128)
+        chunk = rng.choice((8, 16, 32))
+        regions = [_random_box(rng, size) for _ in range(rng.randrange(0, 5))]
+        result = RecomputeResult(regions, chunk)
+        assert result.changed_chunk_count == sum(r.chunk_range(chunk).volume for r in regions)
+
+
+def test_event_ms_of_a_real_event_is_its_profiled_time(gpu):
+    event = cl.enqueue_marker(gpu.queue)
+    gpu.queue.finish()
+    assert event_ms(event) == (event.profile.end - event.profile.start) * 1e-6
+
+
+def test_a_record_is_length_version_crc_payload():
+    head = struct.pack("<IQ", 7, 9)
+    assert encode_record(9, b"payload") == head + struct.pack("<I", zlib.crc32(head + b"payload")) + b"payload"
+    assert encode_record(1, b"") == struct.pack("<IQI", 0, 1, zlib.crc32(struct.pack("<IQ", 0, 1)))

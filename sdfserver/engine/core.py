@@ -9,6 +9,7 @@ whenever commands are queued:
    arrival order — each batch validated on its own, so a bad batch fails alone
    and changes nothing; a world's valid batches are journaled in one log write,
    applied in order and acknowledged with their versions (after the log sync);
+   with no other command queued, the step waits for that acknowledgement;
 3. recompute each touched world once, however many batches it took;
 4. publish the chunks each recompute rewrote to the subscribers of those chunks;
 5. serve reads, point queries, frames, picks, subscriptions and ``run_on_device`` calls
@@ -63,6 +64,10 @@ from sdfserver.world import RecomputeResult, World, WorldConfig
 log = logging.getLogger("sdfserver.engine")
 T = TypeVar("T")
 DIRTY_GAUGE_EVERY_S = 0.1  # the dirty-chunks gauge is counted at most this often
+# With nothing else queued, a step waits this long at most for its batches' acknowledgements
+# before it recomputes (journal.wait_durable): the log's committer then acknowledges them without
+# waiting for the GIL that the recompute would hold.
+LONE_ACKNOWLEDGEMENT_WAIT_S = 0.002
 
 __all__ = ["Engine", "EngineParts", "new_world_id", "world_config_dict"]
 
@@ -180,6 +185,9 @@ class Engine(EngineLifetime, CommandCalls):
         try:
             touched = self._apply([c for c in commands if isinstance(c[0], APPLY)], report)
             clock.lap("apply")
+            if self.batches.acknowledging and self.journal is not None and self._commands.empty():
+                self.journal.wait_durable(LONE_ACKNOWLEDGEMENT_WAIT_S)
+                clock.lap("durable")
             report.recomputed = self._recompute(touched)
             clock.lap("recompute")
             self.subscriptions.publish(report.recomputed)

@@ -28,7 +28,7 @@ class EngineMetrics:
         self.step_seconds = Histogram("sdfserver_engine_step_seconds", "Wall time of one engine step.",
                                       buckets=RECOMPUTE_BUCKETS_S, registry=registry)
         self.phase_seconds = Counter("sdfserver_engine_phase_seconds", "Engine-thread wall time by step phase "
-                                     "(apply, recompute, publish, serve).", ["phase"], registry=registry)
+                                     "(apply, durable, recompute, publish, serve).", ["phase"], registry=registry)
         self.recompute_seconds = Histogram(
             "sdfserver_recompute_seconds", "Wall time of one world's recompute, by algorithm.",
             ["algorithm"], buckets=RECOMPUTE_BUCKETS_S, registry=registry)

@@ -6,6 +6,7 @@ The engine calls it on its own thread:
 - ``record_batches`` appends a step's batches for a world to its log in one write and returns
   the future that completes once they are durable — the engine acknowledges them only then;
 - ``start_syncs`` hands what the step appended to the committer (``Committer.hand_over``);
+- ``wait_durable`` waits until the committer has acknowledged it (``Committer.wait_settled``);
 - ``record_config`` rewrites the catalog entry before a reconfiguration takes effect;
 - ``record_delete`` removes the world's directory;
 - ``wants_snapshot`` / ``record_snapshot``: after a recompute, a world with
@@ -80,6 +81,9 @@ class StorageJournal:
 
     def start_syncs(self, wait: bool = True) -> None:
         self.storage.committer.hand_over(wait)
+
+    def wait_durable(self, timeout_s: float) -> None:
+        self.storage.committer.wait_settled(timeout_s)
 
     def record_config(self, world_id: str, config: dict[str, Any]) -> None:
         self._store(world_id).write_meta({"config": config, "owner": self.owners.get(world_id)})

@@ -92,8 +92,9 @@ class Committer:
         self._failure: WritesDisabled | None = None
         self._closed = False
         self._idle = False  # the committer waits for records
-        self._queued = 0  # records ever queued, and of those taken for a sync
+        self._queued = 0  # records ever queued, of those taken for a sync, and of those settled
         self._taken = 0
+        self._settled = 0  # durable (or failed) and their futures completed
         self.syncs = 0  # fdatasync calls made
         self.records = 0  # records made durable
         self._pool = ThreadPoolExecutor(max_workers=SYNC_THREADS, thread_name_prefix="sdfserver-fdatasync")
@@ -133,7 +134,7 @@ class Committer:
                     f"writes are disabled: {what} of {path} failed ({exc}); nothing after the last "
                     "acknowledged edit is kept, and no edit is accepted until the server is restarted")
                 pending, self._pending = self._pending, []
-                self._taken = self._queued
+                self._taken = self._settled = self._queued
                 self._cond.notify_all()
                 for _, _, future, _ in pending:
                     future.set_exception(self._failure)
@@ -187,6 +188,15 @@ class Committer:
                 queued = self._queued
                 self._cond.wait_for(lambda: self._taken >= queued or self._closed, HANDOVER_TIMEOUT_S)
 
+    def wait_settled(self, timeout_s: float) -> None:
+        """Wait (GIL released) until every record handed over so far is durable and its future
+        completed, or has failed; at most ``timeout_s``."""
+        if not self.sync or self.inline:
+            return
+        with self._cond:
+            queued = self._queued
+            self._cond.wait_for(lambda: self._settled >= queued or self._closed, timeout_s)
+
     def _run(self) -> None:
         while True:
             with self._cond:
@@ -200,7 +210,7 @@ class Committer:
                 time.sleep(self.window_s)
             with self._cond:
                 batch, self._pending = self._pending, []
-                self._taken = self._queued
+                self._taken = taken = self._queued
                 self._cond.notify_all()  # an append waiting for the hand-over goes on
             files = {fd: path for fd, path, _, _ in batch}
             # Several files (worlds) sync side by side, so the file system can merge them; one file
@@ -225,6 +235,9 @@ class Committer:
                         if fence is not None and fd not in refusals:
                             refusals[fd] = fence()
                         _complete(future, refusals.get(fd))
+            with self._cond:
+                self._settled = max(self._settled, taken)
+                self._cond.notify_all()  # an engine waiting for its step's acknowledgements goes on
 
     @staticmethod
     def _sync_one(item: tuple[int, str]) -> SyncError | None:

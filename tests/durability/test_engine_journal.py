@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 
 from sdfserver.edits import parse_edits
-from sdfserver.engine import Engine
+from sdfserver.engine import Engine, core
 from sdfserver.engine.commands import ApplyEdits, CreateWorld, Read
 from sdfserver.engine.restore import restore_worlds
 from sdfserver.errors import WritesDisabled
 from sdfserver.storage import Storage
 from sdfserver.storage.journal import StorageJournal
 from sdfserver.storage.snapshot import decode_snapshot
-from sdfserver.world import WorldConfig
+from sdfserver.world import World, WorldConfig
 
 from durable_server import apply_reference, random_batch
 from references import oracle_distance
@@ -63,6 +63,24 @@ def test_acknowledged_only_when_durable(gpu, journal, monkeypatch):
     with pytest.raises(WritesDisabled, match="writes are disabled"):
         refused.result(timeout=10)
     engine.stop()
+
+
+def test_a_lone_batch_is_acknowledged_before_its_step_recomputes(gpu, journal, monkeypatch):
+    """With nothing else queued the step waits for the acknowledgement, so the log's committer
+    does not wait for the GIL the recompute holds."""
+    monkeypatch.setattr(core, "LONE_ACKNOWLEDGEMENT_WAIT_S", 30.0)  # however slow this machine's disk
+    engine = Engine(gpu, journal=journal)
+    created = engine.submit(CreateWorld(WorldConfig(size=(16, 16, 16), chunk_size=8, max_distance=6)))
+    engine.step()
+    world_id = created.result()["id"]
+    order, recompute = [], World.recompute
+    monkeypatch.setattr(World, "recompute", lambda self: (order.append("recompute"), recompute(self))[1])
+    for _ in range(5):
+        batch = edits(engine, world_id, [{"op": "box", "min": [0, 0, 0], "max": [2, 2, 2], "colour": 3}])
+        batch.add_done_callback(lambda _: order.append("acknowledged"))
+        engine.step()
+        batch.result(timeout=10)
+    assert order == ["acknowledged", "recompute"] * 5
 
 
 def test_snapshots_and_restore_into_a_fresh_engine(gpu, journal, tmp_path):

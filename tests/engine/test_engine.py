@@ -74,6 +74,7 @@ class RecordingJournal:
     def __init__(self, fail_on_version: int | None = None):
         self.calls = []
         self.sync_starts = []  # len(calls) at each start_syncs
+        self.waits = []  # len(calls) at each wait_durable
         self.fail_on_version = fail_on_version
 
     def record_create(self, world_id, config, owner=None):
@@ -88,6 +89,9 @@ class RecordingJournal:
 
     def start_syncs(self, wait=True):
         self.sync_starts.append(len(self.calls))
+
+    def wait_durable(self, timeout_s):
+        self.waits.append(len(self.calls))
 
     def record_delete(self, world_id):
         self.calls.append(("delete", world_id))
@@ -147,6 +151,28 @@ def test_journal_records_before_acknowledging(gpu):
     assert third.result() == 3 and gone.result() is None
     assert journal.calls[-2][:3] == ("batch", world_id, 3) and journal.calls[-1] == ("delete", world_id)
     assert journal.sync_starts == [3, 4]  # once after each step's batches; none when none was recorded
+    engine.stop()
+
+
+def test_a_step_waits_for_its_acknowledgements_only_when_nothing_else_is_queued(gpu):
+    journal = RecordingJournal()
+    engine = Engine(gpu, journal=journal)
+    world_id = create(engine)
+    raw = [{"op": "box", "min": [0, 0, 0], "max": [2, 2, 2], "colour": 3}]
+    edits(engine, world_id, raw)
+    engine.step()
+    assert journal.waits == [2]  # after the batch's record
+    record = journal.record_batches
+
+    def record_while_another_comes(*args):
+        record(*args)
+        engine.submit(Describe(world_id))
+
+    journal.record_batches = record_while_another_comes
+    edits(engine, world_id, raw)
+    engine.step()
+    engine.step()  # the description that came
+    assert journal.waits == [2]
     engine.stop()
 
 

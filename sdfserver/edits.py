@@ -130,6 +130,13 @@ def _voxel_array(value: Any, where: str) -> np.ndarray:
 
 def parse_edit(raw: Any, index: int) -> Edit:
     """One operation from its wire form (a dict with ``op``)."""
+    if type(raw) is dict and raw.get("op") == "sphere":  # the common brush: no error texts built
+        center, radius, colour = raw.get("center"), raw.get("radius"), raw.get("colour")
+        if type(center) is list and len(center) == 3 and type(radius) is float and type(colour) is int:
+            x, y, z = center
+            if (type(x) is float and type(y) is float and type(z) is float and 0 <= colour <= 255
+                    and radius - radius == 0.0 and x - x == 0.0 and y - y == 0.0 and z - z == 0.0):  # finite
+                return SphereEdit((x, y, z), radius, colour)
     where = f"edits[{index}]"
     if not isinstance(raw, dict):
         raise InvalidEdit(f"{where}: expected an object with 'op', got {type(raw).__name__}")

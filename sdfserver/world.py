@@ -45,12 +45,13 @@ WORK_ITEMS_PER_LAUNCH = 1 << 30  # fill_brushes counts its work-items in 32 bits
 
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class EditPlan:
     """A validated batch and, per edit, the world-clipped boxes it may change (``World.plan_edits``).
 
     The engine journals a batch between planning and applying it, so that only valid
-    batches are logged and each is validated once."""
+    batches are logged and each is validated once. Not frozen: one is made per batch on the
+    engine thread, and a frozen dataclass costs three times as much to make."""
 
     world: "World"
     edits: list[Edit]
@@ -180,11 +181,13 @@ class World:
                     brushes = []
                     self._enqueue_voxels(edit)
                 elif boxes:
-                    if len(brushes) == BRUSHES_PER_LAUNCH or volume + boxes[0].volume > WORK_ITEMS_PER_LAUNCH:
+                    box = boxes[0]
+                    box_volume = box.volume
+                    if len(brushes) == BRUSHES_PER_LAUNCH or volume + box_volume > WORK_ITEMS_PER_LAUNCH:
                         self._enqueue_brushes(brushes)
                         brushes, volume = [], 0
-                    brushes.append((edit, boxes[0]))
-                    volume += boxes[0].volume
+                    brushes.append((edit, box))
+                    volume += box_volume
                 self.dirty.add(boxes)
             self.version += 1
             versions.append(self.version)

@@ -90,31 +90,38 @@ class GuardedHttpProtocol(HttpToolsProtocol):
                 log.warning("invalid HTTP request received")
                 self.refuse(400, "Invalid HTTP request received.")
             return
-        if self.reading_headers and self.header_bytes > self.limits.max_header_bytes:
-            self.refuse(431, f"request headers exceed {self.limits.max_header_bytes} bytes")
+        if self.reading_headers:  # a request's headers began and did not end in this piece
+            if self.header_bytes > self.limits.max_header_bytes:
+                self.refuse(431, f"request headers exceed {self.limits.max_header_bytes} bytes")
+            elif self.header_timer is None:
+                self.arm_header_timer()
 
     # the parser's callbacks, in the order it calls them for each request
     def on_message_begin(self) -> None:
         super().on_message_begin()
-        if not self.reading_headers:  # a kept-alive connection's next request
-            self.reading_headers = True
-            self.header_bytes = self.header_lines = self.header_size = 0
-            self.arm_header_timer()
+        if not self.reading_headers:  # a kept-alive connection's next request: its timer is armed
+            self.reading_headers = True  # when a piece ends with its headers unfinished, which the
+            self.header_bytes = self.header_lines = self.header_size = 0  # usual request never is
 
     def on_url(self, url: bytes) -> None:
-        self.count_header_bytes(len(url))
+        self.header_size += len(url)
+        if self.header_size > self.limits.max_header_bytes:
+            raise HeadersTooLarge(f"request headers exceed {self.limits.max_header_bytes} bytes")
         super().on_url(url)
 
     def on_header(self, name: bytes, value: bytes) -> None:
         self.header_lines += 1
+        self.header_size += len(name) + len(value) + 4
         if self.header_lines > self.limits.max_header_count:
             raise HeadersTooLarge(f"more than {self.limits.max_header_count} header lines")
-        self.count_header_bytes(len(name) + len(value) + 4)
+        if self.header_size > self.limits.max_header_bytes:
+            raise HeadersTooLarge(f"request headers exceed {self.limits.max_header_bytes} bytes")
         super().on_header(name, value)
 
     def on_headers_complete(self) -> None:
         self.reading_headers = False
-        self.disarm_header_timer()
+        if self.header_timer is not None:
+            self.disarm_header_timer()
         super().on_headers_complete()
 
     def handle_websocket_upgrade(self) -> None:
@@ -125,11 +132,6 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         super().handle_websocket_upgrade()
 
     # -- the limits ---------------------------------------------------------------------------
-
-    def count_header_bytes(self, n: int) -> None:
-        self.header_size += n
-        if self.header_size > self.limits.max_header_bytes:
-            raise HeadersTooLarge(f"request headers exceed {self.limits.max_header_bytes} bytes")
 
     def arm_header_timer(self) -> None:
         self.disarm_header_timer()

@@ -117,6 +117,19 @@ def test_slow_headers_and_idle_connections_are_closed_while_others_are_served(se
     assert status_of(first) == 200 and time.monotonic() - started < 6
 
 
+def test_a_kept_alive_connections_next_request_with_slow_headers_is_408(server):
+    sock = connect(server)
+    sock.sendall(b"GET /livez HTTP/1.1\r\nhost: x\r\n\r\n")
+    sock.settimeout(5)
+    first = sock.recv(65536)
+    assert status_of(first) == 200 and first.endswith(b"}")
+    started = time.monotonic()
+    sock.sendall(b"GET /livez HTTP/1.1\r\nhost: x\r\n")  # and the rest never comes
+    second = answer(sock, 6)
+    assert status_of(second) == 408 and b"did not arrive within" in second
+    assert time.monotonic() - started < 4
+
+
 def test_connections_past_the_limit_are_refused_503_and_others_served_after(server):
     held = []
     for _ in range(45):

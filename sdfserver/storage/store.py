@@ -88,12 +88,13 @@ class WorldStore:
         self.records_since_snapshot = 0
         self.epoch = epoch
         self.fenced: WorldFenced | None = None
-        self._epoch_file = _file_identity(directory / EPOCH_FILE)
+        self._epoch_path = str(directory / EPOCH_FILE)  # a string: asked after every sync of this world
+        self._epoch_file = _file_identity(self._epoch_path)
         log.fence = self.check_fence
 
     def check_fence(self) -> WorldFenced | None:
         """Why this holder may no longer acknowledge writes (another took the world), or None."""
-        if self.fenced is None and _file_identity(self.directory / EPOCH_FILE) != self._epoch_file:
+        if self.fenced is None and _file_identity(self._epoch_path) != self._epoch_file:
             self.fenced = WorldFenced(f"world {self.world_id!r} is now held by another engine (this one held "
                                      f"epoch {self.epoch}); nothing it did not acknowledge counts")
         return self.fenced
@@ -161,7 +162,7 @@ class Storage:
         self.worlds_dir = self.data_dir / "worlds"
         try:
             self.worlds_dir.mkdir(parents=True, exist_ok=True)
-            self._identities = [(d, _identity(os.stat(d))) for d in (self.data_dir, self.worlds_dir)]
+            self._identities = [(str(d), _identity(os.stat(d))) for d in (self.data_dir, self.worlds_dir)]
         except OSError as exc:
             raise StorageError(f"cannot create the data directory {self.worlds_dir}: {exc}") from None
         self.committer = Committer(sync=sync, window_ms=commit_window_ms, inline=sync_inline,
@@ -351,7 +352,7 @@ def _identity(st: os.stat_result) -> tuple[int, int]:
     return st.st_dev, st.st_ino
 
 
-def _file_identity(path: Path) -> tuple[int, int, int] | None:
+def _file_identity(path: str | Path) -> tuple[int, int, int] | None:
     """Which file ``path`` is now (a replacement is another inode, or the same inode reused
     later than it was written), or None when there is none."""
     try:

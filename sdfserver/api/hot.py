@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import re
 from typing import Any
-from urllib.parse import parse_qsl
+from urllib.parse import unquote
 
 from fastapi import FastAPI
 from starlette.requests import ClientDisconnect, Request
@@ -64,10 +64,7 @@ def _upgrading(scope: dict[str, Any]) -> bool:
 def _field_query(query_string: bytes) -> dict[str, str] | None:
     """The field read's parameters when each is known, given once and well formed; None leaves
     the request to the full app, which says what is wrong."""
-    try:
-        pairs = parse_qsl(query_string.decode("latin-1"), keep_blank_values=True, strict_parsing=False)
-    except ValueError:
-        return None
+    pairs = query_pairs(query_string.decode("latin-1"))
     query = dict(pairs)
     if len(query) != len(pairs) or not FIELD_PARAMETERS.issuperset(query):
         return None
@@ -77,6 +74,27 @@ def _field_query(query_string: bytes) -> dict[str, str] | None:
     if not (min_version.isascii() and min_version.isdigit() and len(min_version) <= MAX_VERSION_DIGITS):
         return None
     return query
+
+
+def query_pairs(query: str) -> list[tuple[str, str]]:
+    """``urllib.parse.parse_qsl(query, keep_blank_values=True)``, in a fraction of its time for
+    the field read's query: a part without escapes is taken as it is, one whose only escapes are
+    commas (how clients send "x,y,z") has them replaced, any other is unquoted as parse_qsl does."""
+    pairs = []
+    for part in query.split("&"):
+        if part:
+            name, _, value = part.partition("=")
+            pairs.append((_unquoted(name), _unquoted(value)))
+    return pairs
+
+
+def _unquoted(text: str) -> str:
+    if "+" in text:
+        text = text.replace("+", " ")
+    if "%" in text:
+        commas = text.replace("%2C", ",").replace("%2c", ",")
+        return commas if "%" not in commas else unquote(text)
+    return text
 
 
 async def _read_field(request: Request, world_id: str, query: dict[str, str]) -> Any:

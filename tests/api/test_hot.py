@@ -4,13 +4,16 @@ app does, and leaves to the full app every request it should not judge."""
 from __future__ import annotations
 
 import asyncio
+from urllib.parse import parse_qsl
 
 import httpx
 import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
 
 from sdfserver import wire
 from sdfserver.api.app import create_app
-from sdfserver.api.hot import HotRoutes
+from sdfserver.api.hot import HotRoutes, query_pairs
 from sdfserver.engine import Engine
 from sdfserver.settings import Settings
 
@@ -99,3 +102,14 @@ def test_hot_routes_answer_as_the_full_app(gpu):
         asyncio.run(scenario())
     finally:
         engine.stop()
+
+
+@given(st.text(alphabet="ab=&%+,;2cCE8F", max_size=40))
+def test_query_pairs_are_parse_qsls(query):
+    assert query_pairs(query) == parse_qsl(query, keep_blank_values=True)
+
+
+def test_query_pairs_of_a_game_clients_field_read():
+    query = "min=0%2C0%2C0&max=16%2c16%2C16&format=distance&min_version=7&x=%E2%82%AC+1"
+    assert query_pairs(query) == parse_qsl(query, keep_blank_values=True)
+    assert dict(query_pairs(query))["max"] == "16,16,16"

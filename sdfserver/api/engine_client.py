@@ -195,11 +195,15 @@ class EngineClient(BaseClient):
 
     def _send(self, request: Any) -> None:
         """The requests of one turn of the event loop leave in one write at its end: one system
-        call, and one wake of the engine's input thread, for all of them."""
+        call, and one wake of the engine's input thread, for all of them. A request that is the
+        only one awaiting an answer leaves at once: a lone client has nothing to share the write
+        with, and waiting for the turn's end would only delay it."""
         if self._requests is None:
             raise NotReady(f"the engine at {self.input_address} is not connected (restarting?); retry the request")
         data = frames.frame(ENCODE(request))
-        if self._outbox is None:
+        if self._outbox is None and len(self._pending) <= 1:
+            self._requests.write(data)
+        elif self._outbox is None:
             self._outbox = [data]
             self._loop.call_soon(self._flush_outbox)
         else:

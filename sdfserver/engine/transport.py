@@ -11,7 +11,8 @@
 
 A thread that completes several answers at once (the engine thread ending a step, the log's
 committer acknowledging a sync's batches) does it inside ``holding()``: its answers leave together
-as the block ends, from that thread itself when the output thread is idle. The output thread,
+as the block ends, from that thread itself when the output thread is idle and they are small
+(``DIRECT_SEND_BYTES``). The output thread,
 woken, would first wait for the GIL that the engine thread holds while it recomputes; the
 answering thread holds it already. Whoever sends holds ``_sending``, so answers leave in the
 order they were queued.
@@ -42,6 +43,10 @@ log = logging.getLogger("sdfserver.engine")
 IDLE_POLL_S = 0.05  # how often an idle thread looks at whether the transport is stopping
 UNREACHABLE_GRACE_S = 10.0  # how long answers wait for an API process that is not connected
 READ_BUFFER = 1 << 20
+# Answers up to this many bytes leave from the thread that completes them (holding()); larger
+# ones (whole fields, frames) go to the output thread: copying them into a socket would hold up
+# the engine thread's next step.
+DIRECT_SEND_BYTES = 1 << 16
 WELCOME = frames.frame(msg.REQUEST_ENCODER.encode(msg.Outputs([])))
 
 
@@ -109,7 +114,8 @@ class EngineTransport:
         finally:
             held.depth = depth
             if not depth and self.outputs:
-                if self._waiting and not self._stopping and self._sending.acquire(blocking=False):
+                if (self._waiting and not self._stopping and small(list(self.outputs))
+                        and self._sending.acquire(blocking=False)):
                     try:
                         self._send_outputs()
                     except Exception:  # as in the output thread: later answers must still go
@@ -311,6 +317,25 @@ class EngineTransport:
             elif time.monotonic() - since > UNREACHABLE_GRACE_S:
                 del self._undelivered[client]
                 self.service.forget(client)
+
+
+def small(outputs: list[tuple[bytes, Any]]) -> bool:
+    """Whether these answers carry at most DIRECT_SEND_BYTES of arrays and byte strings (a
+    subscription's news counts as large: its chunks are taken as it is sent)."""
+    carried = 0
+    for _, item in outputs:
+        if not isinstance(item, msg.Reply):
+            return False
+        result = item.result
+        if isinstance(result, msg.ReadResult):
+            carried += len(result.array.data)
+        elif isinstance(result, msg.Frame):
+            carried += len(result.pixels.data)
+        elif isinstance(result, msg.QueryResult):
+            carried += len(result.distances.data) + len(result.colours.data) + len(result.gradients.data)
+        elif isinstance(result, (bytes, str)):
+            carried += len(result)
+    return carried <= DIRECT_SEND_BYTES
 
 
 def encoded(items: list[Any]) -> bytes:

@@ -152,7 +152,8 @@ def test_answers_for_an_api_process_that_went_away_are_dropped_after_the_grace(m
 def test_answers_held_by_a_thread_leave_from_it_while_the_output_thread_idles_and_in_order(monkeypatch, address):
     """The held requests (odd ids) are answered by this thread inside ``holding()``: with the
     output thread idle they leave from this thread; the rest from the output thread; every
-    answer reaches its request, the held ones in the order they were completed."""
+    answer reaches its request, the held ones in the order they were completed. A large held
+    answer leaves from the output thread."""
     senders: list[str] = []
     encode = transport_module.encoded
 
@@ -184,16 +185,34 @@ def test_answers_held_by_a_thread_leave_from_it_while_the_output_thread_idles_an
             await asyncio.to_thread(answer)
             await asyncio.sleep(0.2)
         answers = await asyncio.wait_for(asyncio.gather(*calls), 10)
+        large = asyncio.ensure_future(client.call(msg.Status(41)))
+        for _ in range(200):
+            if len(engine.service.held) == 21:
+                break
+            await asyncio.sleep(0.01)
+        await asyncio.sleep(0.2)
+        sent_small = len(senders)
+
+        def answer_large():
+            with engine.holding():
+                client_id = engine.service.held[20][0]
+                engine.send(client_id, msg.Reply(41, b"y" * (transport_module.DIRECT_SEND_BYTES + 1)))
+
+        await asyncio.to_thread(answer_large)
+        large_answer = await asyncio.wait_for(large, 10)
         await client.stop()
-        return answers, got, sent_before
+        return answers, got, sent_before, sent_small, large_answer
 
     try:
-        answers, got, sent_before = asyncio.run(main())
+        answers, got, sent_before, sent_small, large_answer = asyncio.run(main())
     finally:
         engine.stop()
     assert answers[1::2] == [b"x" * i * 997 for i in range(2, 41, 2)]
     assert answers[0::2] == list(range(1, 41, 2))
     assert got[20:] == list(range(1, 41, 2))
     assert set(senders[:sent_before]) == {"sdfserver-engine-output"}
-    assert len(senders[sent_before:]) == 2  # each held block's answers in one frame, from its thread
-    assert all(name.startswith("asyncio_") for name in senders[sent_before:]), senders
+    assert len(senders[sent_before:sent_small]) == 2  # each held block's answers in one frame, from its thread
+    assert all(name.startswith("asyncio_") for name in senders[sent_before:sent_small]), senders
+    # a large answer goes to the output thread: copying it would hold up the thread that completed it
+    assert len(large_answer) == transport_module.DIRECT_SEND_BYTES + 1
+    assert senders[sent_small:] == ["sdfserver-engine-output"]

@@ -66,8 +66,10 @@ T = TypeVar("T")
 DIRTY_GAUGE_EVERY_S = 0.1  # the dirty-chunks gauge is counted at most this often
 # With nothing else queued, a step waits this long at most for its batches' acknowledgements
 # before it recomputes (journal.wait_durable): the log's committer then acknowledges them without
-# waiting for the GIL that the recompute would hold.
+# waiting for the GIL that the recompute would hold. It looks for newly queued commands every
+# slice, so that a slow disk holds them up no longer than that.
 LONE_ACKNOWLEDGEMENT_WAIT_S = 0.002
+LONE_ACKNOWLEDGEMENT_SLICE_S = 0.00025
 
 __all__ = ["Engine", "EngineParts", "new_world_id", "world_config_dict"]
 
@@ -185,8 +187,8 @@ class Engine(EngineLifetime, CommandCalls):
         try:
             touched = self._apply([c for c in commands if isinstance(c[0], APPLY)], report)
             clock.lap("apply")
-            if self.batches.acknowledging and self.journal is not None and self._commands.empty():
-                self.journal.wait_durable(LONE_ACKNOWLEDGEMENT_WAIT_S)
+            if self.batches.acknowledging and self.journal is not None:
+                self._wait_for_acknowledgements()
                 clock.lap("durable")
             report.recomputed = self._recompute(touched)
             clock.lap("recompute")
@@ -206,6 +208,14 @@ class Engine(EngineLifetime, CommandCalls):
         self.subscriptions.count_pending()
         clock.stop(self.metrics, self.limits.slow_step_ms)
         return report
+
+    def _wait_for_acknowledgements(self) -> None:
+        """While no other command is queued, wait for this step's batches to be acknowledged."""
+        deadline = time.monotonic() + LONE_ACKNOWLEDGEMENT_WAIT_S
+        while self._commands.empty():
+            left = deadline - time.monotonic()
+            if left <= 0 or self.journal.wait_durable(min(left, LONE_ACKNOWLEDGEMENT_SLICE_S)):
+                return
 
     def _unanswered(self, pending: list[Pending]) -> list[Pending]:
         """``pending`` less the batches applied this step: they are in the log and the world,

@@ -22,7 +22,7 @@ The engine calls these on its own thread, in the order things happen:
   makes sure its committer has taken them, so the sync overlaps the engine's work; with
   ``wait=False``, when more commands are queued, it only wakes the committer).
 - ``wait_durable(timeout_s)``: wait (letting go of the GIL) until what was recorded so far is
-  durable and acknowledged, at most ``timeout_s``. The engine calls it after applying a step's
+  durable and acknowledged, at most ``timeout_s``; True once it is. The engine calls it after applying a step's
   batches when no other command waits (a lone client's edit): the acknowledgement then goes out
   before the step's recompute takes the GIL, and that client's next read comes after the
   acknowledgement, so the recompute is still done first.
@@ -61,7 +61,7 @@ class Journal(Protocol):
 
     def start_syncs(self, wait: bool = True) -> None: ...
 
-    def wait_durable(self, timeout_s: float) -> None: ...
+    def wait_durable(self, timeout_s: float) -> bool: ...
 
     def record_config(self, world_id: str, config: dict[str, Any]) -> None: ...
 

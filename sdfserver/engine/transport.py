@@ -12,10 +12,9 @@
 A thread that completes several answers at once (the engine thread ending a step, the log's
 committer acknowledging a sync's batches) does it inside ``holding()``: its answers leave together
 as the block ends, from that thread itself when the output thread is idle and they are small
-(``DIRECT_SEND_BYTES``). The output thread,
-woken, would first wait for the GIL that the engine thread holds while it recomputes; the
-answering thread holds it already. Whoever sends holds ``_sending``, so answers leave in the
-order they were queued.
+(``DIRECT_SEND_BYTES``). The output thread, woken, would first wait for the GIL that the engine
+thread holds while it recomputes; the answering thread holds it already. Whoever sends holds
+``_sending``, so answers leave in the order they were queued.
 
 Answers for an API process that is not connected wait ``UNREACHABLE_GRACE_S`` (a restarted
 engine's API processes reconnecting); after that its subscriptions are dropped.

@@ -82,8 +82,8 @@ class StorageJournal:
     def start_syncs(self, wait: bool = True) -> None:
         self.storage.committer.hand_over(wait)
 
-    def wait_durable(self, timeout_s: float) -> None:
-        self.storage.committer.wait_settled(timeout_s)
+    def wait_durable(self, timeout_s: float) -> bool:
+        return self.storage.committer.wait_settled(timeout_s)
 
     def record_config(self, world_id: str, config: dict[str, Any]) -> None:
         self._store(world_id).write_meta({"config": config, "owner": self.owners.get(world_id)})

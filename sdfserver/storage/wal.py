@@ -188,14 +188,14 @@ class Committer:
                 queued = self._queued
                 self._cond.wait_for(lambda: self._taken >= queued or self._closed, HANDOVER_TIMEOUT_S)
 
-    def wait_settled(self, timeout_s: float) -> None:
+    def wait_settled(self, timeout_s: float) -> bool:
         """Wait (GIL released) until every record handed over so far is durable and its future
-        completed, or has failed; at most ``timeout_s``."""
+        completed, or has failed; at most ``timeout_s``. True once they are."""
         if not self.sync or self.inline:
-            return
+            return True
         with self._cond:
             queued = self._queued
-            self._cond.wait_for(lambda: self._settled >= queued or self._closed, timeout_s)
+            return self._cond.wait_for(lambda: self._settled >= queued or self._closed, timeout_s)
 
     def _run(self) -> None:
         while True:

@@ -12,7 +12,7 @@ import pytest
 
 from sdfserver.edits import parse_edits
 from sdfserver.engine import Engine, core
-from sdfserver.engine.commands import ApplyEdits, CreateWorld, Read
+from sdfserver.engine.commands import ApplyEdits, CreateWorld, Describe, Read
 from sdfserver.engine.restore import restore_worlds
 from sdfserver.errors import WritesDisabled
 from sdfserver.storage import Storage
@@ -81,6 +81,27 @@ def test_a_lone_batch_is_acknowledged_before_its_step_recomputes(gpu, journal, m
         engine.step()
         batch.result(timeout=10)
     assert order == ["acknowledged", "recompute"] * 5
+
+
+def test_a_command_that_comes_while_a_step_waits_for_a_slow_sync_ends_the_wait(gpu, journal, monkeypatch):
+    monkeypatch.setattr(core, "LONE_ACKNOWLEDGEMENT_WAIT_S", 30.0)
+    engine = Engine(gpu, journal=journal)
+    created = engine.submit(CreateWorld(WorldConfig(size=(16, 16, 16), chunk_size=8, max_distance=6)))
+    engine.step()
+    world_id = created.result()["id"]
+    gate, real = threading.Event(), os.fdatasync
+    monkeypatch.setattr(os, "fdatasync", lambda fd: (gate.wait(30), real(fd)))
+    batch = edits(engine, world_id, [{"op": "box", "min": [0, 0, 0], "max": [2, 2, 2], "colour": 3}])
+    stepping = threading.Thread(target=engine.step)
+    stepping.start()
+    stepping.join(0.3)
+    assert stepping.is_alive(), "the step did not wait for the acknowledgement"
+    engine.submit(Describe(world_id))
+    stepping.join(5)
+    assert not stepping.is_alive(), "a queued command did not end the wait"
+    assert not batch.done()
+    gate.set()
+    assert batch.result(timeout=10) == 1
 
 
 def test_snapshots_and_restore_into_a_fresh_engine(gpu, journal, tmp_path):

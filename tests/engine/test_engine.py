@@ -92,6 +92,7 @@ class RecordingJournal:
 
     def wait_durable(self, timeout_s):
         self.waits.append(len(self.calls))
+        return True
 
     def record_delete(self, world_id):
         self.calls.append(("delete", world_id))

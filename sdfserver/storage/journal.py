@@ -36,7 +36,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from sdfserver.errors import NotFound
+from sdfserver.errors import NotFound, SdfServerError
 from sdfserver.storage.store import Storage, WorldStore
 
 log = logging.getLogger("sdfserver.storage")
@@ -164,8 +164,14 @@ class StorageJournal:
                 log.warning("closing the log of world %s, taken over by another engine: %s", world_id, exc)
 
     def close(self) -> None:
+        """Close every world's log (what it appended made durable first). A log that cannot be
+        made durable now (writes disabled, the data directory deleted) is said in the log, not
+        raised: everything acknowledged was durable already, and the others still close."""
         self._snapshots.shutdown(wait=True)
-        for store in self.stores.values():
-            store.close()
+        for world_id, store in self.stores.items():
+            try:
+                store.close()
+            except SdfServerError as exc:
+                log.warning("closing the log of world %s: %s", world_id, exc)
         self.stores.clear()
         self.storage.close()

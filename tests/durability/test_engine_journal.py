@@ -4,7 +4,9 @@ after recomputes, and restore_worlds rebuilds the same worlds in a fresh engine.
 
 from __future__ import annotations
 
+import logging
 import os
+import shutil
 import threading
 
 import numpy as np
@@ -102,6 +104,24 @@ def test_a_command_that_comes_while_a_step_waits_for_a_slow_sync_ends_the_wait(g
     assert not batch.done()
     gate.set()
     assert batch.result(timeout=10) == 1
+
+
+def test_closing_after_the_data_directory_was_deleted_says_so_and_raises_nothing(tmp_path, caplog):
+    journal = StorageJournal(Storage(tmp_path / "data"))
+    durable = []
+    for world_id in ("a", "b"):
+        journal.record_create(world_id, {"size": [8, 8, 8], "chunk_size": 8, "max_distance": 4})
+        durable.append(journal.record_batches(
+            world_id, 1, [[{"op": "box", "min": [0, 0, 0], "max": [1, 1, 1], "colour": 2}]]))
+    journal.start_syncs()
+    for future in durable:
+        future.result(timeout=10)  # acknowledged; then the directory goes, as an operator might delete it
+    shutil.rmtree(tmp_path / "data")
+    with caplog.at_level(logging.WARNING, logger="sdfserver.storage"):
+        journal.close()
+    closing = [r.getMessage() for r in caplog.records if r.getMessage().startswith("closing the log of world")]
+    # the first log's sync finds the directory gone; writes are then disabled, and the other closes quietly
+    assert len(closing) == 1 and "writes are disabled" in closing[0] and "data" in closing[0], closing
 
 
 def test_snapshots_and_restore_into_a_fresh_engine(gpu, journal, tmp_path):

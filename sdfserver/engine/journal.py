@@ -22,10 +22,10 @@ The engine calls these on its own thread, in the order things happen:
   makes sure its committer has taken them, so the sync overlaps the engine's work; with
   ``wait=False``, when more commands are queued, it only wakes the committer).
 - ``wait_durable(timeout_s)``: wait (letting go of the GIL) until what was recorded so far is
-  durable and acknowledged, at most ``timeout_s``; True once it is. The engine calls it after applying a step's
-  batches when no other command waits (a lone client's edit): the acknowledgement then goes out
-  before the step's recompute takes the GIL, and that client's next read comes after the
-  acknowledgement, so the recompute is still done first.
+  durable and acknowledged, at most ``timeout_s``; True once it is. The engine calls it after
+  applying a step's batches when no other command waits (a lone client's edit): the
+  acknowledgement then goes out before the step's recompute takes the GIL, and that client's
+  next read comes after the acknowledgement, so the recompute is still done first.
 - ``record_config(world_id, config)`` before a reconfiguration takes effect
   (``reconfigure_durably``): if it raises, the world is left as it was.
 - ``record_delete(world_id)`` after a world was deleted.

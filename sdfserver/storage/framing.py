@@ -45,7 +45,7 @@ def encode_record(version: int, payload: bytes) -> bytes:
     length = len(payload)
     if length > MAX_RECORD_BYTES:
         raise ValueError(f"a log record holds at most {MAX_RECORD_BYTES} bytes, got {length}")
-    crc = zlib.crc32(payload, zlib.crc32(_LENGTH_VERSION.pack(length, version)))  # record_crc, inlined
+    crc = record_crc(_LENGTH_VERSION.pack(length, version), payload)
     return RECORD_HEADER.pack(length, version, crc) + payload
 
 

@@ -184,7 +184,7 @@ class Storage:
                 cause = OSError(errno.ENOENT, "the directory was replaced by another one while the server ran")
             except OSError as exc:
                 cause = exc
-            return str(path), "the check", cause
+            return path, "the check", cause
         return None
 
     def check(self) -> None:

@@ -52,9 +52,10 @@ class HeadersTooLarge(Exception):
 
 
 class CoalescedWrites:
-    """A connection's transport whose writes made in one turn of the event loop leave together,
-    in one system call, as the turn ends (or before the transport closes). Everything else is
-    the transport's own."""
+    """A connection's transport whose writes leave in pairs: a write waits for the next one (a
+    response's head for its body) and both leave in one system call, or it leaves alone as the
+    event loop's turn ends (or before the transport closes). Everything else is the transport's
+    own."""
 
     __slots__ = ("transport", "_loop", "_pending")
 
@@ -67,12 +68,15 @@ class CoalescedWrites:
         if not data:
             return
         if not self._pending:
+            self._pending.append(data if isinstance(data, bytes) else bytes(data))  # the caller may reuse its buffer
             self._loop.call_soon(self.flush)
-        self._pending.append(data if isinstance(data, bytes) else bytes(data))  # the caller may reuse its buffer
+            return
+        self._pending.append(data)
+        self.flush()
 
     def writelines(self, pieces: Any) -> None:
-        for piece in pieces:
-            self.write(piece)
+        self._pending.extend(pieces)
+        self.flush()
 
     def flush(self) -> None:
         pending, self._pending = self._pending, []

@@ -16,7 +16,7 @@ field read of 16³ at its version) and prints, per request kind, the median and 
   API → client                the response to the load generator having parsed it
 
 Then, per request kind, when the engine passed each point of its step (``install_engine_steps``),
-counted from the engine taking the request: the step's start, planning, the log written and
+counted from the engine taking the request: the request submitted, the step's start, planning, the log written and
 handed to the committer, the sync and the check after it, the brushes launched, the recompute, a
 read, the step's end.
 
@@ -119,6 +119,7 @@ def install_engine_steps(events: list, clock) -> None:
     from sdfserver.engine.batches import BatchPipeline
     from sdfserver.engine.core import Engine
     from sdfserver.engine.reads import Reads
+    from sdfserver.engine.service import EngineService
     from sdfserver.engine.subscriptions import Subscriptions
     from sdfserver.storage.journal import StorageJournal
     from sdfserver.storage.wal import Committer
@@ -127,6 +128,7 @@ def install_engine_steps(events: list, clock) -> None:
     def mark(name):
         return lambda *_: events.append((name, clock()))
 
+    wrap(EngineService, "handle", after=mark("submitted"))
     wrap(Engine, "step", before=mark("step start"), after=mark("step end"))
     wrap(BatchPipeline, "plan", after=mark("planned"))
     wrap(StorageJournal, "record_batches", after=mark("log written"))

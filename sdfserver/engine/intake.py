@@ -9,7 +9,12 @@ The sockets change hands between requests, never during one:
 
 - the engine thread, as it starts to wait, asks for them (``_ask``);
 - the input thread gives them up after what it is reading (``_handed``) and waits for its turn;
-- the engine thread gives them back before it steps (or stops waiting for any other reason).
+- the engine thread gives them back before it steps, unless it had waited ``LONE_IDLE_S`` or
+  more for work: requests come one at a time then, and the input thread, woken to take the
+  sockets, would take the GIL from the step at its first system call and make the engine thread
+  wait to be woken for it;
+- the input thread takes them from a step that has kept them ``LONG_STEP_S`` (it looks that
+  often while it waits for its turn), so that a long step holds up no one else's requests.
 
 A request that arrives during either hand-over is read by the thread that holds the sockets then;
 each API process's requests are read in the order they came, by one thread at a time.
@@ -34,6 +39,8 @@ from sdfserver.engine.lifetime import WakeFlag
 log = logging.getLogger("sdfserver.engine")
 IDLE_POLL_S = 0.05  # how often a waiting thread looks at whether the transport is stopping
 READ_BUFFER = 1 << 20
+LONE_IDLE_S = 0.0002
+LONG_STEP_S = 0.005
 LISTEN, ASKED, HANDED, WAKE = "listen", "asked", "handed", "wake"  # what a selector key is
 
 
@@ -63,6 +70,7 @@ class Intake:
         self._lock = threading.Lock()
         self._asked = False
         self._engine_reads = False  # the engine thread holds the sockets
+        self._kept_since: float | None = None  # it holds them through the step it is running
         self._input_turn = threading.Event()  # set while the input thread may hold them
         self._input_turn.set()
         self._wake: WakeFlag | None = None
@@ -90,12 +98,14 @@ class Intake:
     def run_input(self) -> None:
         try:
             while not self.stopping:
-                if not self._input_turn.wait(IDLE_POLL_S):
+                if not self._input_turn.wait(LONG_STEP_S):
+                    self._take_from_a_step(LONG_STEP_S)
                     continue
                 self._read(self.selector.select(IDLE_POLL_S))
                 if self._asked:
                     self._hand_over()
         finally:
+            self._take_from_a_step(0.0)
             self._input_turn.wait(1.0)  # an engine thread reading them gives them back as it stops
             for key in list(self.selector.get_map().values()):
                 if key.data not in (ASKED, WAKE):
@@ -111,6 +121,15 @@ class Intake:
             self._input_turn.clear()
         os.eventfd_write(self._handed, 1)
 
+    def _take_from_a_step(self, kept_s: float) -> None:
+        with self._lock:
+            if self._kept_since is None or time.monotonic() - self._kept_since < kept_s:
+                return
+            self._kept_since = None
+            self._engine_reads = False
+            self._unregister_wake()
+            self._input_turn.set()
+
     # -- the engine thread ----------------------------------------------------------------------------
 
     def engine_wait(self, timeout_s: float | None) -> None:
@@ -120,8 +139,10 @@ class Intake:
             return
         if wake.is_set():
             return
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        entered = time.monotonic()
+        deadline = None if timeout_s is None else entered + timeout_s
         with self._lock:
+            self._kept_since = None
             self._asked = not self._engine_reads
         if self._asked:
             os.eventfd_write(self._ask, 1)
@@ -138,18 +159,23 @@ class Intake:
                 elif self._waiting.select(left):
                     _drain(self._handed)  # a late notice of an earlier hand-over may come too
         finally:
-            self._give_back()
+            self._give_back(keep=time.monotonic() - entered >= LONE_IDLE_S and not self.stopping)
 
-    def _give_back(self) -> None:
+    def _give_back(self, keep: bool) -> None:
         with self._lock:
             self._asked = False
-            if self._engine_reads:
+            if self._engine_reads and keep:
+                self._kept_since = time.monotonic()
+            elif self._engine_reads:
                 self._engine_reads = False
-                if self._wake_registered:
-                    self.selector.unregister(self._wake.fileno())
-                    self._wake_registered = False
+                self._unregister_wake()
                 self._input_turn.set()
         _drain(self._handed)
+
+    def _unregister_wake(self) -> None:
+        if self._wake_registered:
+            self.selector.unregister(self._wake.fileno())
+            self._wake_registered = False
 
     # -- either thread, holding the sockets -------------------------------------------------------------
 

@@ -8,9 +8,6 @@ upgrade. ``guarded_protocol`` returns uvicorn's httptools protocol with those fo
 handed to uvicorn through its public ``http=`` option (a protocol class), and relies on the
 protocol's documented shape in the tested uvicorn range (pyproject.toml).
 
-The protocol also writes through ``CoalescedWrites``: uvicorn writes a response's head and its
-body separately, and each write on a TCP socket is a system call that may wake the client.
-
 - **Connections:** past this process's share of ``max_connections`` (HTTP and WebSocket alike:
   uvicorn counts both in one set), a new connection is answered 503 and closed at once, so
   sockets held by idle or slow clients cannot take every file descriptor.
@@ -34,7 +31,6 @@ import httptools
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
 log = logging.getLogger("sdfserver.connections")
-COALESCED_COPY_BYTES = 1 << 16  # writes joined into one buffer up to this size; larger ones go as a list
 REASONS = {400: b"Bad Request", 408: b"Request Timeout", 431: b"Request Header Fields Too Large",
            503: b"Service Unavailable"}
 
@@ -51,63 +47,6 @@ class HeadersTooLarge(Exception):
     pass
 
 
-class CoalescedWrites:
-    """A connection's transport whose writes leave in pairs: a write waits for the next one (a
-    response's head for its body) and both leave in one system call, or it leaves alone as the
-    event loop's turn ends (or before the transport closes). Everything else is the transport's
-    own."""
-
-    __slots__ = ("transport", "_loop", "_pending")
-
-    def __init__(self, transport: asyncio.Transport, loop: asyncio.AbstractEventLoop):
-        self.transport = transport
-        self._loop = loop
-        self._pending: list[bytes] = []
-
-    def write(self, data: bytes | bytearray | memoryview) -> None:
-        if not data:
-            return
-        if not self._pending:
-            self._pending.append(data if isinstance(data, bytes) else bytes(data))  # the caller may reuse its buffer
-            self._loop.call_soon(self.flush)
-            return
-        self._pending.append(data)
-        self.flush()
-
-    def writelines(self, pieces: Any) -> None:
-        self._pending.extend(pieces)
-        self.flush()
-
-    def flush(self) -> None:
-        pending, self._pending = self._pending, []
-        if not pending or self.transport.is_closing():
-            return
-        if len(pending) == 1:
-            self.transport.write(pending[0])
-        elif sum(map(len, pending)) <= COALESCED_COPY_BYTES:
-            self.transport.write(b"".join(pending))
-        else:  # a large body is not copied to join it
-            self.transport.writelines(pending)
-
-    def get_write_buffer_size(self) -> int:
-        return self.transport.get_write_buffer_size() + sum(map(len, self._pending))
-
-    def write_eof(self) -> None:
-        self.flush()
-        self.transport.write_eof()
-
-    def close(self) -> None:
-        self.flush()
-        self.transport.close()
-
-    def abort(self) -> None:
-        self._pending = []
-        self.transport.abort()
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.transport, name)
-
-
 def guarded_protocol(limits: ConnectionLimits) -> type[HttpToolsProtocol]:
     """uvicorn's httptools protocol with ``limits`` (a class, as uvicorn's ``http=`` takes)."""
     return type("GuardedHttpProtocol", (GuardedHttpProtocol,), {"limits": limits})
@@ -118,7 +57,7 @@ class GuardedHttpProtocol(HttpToolsProtocol):
     header_timer: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
-        super().connection_made(CoalescedWrites(transport, self.loop))  # type: ignore[arg-type]
+        super().connection_made(transport)
         self.header_bytes = self.header_lines = self.header_size = 0  # as arrived; lines; as parsed
         self.reading_headers = True
         if len(self.connections) > self.limits.max_connections:
@@ -190,8 +129,6 @@ class GuardedHttpProtocol(HttpToolsProtocol):
             self.refuse(400, "a WebSocket upgrade must be a GET request")
             return
         self.disarm_header_timer()
-        self.transport.flush()  # the WebSocket protocol is handed the transport itself
-        self.transport = self.transport.transport
         super().handle_websocket_upgrade()
 
     # -- the limits ---------------------------------------------------------------------------

@@ -14,13 +14,9 @@
 from __future__ import annotations
 
 import logging
-import math
-import os
 import queue
-import select
 import threading
 import time
-import weakref
 from concurrent.futures import Future
 from typing import Any, Callable
 
@@ -38,42 +34,6 @@ from sdfserver.world import MAX_SIDE_VOX, World, WorldConfig
 
 log = logging.getLogger("sdfserver.engine")
 Pending = tuple[Any, Future]
-
-
-class WakeFlag:
-    """``threading.Event``'s set, clear, is_set and wait on an eventfd, so that a thread can wait
-    for it and for sockets in one ``select`` (the engine thread does while it reads requests
-    itself: ``intake.py``)."""
-
-    def __init__(self) -> None:
-        self._fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-        weakref.finalize(self, os.close, self._fd)  # open while anyone may still set it
-        self._set = False
-        self._poll = select.poll()
-        self._poll.register(self._fd, select.POLLIN)
-
-    def fileno(self) -> int:
-        return self._fd
-
-    def set(self) -> None:
-        if not self._set:
-            self._set = True
-            os.eventfd_write(self._fd, 1)
-
-    def clear(self) -> None:
-        self._set = False
-        try:
-            os.eventfd_read(self._fd)
-        except BlockingIOError:
-            pass
-
-    def is_set(self) -> bool:
-        return self._set
-
-    def wait(self, timeout_s: float | None = None) -> bool:
-        if not self._set:
-            self._poll.poll(None if timeout_s is None else math.ceil(timeout_s * 1e3))
-        return self._set
 
 
 def warm_up(gpu: GpuContext) -> None:
@@ -111,10 +71,7 @@ class EngineLifetime:
         self.failure: str | None = None  # why the engine cannot serve, for good
         self._commands: queue.SimpleQueue[Pending] = queue.SimpleQueue()
         self._waiting: list[Pending] = []
-        self._wake = WakeFlag()
-        # how the engine thread waits for work, at most a timeout (None: unbounded): the engine
-        # process lends it the request sockets to read meanwhile (intake.py)
-        self.idle_wait: Callable[[float | None], Any] = self._wake.wait
+        self._wake = threading.Event()
         self._stopping = False
         self._thread: threading.Thread | None = None
         self._warm = threading.Event()
@@ -150,11 +107,6 @@ class EngineLifetime:
             self._thread.join(timeout_s)
         else:
             self._release_all()
-
-    @property
-    def wake(self) -> WakeFlag:
-        """Set when there is work for the engine thread."""
-        return self._wake
 
     @property
     def started(self) -> bool:
@@ -211,7 +163,7 @@ class EngineLifetime:
 
     def _loop(self) -> None:
         while not self._stopping:
-            self.idle_wait(self._wait_timeout())
+            self._wake.wait(self._wait_timeout())
             self._wake.clear()
             if self._stopping:
                 break

@@ -144,7 +144,6 @@ def serve_engine(settings: Settings, address: EngineAddress, engines: int, conn:
             engine, doorkeeper, send, writes_failure=writes_failure, data_dir_of=peer_dir if engines > 1 else None,
             epoch=journal.storage.epoch if journal is not None else 0), address)
         engine.answering = transport.holding
-        engine.idle_wait = transport.lend_input(engine.wake)
         if journal is not None:
             journal.storage.committer.completing = transport.holding
         transport.start()

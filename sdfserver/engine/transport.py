@@ -1,9 +1,8 @@
 """The input and output threads of one engine process, on stream sockets (``frames.py``).
 
-- The input side (``intake.py``) accepts API processes' request connections and reads them: each
-  one's first frame is its identity, every later frame a request, handed to
-  ``EngineService.handle`` in the order it came. The input thread reads them while the engine
-  thread steps; the engine thread reads them itself while it waits for work (``lend_input``).
+- The input thread accepts API processes' request connections and reads them: each one's first
+  frame is its identity, every later frame a request, handed to ``EngineService.handle`` in
+  the order it came.
 - The output thread accepts their answer connections (the first frame, again, the identity;
   the engine welcomes it with an empty batch) and sends what the engine answered, from one
   queue: all that waited for one API process leaves as one ``Outputs`` frame. Sockets are
@@ -28,6 +27,7 @@ import contextlib
 import logging
 import os
 import selectors
+import socket
 import threading
 import time
 from typing import Any, Iterator
@@ -36,17 +36,29 @@ import msgspec
 
 from sdfserver.engine import frames
 from sdfserver.engine import messages as msg
-from sdfserver.engine.intake import IDLE_POLL_S, Intake, Peer
-from sdfserver.engine.lifetime import WakeFlag
 from sdfserver.engine.service import EngineService, SubscriptionNews
 
 log = logging.getLogger("sdfserver.engine")
+IDLE_POLL_S = 0.05  # how often an idle thread looks at whether the transport is stopping
 UNREACHABLE_GRACE_S = 10.0  # how long answers wait for an API process that is not connected
+READ_BUFFER = 1 << 20
 # Answers up to this many bytes leave from the thread that completes them (holding()); larger
 # ones (whole fields, frames) go to the output thread: copying them into a socket would hold up
 # the engine thread's next step.
 DIRECT_SEND_BYTES = 1 << 16
 WELCOME = frames.frame(msg.REQUEST_ENCODER.encode(msg.Outputs([])))
+
+
+class Peer:
+    """One API process's connection, as one thread of the transport sees it."""
+
+    __slots__ = ("sock", "reader", "identity", "backlog")
+
+    def __init__(self, sock: socket.socket):
+        self.sock = sock
+        self.reader = frames.FrameReader()
+        self.identity: bytes | None = None  # its first frame
+        self.backlog = bytearray()  # answers the socket has not taken yet (output side)
 
 
 class EngineTransport:
@@ -60,12 +72,12 @@ class EngineTransport:
         self._sending = threading.Lock()  # held by whichever thread sends and by the output thread's work
         self._held = threading.local()  # depth: this thread is inside holding()
         self._selector = selectors.DefaultSelector()  # the output side's
-        self.intake = Intake(frames.listen(address.input), self.service.handle)
+        self._input = frames.listen(address.input)
         self._output = frames.listen(address.output)
         self._output.setblocking(False)
         self._answers: dict[bytes, Peer] = {}  # output thread only
         self._undelivered: dict[bytes, tuple[float, list[bytes]]] = {}  # client -> (since, frames)
-        self._threads = [threading.Thread(target=self.intake.run_input, name="sdfserver-engine-input", daemon=True),
+        self._threads = [threading.Thread(target=self._read, name="sdfserver-engine-input", daemon=True),
                          threading.Thread(target=self._write, name="sdfserver-engine-output", daemon=True)]
 
     def start(self) -> None:
@@ -75,16 +87,10 @@ class EngineTransport:
     def stop(self, timeout_s: float = 1.0) -> None:
         """Both threads end and close every socket (API processes see the engine go)."""
         self._stopping = True
-        self.intake.stop()
         os.eventfd_write(self._wake, 1)
         for thread in self._threads:
             if thread.is_alive():
                 thread.join(timeout_s)
-
-    def lend_input(self, wake: WakeFlag) -> Any:
-        """The engine's ``idle_wait``: while it waits for work (``wake``), the engine thread
-        reads the requests itself."""
-        return self.intake.lend_to(wake)
 
     def send(self, client: bytes, item: Any) -> None:
         """Any thread: queue a Reply or a subscription's news for ``client``. Inside
@@ -122,6 +128,46 @@ class EngineTransport:
         if self._waiting:
             self._waiting = False
             os.eventfd_write(self._wake, 1)
+
+    # -- input -----------------------------------------------------------------------------------
+
+    def _read(self) -> None:
+        selector = selectors.DefaultSelector()
+        selector.register(self._input, selectors.EVENT_READ)
+        buffer = bytearray(READ_BUFFER)
+        view = memoryview(buffer)
+        decode, handle = msg.REQUEST_DECODER.decode, self.service.handle
+        try:
+            while not self._stopping:
+                for key, _ in selector.select(IDLE_POLL_S):
+                    peer = key.data
+                    if peer is None:
+                        sock, _ = self._input.accept()
+                        frames.prepare(sock)
+                        selector.register(sock, selectors.EVENT_READ, Peer(sock))
+                        continue
+                    try:
+                        size = peer.sock.recv_into(buffer)
+                    except OSError:
+                        size = 0
+                    if not size:  # the API process closed it (or went away)
+                        selector.unregister(peer.sock)
+                        peer.sock.close()
+                        continue
+                    for payload in peer.reader.feed(view[:size]):
+                        if peer.identity is None:
+                            peer.identity = payload
+                            continue
+                        try:
+                            request = decode(payload)
+                        except (ValueError, msgspec.DecodeError) as exc:
+                            log.warning("an undecodable request was dropped: %s", exc)
+                            continue
+                        handle(peer.identity, request)
+        finally:
+            for key in list(selector.get_map().values()):
+                key.fileobj.close()
+            selector.close()
 
     # -- output ----------------------------------------------------------------------------------
 

@@ -23,7 +23,7 @@ from sdfserver import __version__
 from sdfserver.api import auth, bodies, errors, health, models, render_routes, routes, stream, transfer
 from sdfserver.api.engine_client import BaseClient, LocalEngineClient
 from sdfserver.api.engines import Engines, LocalPlacement
-from sdfserver.api.gcpauses import GcPauses, freeze_startup_objects
+from sdfserver.gcpauses import GcPauses, freeze_startup_objects
 from sdfserver.settings import Settings
 
 log = logging.getLogger("sdfserver")

@@ -96,6 +96,7 @@ def serve_engine(settings: Settings, address: EngineAddress, engines: int, conn:
     ``conn.send`` is told ("ready", device), ("failed", why) or ("died", why). The engine
     process's body, and a cluster's engine actor's (sdfserver/cluster)."""
     from sdfserver.engine.restore import restore_worlds
+    from sdfserver.gcpauses import GcPauses, freeze_startup_objects
     from sdfserver.gpu import GpuContext
     from sdfserver.storage.lock import lock_data_dir
 
@@ -128,6 +129,9 @@ def serve_engine(settings: Settings, address: EngineAddress, engines: int, conn:
         if failure is not None:
             conn.send(("failed", f"{failure}; {DEVICE_ADVICE}"))
             return 1
+        log.info("engine %d: %d start-up objects exempted from garbage collection", address.index,
+                 freeze_startup_objects())
+        GcPauses(engine.metrics.registry, prefix="sdfserver_engine_gc")
         limiter = RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst)
         doorkeeper = Doorkeeper(limiter, engine.owner_of, lambda: list(engine.owners.values()))
 

@@ -143,11 +143,14 @@ def test_openapi_and_health(server):
     for name in ("sdfserver_edit_batches_total", "sdfserver_recompute_seconds_bucket", "sdfserver_queue_depth",
                  "sdfserver_websocket_clients", "sdfserver_bytes_out_total", "sdfserver_dirty_chunks",
                  "sdfserver_engine_step_seconds_bucket", 'sdfserver_engine_phase_seconds_total{phase="apply"}',
-                 'sdfserver_gc_collections_total{generation="2"}'):
+                 'sdfserver_gc_collections_total{generation="2"}',
+                 'sdfserver_engine_gc_collections_total{generation="2"}'):
         assert name in metrics
-    # The server process froze its start-up objects (tens of thousands) out of the collector.
-    frozen = re.search(r"^sdfserver_gc_frozen_objects (\S+)$", metrics, re.M)
-    assert frozen and float(frozen.group(1)) > 10_000
+    # The API process and the engine process froze their start-up objects (tens of thousands
+    # each) out of the collector.
+    for process in ("gc", "engine_gc"):
+        frozen = re.search(rf"^sdfserver_{process}_frozen_objects (\S+)$", metrics, re.M)
+        assert frozen and float(frozen.group(1)) > 10_000, process
 
 
 def test_every_answer_type_the_server_negotiates_is_in_its_openapi(server):

@@ -1,11 +1,11 @@
-"""Garbage-collector pause accounting (the server process freezes its start-up objects; see
+"""Garbage-collector pause accounting (API and engine processes freeze their start-up objects; see
 test_fields for that, through a real server)."""
 
 import gc
 
 from prometheus_client import CollectorRegistry
 
-from sdfserver.api.gcpauses import GcPauses
+from sdfserver.gcpauses import GcPauses
 
 
 def sample(registry, name, generation):

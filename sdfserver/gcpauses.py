@@ -5,7 +5,9 @@ pydantic, numpy, pyopencl) leaves about 70,000 of them: some 30 ms a collection.
 full collection came round about once a second and stalled the event loop and the engine
 thread together; it was the service's whole p99. ``freeze_startup_objects`` moves everything
 alive at start-up into the permanent generation, which the collector skips; ``GcPauses``
-times every collection for ``/metrics``.
+times every collection for ``/metrics``. API processes and engine processes do both, each after
+its own start-up (an engine process's full collection walked about as many objects and held its
+engine thread as long).
 """
 
 from __future__ import annotations
@@ -33,7 +35,10 @@ class GcPauses:
     The callback runs inside the collector, on whichever thread triggered it: it only adds
     numbers to lists (a metric's lock there could deadlock against the same thread)."""
 
-    def __init__(self, registry: CollectorRegistry):
+    def __init__(self, registry: CollectorRegistry, prefix: str = "sdfserver_gc"):
+        """``prefix``: the metrics' names (an engine process's differ from an API process's:
+        /metrics shows both)."""
+        self.prefix = prefix
         self.count = [0] * GENERATIONS
         self.seconds = [0.0] * GENERATIONS
         self.longest = [0.0] * GENERATIONS
@@ -52,11 +57,11 @@ class GcPauses:
         self.longest[generation] = max(self.longest[generation], pause)
 
     def collect(self) -> Iterator[Any]:
-        count = CounterMetricFamily("sdfserver_gc_collections", "Garbage collections, by generation.",
+        count = CounterMetricFamily(f"{self.prefix}_collections", "Garbage collections, by generation.",
                                     labels=["generation"])
-        seconds = CounterMetricFamily("sdfserver_gc_pause_seconds", "Wall time spent in garbage collections "
+        seconds = CounterMetricFamily(f"{self.prefix}_pause_seconds", "Wall time spent in garbage collections "
                                       "(the GIL is held throughout), by generation.", labels=["generation"])
-        longest = GaugeMetricFamily("sdfserver_gc_longest_pause_seconds", "The longest garbage collection so "
+        longest = GaugeMetricFamily(f"{self.prefix}_longest_pause_seconds", "The longest garbage collection so "
                                     "far, by generation.", labels=["generation"])
         for g in range(GENERATIONS):
             count.add_metric([str(g)], self.count[g])
@@ -65,7 +70,7 @@ class GcPauses:
         yield count
         yield seconds
         yield longest
-        yield GaugeMetricFamily("sdfserver_gc_frozen_objects", "Objects exempted from garbage collection "
+        yield GaugeMetricFamily(f"{self.prefix}_frozen_objects", "Objects exempted from garbage collection "
                                 "at start-up.", value=gc.get_freeze_count())
 
     def close(self) -> None:

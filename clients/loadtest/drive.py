@@ -7,6 +7,7 @@ import os
 import queue
 import time
 
+from loadtest.collector import settle
 from loadtest.config import LoadConfig
 from loadtest.game import Tally, run_clients, run_loop
 from loadtest.report import ProgressLine
@@ -16,6 +17,7 @@ def _worker(cfg: LoadConfig, indices: list[int], requests: int, out: "multiproce
             go: "multiprocessing.Event") -> None:
     tally = Tally()
     last = [0.0]
+    tally.frozen_objects = settle()
 
     def progress(t: Tally) -> None:
         now = time.perf_counter()
@@ -42,6 +44,7 @@ def drive(cfg: LoadConfig, processes: int = 1, show_progress: bool = True) -> tu
     processes = max(1, min(processes, cfg.clients))
     if processes == 1:
         tally = Tally()
+        tally.frozen_objects = settle()
         elapsed = run_loop(cfg, run_clients(
             cfg, list(range(cfg.clients)), cfg.requests, tally,
             lambda t: line.update(t.count, sum(t.errors.values()))))

@@ -13,6 +13,7 @@ from typing import Any, Coroutine, TypeVar
 
 import httpx
 
+from loadtest.collector import FullCollections
 from loadtest.config import Brushes, LoadConfig
 from loadtest.connection import Connection
 from loadtest.parsed import ParsedConnection
@@ -32,6 +33,9 @@ class Tally:
     errors: dict[str, int] = field(default_factory=dict)
     error_messages: dict[str, str] = field(default_factory=dict)  # the first of each code
     cpu_s: float = 0.0  # the load generator's own CPU time (time.process_time) over the run
+    frozen_objects: int = 0  # exempted from its garbage collector before the run (collector.settle)
+    full_collections: int = 0  # its full collections during the run, and the longest
+    longest_collection_s: float = 0.0
 
     @property
     def count(self) -> int:
@@ -56,6 +60,9 @@ class Tally:
         for key, message in other.error_messages.items():
             self.error_messages.setdefault(key, message)
         self.cpu_s += other.cpu_s
+        self.frozen_objects += other.frozen_objects
+        self.full_collections += other.full_collections
+        self.longest_collection_s = max(self.longest_collection_s, other.longest_collection_s)
 
 
 class Budget:
@@ -143,10 +150,13 @@ async def run_clients(cfg: LoadConfig, indices: list[int], requests: int, tally:
     start = time.perf_counter()
     budget = Budget(requests, start + cfg.duration_s)
     tasks = [asyncio.create_task(game_client(i, cfg, tally, budget, start)) for i in indices]
-    while not all(t.done() for t in tasks):
-        await asyncio.wait(tasks, timeout=0.25)
-        if progress is not None:
-            progress(tally)
+    with FullCollections() as full:
+        while not all(t.done() for t in tasks):
+            await asyncio.wait(tasks, timeout=0.25)
+            if progress is not None:
+                progress(tally)
+    tally.full_collections += full.count
+    tally.longest_collection_s = max(tally.longest_collection_s, full.longest_s)
     for t in tasks:
         t.result()  # a bug in the load test itself surfaces here
     tally.cpu_s += time.process_time() - cpu_start

@@ -75,6 +75,9 @@ def report(cfg: Any, tally: Any, elapsed_s: float, world: dict) -> dict:
                    "first_message": dict(sorted(tally.error_messages.items()))},
         # The load generator's own cost: if it nears the time a request takes, it measures itself.
         "client_cpu_us_per_request": tally.cpu_s / tally.count * 1e6 if tally.count else None,
+        # Its own garbage collector: what was frozen before the run, and full collections during it.
+        "client_gc": {"frozen_objects": tally.frozen_objects, "full_collections": tally.full_collections,
+                      "longest_full_collection_ms": tally.longest_collection_s * 1e3},
     }
 
 
@@ -92,6 +95,11 @@ def format_report(result: dict) -> str:
     if result.get("client_cpu_us_per_request") is not None:
         lines.append(f"  load generator CPU {result['client_cpu_us_per_request']:.0f} us/request "
                      f"({result['config']['http']} HTTP client on {result['config']['loop']})")
+    collector = result.get("client_gc")
+    if collector is not None:
+        lines.append(f"  load generator's full collections: {collector['full_collections']}, the longest "
+                     f"{collector['longest_full_collection_ms']:.1f} ms ({collector['frozen_objects']} objects frozen "
+                     "before the run)")
     for code, n in result["errors"]["by_code"].items():
         lines.append(f"  error {code}: {n}")
     return "\n".join(lines)

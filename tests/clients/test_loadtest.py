@@ -73,6 +73,12 @@ def _check_client_cpu(result: dict, stdout: str, processes: int) -> None:
     assert 0 < cpu_us * result["requests"] / 1e6 <= result["elapsed_s"] * processes + 0.5
     assert f"load generator CPU {cpu_us:.0f} us/request ({result['config']['http']} HTTP client on " \
         f"{result['config']['loop']})" in stdout
+    # Each process froze what it held before the run (tens of thousands of objects), so that its
+    # own full collections, counted here, are short and are not the server's latency.
+    collector = result["client_gc"]
+    assert collector["frozen_objects"] > 10_000 * processes
+    assert collector["full_collections"] >= 0 and 0 <= collector["longest_full_collection_ms"] < 1_000
+    assert f"load generator's full collections: {collector['full_collections']}" in stdout
 
 
 def test_short_run_reports_sane_numbers(server_url, tmp_path):

@@ -6,8 +6,8 @@ full collection came round about once a second and stalled the event loop and th
 thread together; it was the service's whole p99. ``freeze_startup_objects`` moves everything
 alive at start-up into the permanent generation, which the collector skips; ``GcPauses``
 times every collection for ``/metrics``. API processes and engine processes do both, each after
-its own start-up (an engine process's full collection walked about as many objects and held its
-engine thread as long).
+its own start-up: an engine process holds as many start-up objects, and its full collection
+would hold up its engine thread.
 """
 
 from __future__ import annotations

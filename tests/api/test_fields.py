@@ -139,6 +139,9 @@ def test_openapi_and_health(server):
 
     for ref in set(re.findall(r"#/components/schemas/(\w+)", text)):
         assert ref in schema["components"]["schemas"], f"dangling $ref {ref}"
+    world = server.create_world(size=[16, 16, 16], chunk_size=8)["id"]  # a recompute, whatever ran before
+    server.read(world, min_version=server.edit(world, [{"op": "box", "min": [1, 1, 1], "max": [3, 3, 3], "colour": 2}]))
+    server.http.delete(f"/v1/worlds/{world}")
     metrics = server.http.get("/metrics").text
     for name in ("sdfserver_edit_batches_total", "sdfserver_recompute_seconds_bucket", "sdfserver_queue_depth",
                  "sdfserver_websocket_clients", "sdfserver_bytes_out_total", "sdfserver_dirty_chunks",

@@ -44,14 +44,13 @@ class DirtySet:
         cap, cs, (sx, sy, sz) = config.max_distance, config.chunk_size, config.size
         if config.borders == "padded":
             cap = 0  # each chunk is computed alone: an edit changes only the chunks it touches
-        # In plain ints (b.grow(cap).snap(cs).intersect(world) made three Boxes an edit). Under a
-        # large cap many edits grow to the same region: merge each once.
         # A box that grows to the whole world swallows every other region (they all touch it):
         # under a cap near the world's side that is every box, so the first one settles it.
-        (x0, y0, z0), (x1, y1, z1) = self.boxes[0].lo, self.boxes[0].hi
-        if (x0 - cap < cs and y0 - cap < cs and z0 - cap < cs and -(-(x1 + cap) // cs) * cs >= sx
-                and -(-(y1 + cap) // cs) * cs >= sy and -(-(z1 + cap) // cs) * cs >= sz):
-            return [Box((0, 0, 0), (sx, sy, sz))]
+        world = Box((0, 0, 0), (sx, sy, sz))
+        if self.boxes[0].grow(cap).snap(cs).contains(world):
+            return [world]
+        # In plain ints (b.grow(cap).snap(cs).intersect(world) made three Boxes an edit). Under a
+        # large cap many edits grow to the same region: merge each once.
         if len(self.boxes) >= VECTOR_BOXES:
             return merge_regions(self._grown_vectorized(cap, cs, config.size), max_regions)
         grown = {}

@@ -80,11 +80,9 @@ class Box:
 
     def chunk_range(self, chunk_size_vox: int) -> Box:
         """The chunk coordinates this box touches, as a box in chunk space."""
-        snapped = self.snap(chunk_size_vox)
-        return Box(
-            tuple(v // chunk_size_vox for v in snapped.lo),
-            tuple(v // chunk_size_vox for v in snapped.hi),
-        )
+        c = chunk_size_vox
+        (x0, y0, z0), (x1, y1, z1) = self.lo, self.hi
+        return Box((x0 // c, y0 // c, z0 // c), (-(-x1 // c), -(-y1 // c), -(-z1 // c)))
 
 
 def merge_regions(boxes: Iterable[Box], max_regions: int = 32) -> list[Box]:

@@ -81,12 +81,7 @@ class RecomputeResult:
 
     @property
     def changed_chunk_count(self) -> int:
-        cs, count = self.chunk_size, 0
-        for r in self.regions:  # Box.chunk_range(cs).volume, in plain ints: counted every recompute
-            (x0, y0, z0), (x1, y1, z1) = r.lo, r.hi
-            count += (max(0, -(-x1 // cs) - x0 // cs) * max(0, -(-y1 // cs) - y0 // cs)
-                      * max(0, -(-z1 // cs) - z0 // cs))
-        return count
+        return sum(r.chunk_range(self.chunk_size).volume for r in self.regions)
 
     @property
     def changed_chunks(self) -> np.ndarray:

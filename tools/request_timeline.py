@@ -16,9 +16,9 @@ field read of 16³ at its version) and prints, per request kind, the median and 
   API → client                the response to the load generator having parsed it
 
 Then, per request kind, when the engine passed each point of its step (``install_engine_steps``),
-counted from the engine taking the request: the request submitted, the step's start, planning, the log written and
-handed to the committer, the sync and the check after it, the brushes launched, the recompute, a
-read, the step's end.
+counted from the engine taking the request: the request submitted, the step's start, planning,
+the log written and handed to the committer, the sync and the check after it, the brushes
+launched, the recompute, a read, the step's end.
 
 Every process reads ``time.perf_counter`` (CLOCK_MONOTONIC on Linux, one clock for all of them).
 Each timestamp costs a list append; the records are written when the server stops (SIGTERM).
@@ -111,8 +111,8 @@ def install(directory: str) -> None:
 
 
 def install_engine_steps(events: list, clock) -> None:
-    """Record (point, time) as the engine process passes the points of a step: its start, each
-    batch planned, the log written and handed to the committer, the sync, the check after it,
+    """Record (point, time) as the engine process passes the points of a step: the request
+    submitted, the step's start, each batch planned, the log written and handed to the committer, the sync, the check after it,
     the brushes launched, the recompute, the publishing, a read, the step's end. A lone client
     has one request in the engine at a time, so each point belongs to the request whose engine
     span holds it."""

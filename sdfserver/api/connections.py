@@ -104,18 +104,14 @@ class GuardedHttpProtocol(HttpToolsProtocol):
             self.header_bytes = self.header_lines = self.header_size = 0  # usual request never is
 
     def on_url(self, url: bytes) -> None:
-        self.header_size += len(url)
-        if self.header_size > self.limits.max_header_bytes:
-            raise HeadersTooLarge(f"request headers exceed {self.limits.max_header_bytes} bytes")
+        self.count_header_bytes(len(url))
         super().on_url(url)
 
     def on_header(self, name: bytes, value: bytes) -> None:
         self.header_lines += 1
-        self.header_size += len(name) + len(value) + 4
         if self.header_lines > self.limits.max_header_count:
             raise HeadersTooLarge(f"more than {self.limits.max_header_count} header lines")
-        if self.header_size > self.limits.max_header_bytes:
-            raise HeadersTooLarge(f"request headers exceed {self.limits.max_header_bytes} bytes")
+        self.count_header_bytes(len(name) + len(value) + 4)
         super().on_header(name, value)
 
     def on_headers_complete(self) -> None:
@@ -132,6 +128,11 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         super().handle_websocket_upgrade()
 
     # -- the limits ---------------------------------------------------------------------------
+
+    def count_header_bytes(self, n: int) -> None:
+        self.header_size += n
+        if self.header_size > self.limits.max_header_bytes:
+            raise HeadersTooLarge(f"request headers exceed {self.limits.max_header_bytes} bytes")
 
     def arm_header_timer(self) -> None:
         self.disarm_header_timer()

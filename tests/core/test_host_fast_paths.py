@@ -1,6 +1,7 @@
 """The engine thread's shortcuts give what the general code gives: the dirty set's regions when
-one box grows to the whole world, the changed-chunk count, kernel times read straight from an
-event, a log record framed in one pass, a sphere parsed without its error texts."""
+one box grows to the whole world, a box's chunk range and the changed-chunk count, kernel times
+read straight from an event, a log record framed in one pass, a sphere parsed without its error
+texts."""
 
 from __future__ import annotations
 
@@ -56,14 +57,22 @@ def test_one_box_growing_to_the_whole_world_gives_the_whole_world():
     assert one_chunk_short.regions(config) == [Box((16, 0, 0), (64, 48, 32))]
 
 
-def test_changed_chunk_count_is_the_chunk_ranges_volume():
+def _chunks_touched(box: Box, chunk: int) -> list[set[int]]:
+    """Per axis, the chunk index of every voxel the box holds."""
+    return [{v // chunk for v in range(lo, hi)} for lo, hi in zip(box.lo, box.hi)]
+
+
+def test_chunk_range_and_changed_chunk_count_are_the_chunks_the_voxels_fall_in():
     rng = random.Random()
     for _ in range(100):
         size = (128, 128, 128)
         chunk = rng.choice((8, 16, 32))
         regions = [_random_box(rng, size) for _ in range(rng.randrange(0, 5))]
-        result = RecomputeResult(regions, chunk)
-        assert result.changed_chunk_count == sum(r.chunk_range(chunk).volume for r in regions)
+        for region in regions:
+            touched = _chunks_touched(region, chunk)
+            assert region.chunk_range(chunk) == Box(tuple(min(t) for t in touched), tuple(max(t) + 1 for t in touched))
+        expected = sum(math.prod(len(t) for t in _chunks_touched(r, chunk)) for r in regions)
+        assert RecomputeResult(regions, chunk).changed_chunk_count == expected
 
 
 def test_event_ms_of_a_real_event_is_its_profiled_time(gpu):

@@ -11,7 +11,7 @@
 inline float distance_at(FIELD_ARGS, int x, int y, int z, int4 dims)
 {
     const int3 v = (int3)(clamp(x, 0, dims.x - 1), clamp(y, 0, dims.y - 1), clamp(z, 0, dims.z - 1));
-    return (float)(field_at(FIELD_PASS, v, dims) >> 8);
+    return field_distance(FIELD_PASS, v, dims);
 }
 
 inline float central(FIELD_ARGS, int4 p, int4 step, int4 dims)
@@ -32,7 +32,9 @@ __kernel void query_points(FIELD_ARGS, int4 dims, __global const int4 *points, i
     if (i >= n)
         return;
     const int4 p = points[i];
-    packed_out[i] = field_at(FIELD_PASS, p.xyz, dims);
+    uint colour, steps;
+    field_step(FIELD_PASS, p.xyz, dims, &colour, &steps);
+    packed_out[i] = (ushort)((min((uint)fabs(distance_at(FIELD_PASS, p.x, p.y, p.z, dims)), 255u) << 8) | colour);
     float3 g = (float3)(central(FIELD_PASS, p, (int4)(1, 0, 0, 0), dims),
                         central(FIELD_PASS, p, (int4)(0, 1, 0, 0), dims),
                         central(FIELD_PASS, p, (int4)(0, 0, 1, 0), dims));

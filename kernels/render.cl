@@ -117,14 +117,13 @@ inline march_result march(FIELD_ARGS, int4 dims, float3 o, float3 d, int long_st
     /* Each pass takes at least one step, and a ray crosses at most sx + sy + sz voxels. */
     const int max_passes = dims.x + dims.y + dims.z + 3;
     for (int pass = 0; pass < max_passes; ++pass) {
-        uint steps;  /* face-steps known to be clear: the distance, or more across empty bricks */
-        const ushort f = field_step(FIELD_PASS, v, dims, &steps);
-        const uint dist = f >> 8;
+        uint colour, dist;  /* steps: face-steps known to be clear: the distance, or more across empty bricks */
+        uint steps = field_step(FIELD_PASS, v, dims, &colour, &dist);
         r.reads++;
-        if (dist == 0) {
+        if (colour) {
             r.hit = 1;
             r.voxel = v;
-            r.colour = f & 0xff;
+            r.colour = colour;
             return r;
         }
         r.shade = fmin(r.shade, (float)dist / fmax(t, 1e-3f));
@@ -183,8 +182,8 @@ inline float ambient(FIELD_ARGS, int4 dims, int3 v, int3 normal)
         const int3 a = v + normal * k;
         if (!in_world(a, dims))
             continue;
-        const uint dist = min((uint)(field_at(FIELD_PASS, a, dims) >> 8), (uint)k);
-        occ += (float)(k - (int)dist) / (float)k;
+        const float dist = clamp(field_distance(FIELD_PASS, a, dims), 0.0f, (float)k);
+        occ += ((float)k - dist) / (float)k;
     }
     return 1.0f - 0.45f * occ / 3.0f;
 }

@@ -32,6 +32,7 @@ from sdfserver import bulk
 from sdfserver.brushes import enqueue_brushes, enqueue_voxels
 from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, RegionJob, WorldBuffers, get_algorithm
 from sdfserver.algorithms.base import WORK_PLANE_PAD, int4
+from sdfserver.algorithms.euclidean import EUCLIDEAN_EXACT, StageBoxes
 from sdfserver.algorithms.stats import AlgorithmStats, summarize
 from sdfserver.dirty import SMALL_DIRTY_CHUNKS, DirtySet  # noqa: F401  (SMALL_DIRTY_CHUNKS: read by tests)
 from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, validate_batch
@@ -96,6 +97,27 @@ class RecomputeResult:
                                  indexing="ij"), axis=-1).reshape(-1, 3) for c in ranges])
 
 
+OPTIONAL_BUFFERS = ("seeds", "seeds2", "edt_plane", "edt_stack")
+
+
+def optional_sizes(config: WorldConfig) -> dict[str, int]:
+    """The buffers only some worlds hold, by WorldBuffers name, in bytes: jump flooding's two
+    nearest-seed boxes (uint, while an algorithm the world runs floods: ``config.floods``) and the
+    Euclidean transform's y-stage and stack boxes (ushort, Euclidean worlds)."""
+    n = config.size[0] * config.size[1] * config.size[2]
+    sizes = {}
+    if config.floods:
+        sizes.update(seeds=4 * n, seeds2=4 * n)
+    if config.euclidean:
+        sizes.update(edt_plane=2 * n, edt_stack=2 * n)
+    return sizes
+
+
+def field_defines(config: WorldConfig) -> dict[str, int]:
+    """The build defines that tell field_source.h what a world's field values mean."""
+    return {"FIELD_EUCLID": int(config.euclidean), "FIELD_SIGNED": int(config.signed)}
+
+
 class World:
     def __init__(self, gpu: GpuContext, config: WorldConfig, limits: EditLimits = EditLimits()):
         self.config = config = config.validated()
@@ -106,10 +128,19 @@ class World:
         sizes = self.buffer_bytes(config)
         gpu.check_fits(sizes, f"a {sx}x{sy}x{sz} world")
         self._sizes = sizes
-        self.buffers = WorldBuffers(config.size, *self.gpu.allocate_all(sizes))
+        self.buffers = WorldBuffers(config.size, *self.gpu.allocate_all(sizes[:4]))
+        self._optional_sizes = optional_sizes(config)
+        for name, buf in zip(self._optional_sizes, self.gpu.allocate_all(sizes[4:]) if len(sizes) > 4 else []):
+            setattr(self.buffers, name, buf)
         # An empty world: every voxel air, every distance at the cap.
         bulk.fill(gpu, self.buffers.voxels, np.uint8, 0, self.voxel_count)
-        bulk.fill(gpu, self.buffers.field, np.uint16, config.max_distance << 8, self.voxel_count)
+        if config.euclidean:  # each stage's value on air at the cap (kernels/edt.cl)
+            cap = config.max_distance
+            bulk.fill(gpu, self.buffers.field, np.uint16, cap * cap, self.voxel_count)
+            bulk.fill(gpu, self.buffers.edt_plane, np.uint16, cap * cap, self.voxel_count)
+            bulk.fill(gpu, self.buffers.work, np.uint8, cap, self.voxel_count)
+        else:
+            bulk.fill(gpu, self.buffers.field, np.uint16, config.max_distance << 8, self.voxel_count)
         gpu.queue.finish()
         self._dims_int4 = int4(config.size)
         self.dirty = DirtySet()  # what edits may have changed since the last recompute
@@ -123,12 +154,11 @@ class World:
     @staticmethod
     def buffer_bytes(config: WorldConfig) -> list[int]:
         """The device buffers a world of ``config`` holds, in bytes: voxels, field, work (a pad
-        per z-plane) and work2, 5 bytes per voxel; then, if an algorithm it runs floods
-        (``config.floods``), seeds and seeds2, 4 bytes per voxel each. Nothing else lives as
-        long as the world."""
+        per z-plane) and work2, 5 bytes per voxel; then those of ``optional_sizes``. Nothing
+        else lives as long as the world."""
         sx, sy, sz = config.size
         n = sx * sy * sz
-        return [n, 2 * n, n + sz * WORK_PLANE_PAD, n] + ([4 * n, 4 * n] if config.floods else [])
+        return [n, 2 * n, n + sz * WORK_PLANE_PAD, n] + list(optional_sizes(config).values())
 
     # -- lifetime -----------------------------------------------------------------------------
 
@@ -136,8 +166,10 @@ class World:
         b = self.buffers
         if b is None:
             return
-        for buf, n in zip((b.voxels, b.field, b.work, b.work2, b.seeds, b.seeds2), self._sizes):
+        for buf, n in zip((b.voxels, b.field, b.work, b.work2), self._sizes):
             self.gpu.release(buf, n)
+        for name, n in self._optional_sizes.items():
+            self.gpu.release(getattr(b, name), n)
         self.buffers = None
 
     @property
@@ -145,9 +177,10 @@ class World:
         return sum(self._sizes)
 
     def field_source(self) -> tuple[dict[str, int], tuple]:
-        """How kernels that walk the field themselves (render.cl's FIELD_ARGS) reach it: no
-        build defines, and the one field buffer (a sparse world passes its brick table)."""
-        return {}, (self.buffers.field,)
+        """How kernels that walk the field themselves (field_source.h's FIELD_ARGS) reach it: the
+        metric and sign as build defines, and the field and voxel buffers (a sparse world passes
+        its pools and brick table)."""
+        return field_defines(self.config), (self.buffers.field, self.buffers.voxels)
 
     # -- edits ----------------------------------------------------------------------------------
 
@@ -210,41 +243,43 @@ class World:
         self.version += 1
         return self.version
 
-    def reconfigure(self, *, algorithm: str | None = None, focus: Focus | None | str = "keep",
-                    max_distance: int | None = None, lod_algorithm: str | None = None,
-                    borders: str | None = None) -> None:
-        """Change how the field is computed; the next recompute rebuilds all of it. Seed
-        buffers come or go with flooding algorithms; when they do not fit, nothing changes
-        (DeviceMemoryExceeded)."""
-        changes = {}
-        if algorithm is not None:
-            changes["algorithm"] = algorithm
-        if focus != "keep":
-            changes["focus"] = focus
-        if max_distance is not None:
-            changes["max_distance"] = max_distance
-        if lod_algorithm is not None:
-            changes["lod_algorithm"] = lod_algorithm
-        if borders is not None:
-            changes["borders"] = borders
-        config = replace(self.config, **changes).validated()
-        self._resize_seeds(config)
-        self.config = config
-        self.dirty.mark_all()
+    # Options that change what the field holds: the next recompute rebuilds all of it.
+    FIELD_CHANGES = frozenset({"algorithm", "focus", "max_distance", "lod_algorithm", "borders", "metric", "signed"})
 
-    def _resize_seeds(self, config: WorldConfig) -> None:
-        """Allocate or release the seed buffers as ``config`` needs them (raises before changing
-        anything when they do not fit)."""
+    def reconfigure(self, **changes) -> None:
+        """Change how the field is computed (the next recompute rebuilds all of it) or how it is
+        placed and coloured (``voxel_size``, ``origin``, ``palette``: nothing recomputed). Seed
+        and Euclidean buffers come or go with the options that need them; when they do not fit,
+        nothing changes (DeviceMemoryExceeded)."""
+        unknown = set(changes) - self.FIELD_CHANGES - {"voxel_size", "origin", "palette"}
+        if unknown:
+            raise InvalidInput(f"cannot change {sorted(unknown)} of a world")
+        if changes.get("focus", None) == "keep":
+            del changes["focus"]
+        config = replace(self.config, **changes).validated()
+        self._resize_optional(config)
+        before, self.config = self.config, config
+        if any(getattr(before, k) != getattr(config, k) for k in self.FIELD_CHANGES):
+            self.dirty.mark_all()
+
+    def _resize_optional(self, config: WorldConfig) -> None:
+        """Allocate or release the seed and Euclidean buffers as ``config`` needs them (raises
+        before changing anything when what it needs does not fit)."""
         b, sizes = self.buffers, self.buffer_bytes(config)
-        if config.floods and b.seeds is None:
-            self.gpu.check_fits(sizes[4:], "jump flooding's seed buffers")
-            b.seeds, b.seeds2 = self.gpu.allocate_all(sizes[4:])
-        elif not config.floods and b.seeds is not None:
-            self.gpu.queue.finish()  # floods already queued may still read them
-            for buf, n in zip((b.seeds, b.seeds2), self._sizes[4:]):
-                self.gpu.release(buf, n)
-            b.seeds = b.seeds2 = None
+        wanted = optional_sizes(config)
+        adding = {name: n for name, n in wanted.items() if getattr(b, name) is None}
+        if adding:
+            self.gpu.check_fits(list(adding.values()), "the world's " + " and ".join(adding) + " buffers")
+        dropping = [name for name in OPTIONAL_BUFFERS if name not in wanted and getattr(b, name) is not None]
+        if dropping:
+            self.gpu.queue.finish()  # work already queued may still read them
+        for name in dropping:
+            self.gpu.release(getattr(b, name), self._optional_sizes[name])
+            setattr(b, name, None)
+        for (name, n), buf in zip(adding.items(), self.gpu.allocate_all(list(adding.values())) if adding else []):
+            setattr(b, name, buf)
         self._sizes = sizes
+        self._optional_sizes = wanted
 
     def mark_all_dirty(self) -> None:
         """Make the next recompute rebuild the whole field (benchmarks, restores)."""
@@ -271,8 +306,11 @@ class World:
         start = time.perf_counter()
         regions = self.dirty_regions() if self.dirty else []
         runs: list[tuple[str, AlgorithmRun]] = []
-        for region in regions:
-            runs.extend(self._compute_region(region))
+        if self.config.euclidean and regions:
+            runs.append(("exact", self._compute_euclidean(regions)))
+        else:
+            for region in regions:
+                runs.extend(self._compute_region(region))
         self.gpu.queue.finish()
         self.dirty.clear()
         self.field_version = self.version
@@ -281,6 +319,13 @@ class World:
                                               (time.perf_counter() - start) * 1e3,
                                               sum(run.iterations for _, run in runs), each, by_algorithm)
         return self.last_recompute
+
+    def _compute_euclidean(self, regions: list[Box]) -> AlgorithmRun:
+        cfg = self.config
+        stages = StageBoxes.of_world(cfg.size) if self.dirty.all else \
+            StageBoxes.of_edits(self.dirty.boxes, regions, cfg.size, cfg.max_distance)
+        return EUCLIDEAN_EXACT.run_stages(self.gpu, self.buffers, self.buffers.field, stages, cfg.max_distance,
+                                          cfg.signed)
 
     def _compute_region(self, region: Box):
         cfg, b = self.config, self.buffers

@@ -17,6 +17,12 @@ CHUNK_SIZES = (8, 16, 32, 64, 128)
 MAX_SIDE_VOX = 2048  # exact.cl: at most 128 segments of 16 elements per line
 BORDERS = ("exact", "padded")
 STORAGES = ("dense", "sparse")
+# "manhattan": the dissertation's capped L1 distance, packed (distance << 8) | colour.
+# "euclidean": the exact distance between voxel centres, stored as its square (docs/algorithms.md,
+# "Metrics and signs").
+METRICS = ("manhattan", "euclidean")
+PALETTE_COLOURS = 255  # a voxel's value 1..255 is its palette index; 0 is air
+MAX_WORLD_UNITS = 1e9  # |origin| and voxel_size * side stay well inside float32's exact range
 # A sparse world stores only the bricks (chunks) that are neither all air at the cap nor all solid
 # of one colour, so its sides are bounded by its brick table, not by one buffer: x and z up to
 # 65536 voxels, y up to 4096. What an edit recomputes is still a dense scratch box, whose sides
@@ -87,6 +93,15 @@ class WorldConfig:
     # (sdfserver/sparse/); borders exact, no focus.
     storage: str = "dense"
     generate: TerrainSpec | None = None  # sparse only: the world starts as this terrain, not as air
+    metric: str = "manhattan"  # METRICS
+    # True: a solid voxel carries minus its distance to the nearest air voxel (outside the world
+    # is air), so the field changes sign across every surface. The stored magnitude is the same
+    # kind of number as on air; the sign is the voxel's (solid or not).
+    signed: bool = False
+    voxel_size: float = 1.0  # world units per voxel (queries in world units)
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)  # world units of voxel (0, 0, 0)'s low corner
+    # 255 (r, g, b) colours, voxel value v drawn as palette[v - 1]; None: RGB332 (the dissertation's).
+    palette: tuple[tuple[int, int, int], ...] | None = None
 
     def validated(self) -> "WorldConfig":
         # The registry imports the kernels' host side; only validation needs it.
@@ -138,8 +153,43 @@ class WorldConfig:
                     raise InvalidInput(f"focus {name} must be three integers (chunks), got {v!r}")
             if any(s <= 0 for s in self.focus.size):
                 raise InvalidInput(f"focus size must be positive, got {list(self.focus.size)}")
-        return replace(self, size=tuple(int(v) for v in size), generate=generate)
+        self._validate_field_options(algorithm, lod_algorithm)
+        return replace(self, size=tuple(int(v) for v in size), generate=generate,
+                       voxel_size=float(self.voxel_size), origin=tuple(float(v) for v in self.origin),
+                       palette=_palette(self.palette))
 
+    def _validate_field_options(self, algorithm, lod_algorithm) -> None:
+        """metric, signed, voxel_size and origin; which algorithms and options each allows."""
+        if self.metric not in METRICS:
+            raise InvalidInput(f"metric must be one of {list(METRICS)}, got {self.metric!r}")
+        if not isinstance(self.signed, (bool, np.bool_)):
+            raise InvalidInput(f"signed must be true or false, got {self.signed!r}")
+        v = self.voxel_size
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v) \
+                or not 0 < v or v * max(self.size) > MAX_WORLD_UNITS:
+            raise InvalidInput(f"voxel_size must be a finite positive number (world units per voxel, at most "
+                               f"{MAX_WORLD_UNITS:g} across the world), got {v!r}")
+        o = self.origin
+        if not isinstance(o, (tuple, list)) or len(o) != 3 or any(
+                isinstance(c, bool) or not isinstance(c, (int, float, np.integer, np.floating))
+                or not np.isfinite(c) or abs(c) > MAX_WORLD_UNITS for c in o):
+            raise InvalidInput(f"origin must be three finite numbers (world units, |value| <= "
+                               f"{MAX_WORLD_UNITS:g}), got {o!r}")
+        if self.metric == "manhattan" and not self.signed:
+            return
+        what = f"metric {self.metric!r}" + (", signed" if self.signed else "")
+        if algorithm.name != "exact":
+            raise InvalidInput(f"a world with {what} computes its field with algorithm 'exact' only "
+                               f"(got {algorithm.name!r}): the others are Manhattan and unsigned")
+        if self.focus is not None:
+            raise InvalidInput(f"a world with {what} has no focus: the level-of-detail algorithms are "
+                               f"Manhattan and unsigned")
+        if self.borders != "exact":
+            raise InvalidInput(f"a world with {what} has borders 'exact'")
+
+    @property
+    def euclidean(self) -> bool:
+        return self.metric == "euclidean"
     @property
     def chunks(self) -> Vec3:
         return tuple(v // self.chunk_size for v in self.size)
@@ -153,11 +203,35 @@ class WorldConfig:
         return any(getattr(get_algorithm(a), "seed_scratch", False) for a in used)
 
 
+def rgb332_palette() -> np.ndarray:
+    """The default palette: value v's RGB332 bits expanded to 8-bit channels, as the renderer
+    always drew them ((255, 3) uint8, row v - 1)."""
+    v = np.arange(1, 256, dtype=np.uint32)
+    r, g, b = (v >> 5) & 7, (v >> 2) & 7, v & 3
+    return np.stack([r * 255 // 7, g * 255 // 7, b * 255 // 3], axis=1).astype(np.uint8)
+
+
+def _palette(palette) -> tuple[tuple[int, int, int], ...] | None:
+    if palette is None:
+        return None
+    if isinstance(palette, np.ndarray):
+        palette = palette.tolist()
+    if not isinstance(palette, (list, tuple)) or len(palette) != PALETTE_COLOURS:
+        raise InvalidInput(f"palette must be a list of {PALETTE_COLOURS} [r, g, b] colours (voxel values 1..255), "
+                           f"got {type(palette).__name__} of length {len(palette) if hasattr(palette, '__len__') else '?'}")
+    out = []
+    for i, c in enumerate(palette):
+        if not isinstance(c, (list, tuple)) or len(c) != 3 or not all(_is_int(v) and 0 <= v <= 255 for v in c):
+            raise InvalidInput(f"palette[{i}] must be [r, g, b] with integers 0..255, got {c!r}")
+        out.append(tuple(int(v) for v in c))
+    return tuple(out)
+
+
 def padded_algorithms() -> list[str]:
     from sdfserver.algorithms import ALGORITHMS
 
     return sorted(n for n, a in ALGORITHMS.items() if getattr(a, "supports_padding", False))
 
 
-__all__ = ["BORDERS", "CHUNK_SIZES", "MAX_SIDE_VOX", "MAX_SPARSE_SIDE_XZ_VOX", "MAX_SPARSE_SIDE_Y_VOX",
-           "MAX_WORLD_VOXELS", "STORAGES", "Focus", "TerrainSpec", "WorldConfig"]
+__all__ = ["BORDERS", "CHUNK_SIZES", "METRICS", "PALETTE_COLOURS", "MAX_SIDE_VOX", "MAX_SPARSE_SIDE_XZ_VOX", "MAX_SPARSE_SIDE_Y_VOX",
+           "MAX_WORLD_VOXELS", "STORAGES", "Focus", "TerrainSpec", "WorldConfig", "rgb332_palette"]

@@ -42,7 +42,28 @@ class GenerateBody(Strict):
     cave_depth: Number = Field(40.0, description="Caves lie at most this far below the surface, 0..256.")
 
 
-class CreateWorldBody(Strict):
+Metric = Annotated[StrictStr, Field(description="manhattan (default): the capped L1 distance, packed with the colour; "
+                                    "euclidean: the exact distance between voxel centres (docs/algorithms.md)")]
+Signed = Annotated[bool, Field(description="true: solids carry minus their distance to the nearest air voxel")]
+VoxelSize = Annotated[float, Field(description="World units per voxel (queries answer in world units); finite, > 0")]
+Origin = Annotated[list[float], Field(min_length=3, max_length=3,
+                                      description="World-unit position of voxel (0, 0, 0)'s low corner")]
+Palette = Annotated[list[list[StrictInt]], Field(
+    description="255 [r, g, b] colours (0..255): voxel value v is drawn as palette[v - 1]; default RGB332")]
+
+
+class FieldOptions(Strict):
+    """What a world's field holds and where it lies in world units (create and PATCH). Values are
+    checked by WorldConfig.validated, which names the field in its 422."""
+
+    metric: Metric | None = None
+    signed: Signed | None = None
+    voxel_size: VoxelSize | None = None
+    origin: Origin | None = None
+    palette: Palette | None = None
+
+
+class CreateWorldBody(FieldOptions):
     size: Annotated[list[Side], Field(min_length=3, max_length=3)] = Field(
         description="World size in voxels, each a multiple of chunk_size.")
     chunk_size: StrictInt = Field(16, ge=8, le=128, description="Chunk side in voxels: 8, 16, 32, 64 or 128.")
@@ -57,7 +78,7 @@ class CreateWorldBody(Strict):
     generate: GenerateBody | None = Field(None, description="Sparse worlds only: start as this terrain, not as air.")
 
 
-class PatchWorldBody(Strict):
+class PatchWorldBody(FieldOptions):
     algorithm: Algorithm | None = None
     lod_algorithm: Algorithm | None = None
     borders: Borders | None = None

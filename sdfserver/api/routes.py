@@ -37,6 +37,14 @@ def max_owned(request: Request) -> int:
     return request.app.state.settings.max_worlds_per_key
 
 
+FIELD_OPTIONS = ("metric", "signed", "voxel_size", "origin", "palette")
+
+
+def field_options(body: Any) -> dict[str, Any]:
+    """The field options a create or PATCH body sets (left out: the world's default or current)."""
+    return {k: getattr(body, k) for k in FIELD_OPTIONS if getattr(body, k) is not None}
+
+
 def _focus(body: Any) -> Focus | None:
     return None if body is None else Focus(tuple(body.center), tuple(body.size))
 
@@ -48,7 +56,8 @@ async def create_world(request: Request) -> Response:
     config = WorldConfig(size=tuple(body.size), chunk_size=body.chunk_size, max_distance=body.max_distance,
                          algorithm=body.algorithm, lod_algorithm=body.lod_algorithm, focus=_focus(body.focus),
                          borders=body.borders, storage=body.storage,
-                         generate=None if body.generate is None else TerrainSpec(**body.generate.model_dump()))
+                         generate=None if body.generate is None else TerrainSpec(**body.generate.model_dump()),
+                         **field_options(body))
     described = await engine_of(request).create_world(world_config_dict(config), access_of(request),
                                                       max_owned=max_owned(request))
     response = respond(request, described, status_code=201)
@@ -93,11 +102,13 @@ async def describe_world(request: Request, world_id: str) -> Response:
 
 
 @router.patch("/worlds/{world_id}", openapi_extra=request_body(PatchWorldBody),
-              summary="Change algorithm, focus, cap or borders (the field is recomputed)")
+              summary="Change algorithm, focus, cap, borders, metric or sign (the field is recomputed), "
+                      "voxel size, origin or palette")
 async def patch_world(request: Request, world_id: str) -> Response:
     body = PatchWorldBody.model_validate(await decode_body(request))
     changes: dict[str, Any] = {k: getattr(body, k) for k in ("algorithm", "lod_algorithm", "max_distance", "borders")
                                if getattr(body, k) is not None}
+    changes.update(field_options(body))
     if "focus" in body.model_fields_set:
         changes["focus"] = None if body.focus is None else {"center": list(body.focus.center),
                                                             "size": list(body.focus.size)}

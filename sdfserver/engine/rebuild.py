@@ -43,7 +43,11 @@ def config_from_dict(d: dict) -> WorldConfig:
                        algorithm=d["algorithm"], lod_algorithm=d.get("lod_algorithm", "jfa"),
                        borders=d.get("borders", "exact"),  # older logs and snapshots predate it
                        focus=_focus(d.get("focus"), size, chunk_size), storage=d.get("storage", "dense"),
-                       generate=None if d.get("generate") is None else TerrainSpec(**d["generate"]))
+                       generate=None if d.get("generate") is None else TerrainSpec(**d["generate"]),
+                       # older logs and snapshots predate these: Manhattan, unsigned, unit voxels, RGB332
+                       metric=d.get("metric", "manhattan"), signed=d.get("signed", False),
+                       voxel_size=d.get("voxel_size", 1.0), origin=tuple(d.get("origin", (0.0, 0.0, 0.0))),
+                       palette=d.get("palette"))
 
 
 def _focus(focus: dict | None, size: tuple, chunk_size: int) -> Focus | None:

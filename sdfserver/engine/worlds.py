@@ -28,6 +28,9 @@ def world_config_dict(config: WorldConfig) -> dict[str, Any]:
     d["size"] = list(config.size)
     if config.focus is not None:
         d["focus"] = {"center": list(config.focus.center), "size": list(config.focus.size)}
+    d["origin"] = list(config.origin)
+    if config.palette is not None:
+        d["palette"] = [list(c) for c in config.palette]
     return d
 
 

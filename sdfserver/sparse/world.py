@@ -43,7 +43,7 @@ from sdfserver.sparse import kernels
 from sdfserver.sparse.device_table import DeviceTable
 from sdfserver.sparse.pool import BYTES_PER_STORED_VOXEL, BrickPool
 from sdfserver.sparse.table import AIR, BrickTable, solid_code
-from sdfserver.world import BRUSHES_PER_LAUNCH, EditPlan, RecomputeResult
+from sdfserver.world import BRUSHES_PER_LAUNCH, EditPlan, RecomputeResult, field_defines
 from sdfserver.world_config import MAX_SIDE_VOX, WorldConfig
 
 SHELL_X_VOX = 8  # the shell's width along x: RegionJob widens work boxes to multiples of 8
@@ -135,7 +135,9 @@ class SparseWorld:
         and the arguments FIELD_ARGS stands for."""
         top, blocks = self.device_table.current()
         fields = self.pool.kernel_buffers("field") or (top,) * 4  # no stored brick: none is read
-        return {"SPARSE_FIELD": 1}, (*fields, np.int32(self.pool.segment_bricks), top, blocks,
+        voxels = self.pool.kernel_buffers("voxels") or (top,) * 4
+        return {"SPARSE_FIELD": 1, **field_defines(self.config)}, (
+            *fields, *voxels, np.int32(self.pool.segment_bricks), top, blocks,
                                      int4(self.device_table.top_n), np.int32(self.brick),
                                      np.int32(self.config.max_distance))
 

@@ -34,7 +34,13 @@
  * Build options: SEG (elements per work-item), AXIS (pass_yz: 1 = y, 2 = z),
  * VEC (pass_yz: x-columns per work-item, 2, 4 or 8), LOCAL_X, LOCAL_Y (the
  * work-group: pass_x (segments, line pairs); pass_yz (x-lanes, segments)),
- * FIRST, LAST, SDF_PTX_16X2.
+ * FIRST, LAST, SDF_PTX_16X2, INVERT.
+ *
+ * INVERT 1 computes a signed world's other transform: the distance from each solid to the
+ * nearest air voxel (the seeds are the air voxels; the world's outside is air, so the last pass
+ * also takes each solid's distance to the nearest face) and writes it over R's solids only,
+ * after the plain transform has written R. On the seed shell a voxel of the seeds' kind starts at
+ * 0 whatever the field holds there (a signed world's solids hold their inside distance).
  */
 #include "sdf_common.h"
 
@@ -43,6 +49,9 @@
 /* One in each 16-bit lane of a word. */
 #define ONES 0x00010001u
 #define BIG2 (BIG * ONES)
+#ifndef INVERT
+#define INVERT 0
+#endif
 
 #if SDF_PTX_16X2
 inline uint min_u16x2(uint a, uint b)
@@ -140,13 +149,13 @@ inline void init8(uint *out, XLine l, int t, int wx, __global const uchar *voxel
                   __global const ushort *field, int4 r_lo, int4 r_hi, int seeded, int cap)
 {
     const uchar8 v = *(__global const uchar8 *)(voxels + l.world_row + t);
-    const uint8 init = select((uint8)(cap), (uint8)(0), convert_uint8(v) != (uint8)(0));
+    const uint8 init = select((uint8)(INVERT ? 0 : cap), (uint8)(INVERT ? cap : 0), convert_uint8(v) != (uint8)(0));
     out[0] = init.s0; out[1] = init.s1; out[2] = init.s2; out[3] = init.s3;
     out[4] = init.s4; out[5] = init.s5; out[6] = init.s6; out[7] = init.s7;
     if (seeded && (!l.in_r || wx < r_lo.x || wx + 8 > r_hi.x)) {
         _Pragma("unroll") for (int k = 0; k < 8; ++k) {
             const int x = wx + k;
-            if (!l.in_r || x < r_lo.x || x >= r_hi.x)
+            if ((!l.in_r || x < r_lo.x || x >= r_hi.x) && out[k] != 0)  /* a seed stays 0 */
                 out[k] = min((uint)(field[l.world_row + t + k] >> 8), (uint)cap);
         }
     }
@@ -162,6 +171,9 @@ inline void load8(uint *out, __global const uchar *row)
 }
 #endif
 
+#if LAST && INVERT
+#error the inverted transform writes the field from pass_yz (PASS_ORDER ends with y or z)
+#endif
 #if LAST
 /* 8 packed field values of one line. Only solids (distance 0) carry a colour:
  * air-only groups skip the voxel read. */
@@ -253,6 +265,13 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
 #define convert_ushortV CAT(convert_ushort, VEC)
 #define as_ushortV CAT(as_ushort, VEC)
 #if VEC == 2
+#define LANE_OFFSETS ((short2)(0, 1))
+#elif VEC == 4
+#define LANE_OFFSETS ((short4)(0, 1, 2, 3))
+#else
+#define LANE_OFFSETS ((short8)(0, 1, 2, 3, 4, 5, 6, 7))
+#endif
+#if VEC == 2
 #define wordV uint
 #define as_wordV as_uint
 #define MINV min_u16x2
@@ -308,9 +327,10 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
 #if FIRST
             const size_t i = WORLD_AT(t);
             const ushortV v = convert_ushortV(*(__global const ucharV *)(voxels + i));
-            ushortV init = select((ushortV)(cap), (ushortV)(0), v != (ushortV)(0));
-            if (seeded && !(lane_x_in_r && IN_R(t)))  /* the seed shell */
-                init = min(*(__global const ushortV *)(field + i) >> (ushort)8, (ushortV)(cap));
+            ushortV init = select((ushortV)(INVERT ? 0 : cap), (ushortV)(INVERT ? cap : 0), v != (ushortV)(0));
+            if (seeded && !(lane_x_in_r && IN_R(t)))  /* the seed shell; a seed stays 0 */
+                init = select(min(*(__global const ushortV *)(field + i) >> (ushort)8, (ushortV)(cap)), init,
+                              init == (ushortV)(0));
             d[k] = as_wordV(init);
 #else
             d[k] = as_wordV(convert_ushortV(*(__global const ucharV *)(work + base + (size_t)t * stride)));
@@ -331,6 +351,19 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
 #if LAST
         if (lane_x_in_r && IN_R(t)) {
             const size_t i = WORLD_AT(t);
+#if INVERT
+            const ushortV v = convert_ushortV(*(__global const ucharV *)(voxels + i));
+            if (any(v != (ushortV)(0))) {
+                const int y = AXIS == 1 ? w_lo.y + t : w_lo.y + ly, z = AXIS == 1 ? w_lo.z + lz : w_lo.z + t;
+                const int face_yz = min(min(y + 1, dims.y - y), min(z + 1, dims.z - z));
+                const shortV x = (shortV)(w_lo.x + lx) + LANE_OFFSETS;
+                const shortV face = min(min(x + (shortV)(1), (shortV)(dims.x) - x), (shortV)(min(face_yz, cap)));
+                const ushortV inside = min(as_ushortV(out), as_ushortV(face));
+                const ushortV old = *(__global const ushortV *)(field + i);
+                *(__global ushortV *)(field + i) = select(old, (inside << (ushort)8) | v, v != (ushortV)(0));
+            }
+            continue;
+#endif
             /* Only solids (distance 0) carry a colour: air-only lanes skip the voxel read. */
             const wordV colour = any(as_ushortV(out) == (ushortV)(0))
                 ? as_wordV(convert_ushortV(*(__global const ucharV *)(voxels + i))) : (wordV)(0);

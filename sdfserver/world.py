@@ -343,6 +343,8 @@ class World:
             halo = lambda r: RegionJob.halo_region(b, r, cap)  # noqa: E731
         if focus is None:
             yield algorithm.name, algorithm.run(self.gpu, seeded(region))
+            if cfg.signed:  # inside the solids: distances to air, after the plain run wrote R
+                yield algorithm.name, algorithm.run(self.gpu, replace(seeded(region), invert=True))
             return
         # Level of detail (the dissertation's Algorithm 7): the cheap algorithm everywhere,
         # then the world's algorithm inside the focus, from voxels alone so that the

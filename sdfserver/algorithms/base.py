@@ -90,6 +90,9 @@ class RegionJob:
     seeded: bool
     cap: int
     chunk: int = 0  # padded: the chunk side, each chunk computed alone; 0: chunk borders exact
+    # A signed world's second run: the distance from each solid to the nearest air voxel, written
+    # over R's solids (only algorithm exact runs it: WorldConfig allows signed worlds no other).
+    invert: bool = False
 
     @classmethod
     def seeded_region(cls, buffers: WorldBuffers, region: Box, cap: int) -> "RegionJob":

@@ -8,6 +8,8 @@ in parallel. Not in the dissertation; it replaces its per-chunk algorithms.
 Kernel: kernels/exact.cl, three launches; the first derives initial distances
 from voxels and the seed shell, the last writes the packed field.
 Units: voxels. Halo: one-voxel seed shell (seeded) or ``cap`` voxels (halo).
+Signed worlds: a second run with ``RegionJob.invert`` writes each solid's distance to the
+nearest air voxel over R's solids (kernels/exact.cl, INVERT).
 Exact: yes, across chunk borders. Failure modes: none known; lines are at
 most 2048 voxels (the world size limit), 128 segments of 16 at the longest.
 """
@@ -98,7 +100,8 @@ class Exact:
 
     def launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int,
                      seg: int | None = None, lanes: int | None = None, vec: int | None = None,
-                     x_threads: int = X_PASS_THREADS, first: bool = False, last: bool = False):
+                     x_threads: int = X_PASS_THREADS, first: bool = False, last: bool = False,
+                     invert: bool = False):
         """The kernel, segments per line, and global/local sizes for one pass.
 
         Each pass is compiled for its work-group shape (reqd_work_group_size),
@@ -114,7 +117,7 @@ class Exact:
             pairs = -(-(ny * nz) // 2)
             global_ = (nseg, -(-pairs // per_group) * per_group)
             kernel = gpu.programs.kernel("exact.cl", "pass_x", SEG=seg, LOCAL_X=local[0], LOCAL_Y=local[1],
-                                         FIRST=int(first), LAST=int(last))
+                                         FIRST=int(first), LAST=int(last), **({"INVERT": 1} if invert else {}))
         else:
             lanes, vec = lanes or shape.lanes, vec or shape.vec
             local = (lanes, nseg)
@@ -122,7 +125,7 @@ class Exact:
             global_ = (-(-columns // lanes) * lanes, nseg * (nz if axis == 1 else ny))
             kernel = gpu.programs.kernel("exact.cl", "pass_yz", SEG=seg, AXIS=axis, VEC=vec,
                                          LOCAL_X=local[0], LOCAL_Y=local[1],
-                                         FIRST=int(first), LAST=int(last))
+                                         FIRST=int(first), LAST=int(last), **({"INVERT": 1} if invert else {}))
         return kernel, nseg, global_, local
 
     @staticmethod
@@ -146,23 +149,25 @@ class Exact:
             line *= 2
         return len(programs)
 
-    def passes(self, gpu: GpuContext, n: tuple[int, int, int]) -> list:
+    def passes(self, gpu: GpuContext, n: tuple[int, int, int], invert: bool = False) -> list:
         """The three passes' (kernel, segments, global, local) for a work box of shape ``n``,
-        memoized per device: working them out costs more host time than launching them."""
+        memoized per device: working them out costs more host time than launching them.
+        ``invert``: a signed world's distances inside solids (kernels/exact.cl, INVERT)."""
         memo = self._passes.setdefault(gpu.programs, {})
-        found = memo.get(n)
+        found = memo.get((n, invert))
         if found is None:
             if len(memo) >= PASSES_MEMO_SIZE:
                 memo.clear()
-            found = memo[n] = [self.launch_shape(gpu, axis, n[axis], *n, first=position == 0, last=position == 2)
-                               for position, axis in enumerate(PASS_ORDER)]
+            found = memo[n, invert] = [self.launch_shape(gpu, axis, n[axis], *n, first=position == 0,
+                                                         last=position == 2, invert=invert)
+                                       for position, axis in enumerate(PASS_ORDER)]
         return found
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         run = AlgorithmRun(bytes_moved=bytes_moved(job))
         args = pass_args(job)  # the three passes take the same arguments
         queue = gpu.queue
-        for kernel, _, global_, local in self.passes(gpu, job.work_box.shape_xyz):
+        for kernel, _, global_, local in self.passes(gpu, job.work_box.shape_xyz, job.invert):
             run.events.append(kernel(queue, global_, local, *args))
         return run
 

@@ -13,15 +13,17 @@
  * lower bound for the exact algorithms; an approximate field that overestimates
  * (JFA outside a focus box) can let a ray step over a thin solid.
  *
- * Conventions (sdf_common.h): the field is ushort (distance << 8) | RGB332,
- * C-ordered (z, y, x); voxel (x, y, z) covers [x, x+1) x [y, y+1) x [z, z+1);
- * y is up; image row 0 is the top.
+ * Conventions (sdf_common.h): C-ordered (z, y, x); voxel (x, y, z) covers [x, x+1) x [y, y+1) x
+ * [z, z+1); y is up; image row 0 is the top. What a field value means (Manhattan or Euclidean,
+ * signed or not) is field_source.h's alone: the marcher asks it for face-steps and colours, so
+ * the hit surface is the same on every field of the same voxels.
  *
- * Shading: the voxel's RGB332 colour expanded to RGB888, times an integer
- * brightness per entered face (top 256/256, x faces 204, z faces 166, bottom
- * 128), so the result is exact integer arithmetic. Flags add ambient occlusion
- * (from distances along the face normal) and a soft shadow toward `light`
- * (a second DDA march), both floating point.
+ * Shading: the voxel's value v is drawn as the world's palette[v - 1] (`palette`, 255 RGBA
+ * entries; the default is RGB332 expanded to RGB888), times an integer brightness per entered
+ * face (top 256/256, x faces 204, z faces 166, bottom 128), so the result is exact integer
+ * arithmetic. Flags add ambient occlusion (from distances along the face normal) and a soft
+ * shadow toward `light` (a second DDA march whose penumbra is the least clearance / t, the
+ * clearance being field_distance: Euclidean where the world is), both floating point.
  *
  * Ties between axes in the DDA (a ray through an edge) go to x, then y, then z.
  *
@@ -45,9 +47,9 @@ typedef struct {
     int3 voxel;    /* the voxel hit */
     int face;      /* the axis of the face the ray entered through; -1 if it started inside */
     int3 step;     /* the ray's step direction per axis */
-    uint colour;   /* RGB332 */
+    uint colour;   /* the voxel's value, a palette index */
     uint reads;    /* field reads */
-    float shade;   /* min over reads of distance / t (soft shadows) */
+    float shade;   /* min over reads of clearance / t (soft shadows) */
 } march_result;
 
 inline int argmin3(float3 t)
@@ -126,7 +128,14 @@ inline march_result march(FIELD_ARGS, int4 dims, float3 o, float3 d, int long_st
             r.colour = colour;
             return r;
         }
-        r.shade = fmin(r.shade, (float)dist / fmax(t, 1e-3f));
+        /* The penumbra wants the true clearance: a Euclidean distance is below the step count
+         * (ceil), and in a Manhattan world the two are the same number, read once. */
+#if FIELD_EUCLID
+        const float clearance = long_steps ? 0.0f : fmax(field_distance(FIELD_PASS, v, dims), 0.0f);
+#else
+        const float clearance = (float)dist;
+#endif
+        r.shade = fmin(r.shade, clearance / fmax(t, 1e-3f));
         if (!long_steps)
             steps = dist;
         if (steps >= JUMP_MIN_STEPS) {
@@ -168,9 +177,10 @@ inline uint face_brightness(int face, int3 step)
     return 256u;                          /* the camera started inside this voxel */
 }
 
-inline uint3 rgb332_to_888(uint c)
+/* Value v (1..255) is drawn as the world's palette[v - 1] (the default holds RGB332 expanded). */
+inline uint3 palette_rgb(__global const uchar4 *palette, uint c)
 {
-    return (uint3)((((c >> 5) & 7u) * 255u) / 7u, (((c >> 2) & 7u) * 255u) / 7u, (c & 3u) * 85u);
+    return convert_uint3(palette[c - 1u].xyz);
 }
 
 /* 1 - occlusion, from distances k = 2..4 voxels out along the face normal: in the open
@@ -206,7 +216,8 @@ inline float shadow(FIELD_ARGS, int4 dims, int3 v, int3 normal, float3 light)
 __kernel void render(FIELD_ARGS, int4 dims,
                      float4 cam_origin, float4 cam_forward, float4 cam_right, float4 cam_up,
                      int width, int height, uint sky_rgb, uint flags, float4 light,
-                     int4 highlight, __global uchar4 *out, __global uint *reads)
+                     int4 highlight, __global const uchar4 *palette, __global uchar4 *out,
+                     __global uint *reads)
 {
     const int px = get_global_id(0), py = get_global_id(1);
     if (px >= width || py >= height)
@@ -222,7 +233,7 @@ __kernel void render(FIELD_ARGS, int4 dims,
         out[pixel] = (uchar4)((sky_rgb >> 16) & 0xff, (sky_rgb >> 8) & 0xff, sky_rgb & 0xff, 255);
         return;
     }
-    uint3 rgb = (rgb332_to_888(r.colour) * face_brightness(r.face, r.step)) >> 8;
+    uint3 rgb = (palette_rgb(palette, r.colour) * face_brightness(r.face, r.step)) >> 8;
     if (flags & (RENDER_AO | RENDER_SHADOW)) {
         int3 normal = (int3)(0);
         if (r.face == 0) normal.x = -r.step.x;

@@ -4,7 +4,9 @@ The renderer belongs to the thread that owns the GpuContext (the engine thread
 in the server): ``render`` reads the world's field (``world.field_source()``) between steps, so a
 frame shows the field of exactly one version, ``frame.field_version``. Output
 buffers are allocated through the GpuContext once per frame size and reused;
-a few recent sizes are kept (several clients with different windows).
+a few recent sizes are kept (several clients with different windows). Each world's palette
+(``config.palette``; None is RGB332) goes to the device once, as 255 RGBA entries, and again
+only when the world's palette changes.
 """
 
 from __future__ import annotations
@@ -22,10 +24,13 @@ from sdfserver.algorithms.base import int4
 from sdfserver.gpu import GpuContext
 from sdfserver.render.camera import Camera, RenderOptions
 from sdfserver.gpu.profiling import event_ms
+from sdfserver.world_config import rgb332_palette
 
 FLAG_AO, FLAG_SHADOW, FLAG_STATS = 1, 2, 4
 LOCAL_SIZE = (16, 8)
 KEEP_SIZES = 4
+PALETTE_BYTES = 255 * 4
+KEEP_PALETTES = 64  # worlds whose palettes stay on the device (1 KiB each)
 
 
 @dataclass
@@ -66,16 +71,28 @@ class _Target:
         gpu.release(self.reads, self.pixels_bytes)
 
 
+def palette_rgba(palette) -> np.ndarray:
+    """A config's palette (None: RGB332) as the kernel's (255, 4) uint8 RGBA table."""
+    rgb = rgb332_palette() if palette is None else np.asarray(palette, dtype=np.uint8).reshape(255, 3)
+    return np.concatenate([rgb, np.full((255, 1), 255, np.uint8)], axis=1)
+
+
 class Renderer:
     def __init__(self, gpu: GpuContext):
         self.gpu = gpu
         self._targets: OrderedDict[tuple[int, int], _Target] = OrderedDict()
         self._pick_out = gpu.allocate(32)
+        # Per world (by id): the palette object uploaded and its buffer. A config is frozen, so a
+        # new palette is a new object; comparing identity costs nothing per frame.
+        self._palettes: OrderedDict[int, tuple[object, cl.Buffer]] = OrderedDict()
 
     def release(self) -> None:
         for target in self._targets.values():
             target.release(self.gpu)
         self._targets.clear()
+        for _, buf in self._palettes.values():
+            self.gpu.release(buf, PALETTE_BYTES)
+        self._palettes.clear()
         if self._pick_out is not None:
             self.gpu.release(self._pick_out, 32)
             self._pick_out = None
@@ -89,6 +106,25 @@ class Renderer:
             target = _Target(self.gpu, width, height)
         self._targets[key] = target
         return target
+
+    def _palette(self, world) -> cl.Buffer:
+        """The device copy of ``world``'s palette, uploaded again when its config's palette changed.
+        Worlds that are gone are forgotten as the cache passes KEEP_PALETTES."""
+        palette = world.config.palette
+        cached = self._palettes.get(id(world))
+        if cached is not None and cached[0] is palette:
+            self._palettes.move_to_end(id(world))
+            return cached[1]
+        buf = cached[1] if cached is not None else self.gpu.allocate(PALETTE_BYTES)
+        cl.enqueue_copy(self.gpu.queue, buf, palette_rgba(palette))
+        self._palettes[id(world)] = (palette, buf)
+        self._palettes.move_to_end(id(world))
+        # A new world at a released one's address finds its entry and uploads again unless the
+        # palette object is the same one (then so are the colours); dropping the least recently
+        # drawn entries bounds what released worlds hold.
+        while len(self._palettes) > KEEP_PALETTES:
+            self.gpu.release(self._palettes.popitem(last=False)[1][1], PALETTE_BYTES)
+        return buf
 
     def render(self, world, camera: Camera, options: RenderOptions = RenderOptions(),
                *, stats: bool = False) -> Frame:
@@ -118,7 +154,7 @@ class Renderer:
             *field, int4(world.config.size),
             _float4(origin), _float4(forward), _float4(right), _float4(up),
             np.int32(w), np.int32(h), np.uint32(options.sky_rgb), np.uint32(flags), _float4(light),
-            highlight, target.pixels, target.reads,
+            highlight, self._palette(world), target.pixels, target.reads,
         )
         pixels = np.empty((h, w, 4), dtype=np.uint8)
         cl.enqueue_copy(queue, pixels, target.pixels, wait_for=[event])

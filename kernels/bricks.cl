@@ -6,12 +6,33 @@
  *                      (code % seg) * brick^3 in segment code / seg of the pools (POOL_ARGS:
  *                      up to 4 segments, each a voxels and a field buffer of seg bricks);
  *   BRICK_AIR (-1)     every voxel air, every distance at the cap (nothing stored);
- *   code <= -2         every voxel solid of colour -2 - code, distance 0 (nothing stored).
+ *   code <= -2         every voxel solid of colour -2 - code, distance 0, or minus the cap in a
+ *                      signed world (nothing stored).
+ * The field values these stand for follow the world's metric and sign (FIELD_EUCLID,
+ * FIELD_SIGNED: kernels/include/field_source.h).
  * Codes for a box of bricks are laid out (z, y, x) with extent codes_n, brick coordinates
  * codes_lo at index 0; `brick` is the brick side in voxels (the world's chunk size). */
 #include "sdf_common.h"
 
 #define BRICK_AIR (-1)
+#ifndef FIELD_EUCLID
+#define FIELD_EUCLID 0
+#endif
+#ifndef FIELD_SIGNED
+#define FIELD_SIGNED 0
+#endif
+
+/* The stored value of an implicit air brick's voxels, and of an implicit solid brick's. */
+inline ushort implicit_air(int cap)
+{
+    return FIELD_EUCLID ? (ushort)(cap * cap) : pack_field((uint)cap, 0);
+}
+
+inline ushort implicit_solid(int cap, uchar colour)
+{
+    const uint inside = FIELD_SIGNED ? (uint)cap : 0u;
+    return FIELD_EUCLID ? (ushort)(inside * inside) : pack_field(inside, colour);
+}
 #define POOL_ARGS __global uchar *pv0, __global uchar *pv1, __global uchar *pv2, __global uchar *pv3, \
                   __global ushort *pf0, __global ushort *pf1, __global ushort *pf2, __global ushort *pf3, int seg
 
@@ -55,17 +76,17 @@ __kernel void gather_bricks(POOL_ARGS, __global const int *codes, int4 codes_lo,
         field[i] = field_segment(code, pv0, pv1, pv2, pv3, pf0, pf1, pf2, pf3, seg)[j];
     } else if (code == BRICK_AIR) {
         voxels[i] = 0;
-        field[i] = pack_field((uint)cap, 0);
+        field[i] = implicit_air(cap);
     } else {
         const uchar colour = (uchar)(-2 - code);
         voxels[i] = colour;
-        field[i] = pack_field(0u, colour);
+        field[i] = implicit_solid(cap, colour);
     }
 }
 
 /* Over the bricks of box r (scratch coordinates r_lo, extent r_n, brick-aligned): mixed[b] = 1
- * where a voxel differs (voxel or field) from its brick's first voxel, or where the first voxel
- * is air below the cap; first[b] = the brick's first voxel. `mixed` starts at 0; the stores race
+ * where a voxel differs (voxel or field) from its brick's first voxel, or where the first voxel's
+ * field is not what an implicit brick of its kind stands for; first[b] = the brick's first voxel. `mixed` starts at 0; the stores race
  * but all write 1. */
 __kernel void classify_bricks(__global const uchar *voxels, __global const ushort *field, int4 dims,
                               int4 r_lo, int4 r_n, int brick, int cap, __global int *mixed, __global int *first)
@@ -80,7 +101,7 @@ __kernel void classify_bricks(__global const uchar *voxels, __global const ushor
     const size_t i0 = world_index(bx0, by0, bz0, dims);
     if (i == i0) {
         first[b] = voxels[i];
-        if (voxels[i] == 0 && field[i] != pack_field((uint)cap, 0))
+        if (field[i] != (voxels[i] == 0 ? implicit_air(cap) : implicit_solid(cap, voxels[i])))
             mixed[b] = 1;
     } else if (voxels[i] != voxels[i0] || field[i] != field[i0]) {
         mixed[b] = 1;

@@ -37,6 +37,7 @@ from sdfserver.algorithms.stats import AlgorithmStats, summarize
 from sdfserver.dirty import SMALL_DIRTY_CHUNKS, DirtySet  # noqa: F401  (SMALL_DIRTY_CHUNKS: read by tests)
 from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, validate_batch
 from sdfserver.errors import InvalidInput
+from sdfserver.field_values import distances, needs_voxels
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
 from sdfserver.world_config import CHUNK_SIZES, MAX_SIDE_VOX, MAX_WORLD_VOXELS, Focus, WorldConfig
@@ -370,7 +371,9 @@ class World:
         return self._read(self.buffers.field, np.uint16, box)
 
     def read_distance(self, box: Box | None = None) -> np.ndarray:
-        return (self.read_field(box) >> 8).astype(np.uint8)
+        """Distances in voxels (``field_values.distances``: uint8, int16 signed, float32 Euclidean)."""
+        voxels = self.read_voxels(box) if needs_voxels(self.config) else None
+        return distances(self.read_field(box), self.config, voxels)
 
     def read_voxels(self, box: Box | None = None) -> np.ndarray:
         return self._read(self.buffers.voxels, np.uint8, box)

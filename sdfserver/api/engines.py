@@ -33,14 +33,13 @@ class ReadResult:
     origin: tuple[int, int, int]
     version: int
     array: np.ndarray
+    content: str = ""  # engine/commands.py ReadResult.content
 
 
 @dataclass(frozen=True)
 class QueryResult:
     version: int
-    distances: np.ndarray
-    colours: np.ndarray
-    gradients: np.ndarray
+    arrays: dict[str, np.ndarray]  # engine/query.py's ANSWERS[kind]
 
 
 class Placement(Protocol):
@@ -276,14 +275,14 @@ class Engines:
         lo, hi = (None, None) if box is None else (box.lo, box.hi)
         raw = await self._call(world_id, lambda i: msg.Read(i, world_id, kind, lo, hi, min_version, access))
         result = msg.decode_result(raw, msg.ReadResult)
-        return ReadResult(tuple(result.origin), result.version, result.array.numpy())
+        return ReadResult(tuple(result.origin), result.version, result.array.numpy(), result.content)
 
-    async def query(self, world_id: str, points: np.ndarray, min_version: int = 0,
-                    access: msg.Access | None = None) -> QueryResult:
-        blob = msg.Array.of(np.asarray(points, dtype=np.float64))
-        raw = await self._call(world_id, lambda i: msg.Query(i, world_id, blob, min_version, access))
+    async def query(self, world_id: str, rows: np.ndarray, min_version: int = 0,
+                    access: msg.Access | None = None, kind: str = "points") -> QueryResult:
+        blob = msg.Array.of(np.asarray(rows))
+        raw = await self._call(world_id, lambda i: msg.Query(i, world_id, blob, min_version, access, kind))
         r = msg.decode_result(raw, msg.QueryResult)
-        return QueryResult(r.version, r.distances.numpy(), r.colours.numpy(), r.gradients.numpy())
+        return QueryResult(r.version, {name: a.numpy() for name, a in r.arrays.items()})
 
     async def render(self, world_id: str, view: dict[str, Any], unless_field_version: int | None = None,
                      access: msg.Access | None = None) -> msg.Frame | None:

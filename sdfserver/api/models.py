@@ -108,8 +108,18 @@ class EditsBody(BaseModel):
     edits: list[EditOp]
 
 
+Sphere4 = Annotated[list[FiniteFloat], Field(min_length=4, max_length=4)]
+Ray7 = Annotated[list[FiniteFloat], Field(min_length=7, max_length=7)]
+
+
 class QueryBody(Strict):
-    points: list[Point3] = Field(description="[[x, y, z], ...] in voxel units (a float32 N x 3 blob in msgpack).")
+    """Exactly one of points, spheres or rays (world units; each an N x 3, 4 or 7 float32 blob in
+    msgpack), at most max_query_points rows."""
+
+    points: list[Point3] | None = Field(None, description="[[x, y, z], ...]: distance, gradient and colour at each.")
+    spheres: list[Sphere4] | None = Field(None, description="[[x, y, z, r], ...]: clearance and the way out of each.")
+    rays: list[Ray7] | None = Field(None, description="[[ox, oy, oz, dx, dy, dz, max_length], ...]: each one's first "
+                                                      "solid voxel.")
 
 
 # Schemas that request bodies refer to; create_app adds them to the OpenAPI components.

@@ -15,7 +15,7 @@ from fastapi.responses import Response
 
 from sdfserver import wire
 from sdfserver.api.auth import access_of, principal_of
-from sdfserver.api.bodies import MSGPACK, OCTET, Encoded, decode_body, header, respond
+from sdfserver.api.bodies import MSGPACK, OCTET, Encoded, decode_body, header, respond, wants_msgpack
 from sdfserver.api.engines import Engines
 from sdfserver.api.models import CreateWorldBody, EditsBody, MoveWorldBody, PatchWorldBody, QueryBody, request_body
 from sdfserver.engine.core import world_config_dict
@@ -26,7 +26,8 @@ from sdfserver.world import Focus, WorldConfig
 from sdfserver.world_config import TerrainSpec
 
 router = APIRouter(prefix="/v1")
-LITTLE_ENDIAN = {name: np.dtype(name).newbyteorder("<") for name in ("uint8", "uint16")}  # reads' wire dtypes
+LITTLE_ENDIAN = {name: np.dtype(name).newbyteorder("<")  # reads' wire dtypes
+                 for name in ("uint8", "uint16", "int16", "float32")}
 
 
 def engine_of(request: Request) -> Engines:
@@ -204,12 +205,14 @@ def box_param(lo: str | None, hi: str | None) -> Box | None:
 def _array_response(request: Request, result: Any, dtype: str) -> Response:
     """The read as msgpack {origin, shape, dtype, version, data}, raw bytes, or JSON with base64 data."""
     array = result.array
-    facts = {"origin": list(result.origin), "shape": list(array.shape), "dtype": dtype, "version": result.version}
+    facts = {"origin": list(result.origin), "shape": list(array.shape), "dtype": dtype, "version": result.version,
+             **({"content": result.content} if result.content else {})}
     accept = header(request, b"accept") or ""
     if OCTET in accept:
         headers = [(b"x-sdf-origin", ",".join(map(str, facts["origin"])).encode()),
                    (b"x-sdf-shape", ",".join(map(str, facts["shape"])).encode()),
-                   (b"x-sdf-dtype", dtype.encode()), (b"x-sdf-version", str(result.version).encode())]
+                   (b"x-sdf-dtype", dtype.encode()), (b"x-sdf-version", str(result.version).encode()),
+                   *([(b"x-sdf-content", result.content.encode())] if result.content else [])]
         body = np.ascontiguousarray(array, dtype=LITTLE_ENDIAN[dtype]).tobytes()
         response = Encoded(body, OCTET, headers=headers)
     elif "application/json" in accept and MSGPACK not in accept:
@@ -229,7 +232,9 @@ async def read_field(request: Request, world_id: str,
                      min: str | None = Query(None, description="x,y,z (inclusive); default 0,0,0"),
                      max: str | None = Query(None, description="x,y,z (exclusive); default the world size"),
                      format: str = Query("distance", pattern="^(distance|packed)$",
-                                         description="distance: uint8; packed: uint16 (distance << 8) | colour"),
+                                         description="distance: uint8 (int16 signed, float32 Euclidean); "
+                                         "packed: uint16, (distance << 8) | colour (Manhattan) or the squared "
+                                         "distance (Euclidean): the answer's content says which"),
                      min_version: int = Query(0, ge=0, description="wait until the field reflects this version")
                      ) -> Response:
     return await field_response(request, world_id, box_param(min, max), format, min_version)
@@ -239,7 +244,7 @@ async def field_response(request: Request, world_id: str, box: Box | None, forma
                          min_version: int) -> Response:
     """The field read once its parameters are checked."""
     result = await engine_of(request).read(world_id, format, box, min_version, access_of(request))
-    return _array_response(request, result, "uint8" if format == "distance" else "uint16")
+    return _array_response(request, result, result.array.dtype.name)
 
 
 @router.get("/worlds/{world_id}/voxels", summary="Read the voxels of a box (max exclusive)",
@@ -255,28 +260,47 @@ async def read_voxels(request: Request, world_id: str,
 
 
 @router.post("/worlds/{world_id}/query", openapi_extra=request_body(QueryBody),
-             summary="Distance, colour and gradient direction at points")
+             summary="Collision and navigation queries: points, spheres or rays, in world units")
 async def query(request: Request, world_id: str,
                 min_version: int = Query(0, ge=0, description="wait until the field reflects this version")
                 ) -> Response:
     return await query_response(request, world_id, min_version)
 
 
+QUERY_COLUMNS = {"points": 3, "spheres": 4, "rays": 7}
+
+
 async def query_response(request: Request, world_id: str, min_version: int) -> Response:
-    """The point query once min_version is checked."""
-    settings = request.app.state.settings
-    body = await decode_body(request)
-    points_raw = body.get("points") if isinstance(body, dict) else None
-    if wire.is_blob(points_raw):
-        if set(body) != {"points"}:
-            raise InvalidInput("the body must be an object with one field, 'points'")
-        points = wire.unpack_array(points_raw, "points")
+    """A points, spheres or rays query once min_version is checked; the engine checks the rows'
+    values (engine/query.py) and answers in world units."""
+    kind, rows = query_rows(await decode_body(request), request.app.state.settings.max_query_points)
+    result = await engine_of(request).query(world_id, rows, min_version, access_of(request), kind)
+    answer = {"version": result.version, **result.arrays}
+    if "hits" in answer and wants_msgpack(request):
+        answer["hits"] = answer["hits"].astype(np.uint8)  # blobs carry no booleans
+    return respond(request, answer)
+
+
+def query_rows(body: Any, limit: int) -> tuple[str, np.ndarray]:
+    """The one kind a query body asks and its rows (a blob, or lists checked by QueryBody)."""
+    kinds = [k for k in QUERY_COLUMNS if isinstance(body, dict) and k in body]
+    if not isinstance(body, dict) or len(kinds) != 1 or len(body) != 1:
+        extra = sorted(set(body) - set(QUERY_COLUMNS)) if isinstance(body, dict) else []
+        raise InvalidInput(f"unknown field {extra[0]!r} in a query body" if extra else
+                           "a query body holds exactly one of 'points', 'spheres' or 'rays'")
+    kind, raw = kinds[0], body[kinds[0]]
+    if isinstance(raw, list) and len(raw) > limit:
+        raise TooLarge(f"{len(raw)} {kind} in one query; the limit is {limit} (max_query_points)")
+    if wire.is_blob(raw):
+        rows = wire.unpack_array(raw, kind)
     else:
-        if isinstance(points_raw, list) and len(points_raw) > settings.max_query_points:
-            raise TooLarge(f"{len(points_raw)} points in one query; the limit is {settings.max_query_points}")
-        points = np.array(QueryBody.model_validate(body).points, dtype=np.float64).reshape(-1, 3)
-    if len(points) > settings.max_query_points:
-        raise TooLarge(f"{len(points)} points in one query; the limit is {settings.max_query_points}")
-    result = await engine_of(request).query(world_id, points, min_version, access_of(request))
-    return respond(request, {"version": result.version, "distances": result.distances,
-                             "colours": result.colours, "gradients": result.gradients})
+        listed = getattr(QueryBody.model_validate(body), kind)
+        rows = np.array(listed, dtype=np.float64).reshape(-1, QUERY_COLUMNS[kind])
+    if rows.ndim != 2 or rows.shape[1] != QUERY_COLUMNS[kind] or rows.dtype.kind not in "iuf":
+        raise InvalidInput(f"{kind} must be an (N, {QUERY_COLUMNS[kind]}) numeric array, "
+                           f"got {rows.dtype} {list(rows.shape)}")
+    if len(rows) > limit:
+        raise TooLarge(f"{len(rows)} {kind} in one query; the limit is {limit} (max_query_points)")
+    if len(rows) == 0:
+        raise InvalidInput(f"{kind} must not be empty")
+    return kind, rows

@@ -5,8 +5,12 @@ Every frame is a msgpack map with a ``type``. Client to server:
 - ``{type: "edits", id?, edits: [...]}``  -> ``{type: "ack", id, version}``
 - ``{type: "subscribe", id?, min, max, format?}`` (format "distance" or "packed"; the
   region is widened to whole chunks) -> ``{type: "subscribed", id, min, max, chunk_size,
-  format, dtype}``, then the region's current chunks, then its changed chunks after
-  every recompute. A new subscribe replaces the old one.
+  format, dtype, content, metric, signed}``, then the region's current chunks, then its changed
+  chunks after every recompute. A new subscribe replaces the old one. Distances are uint8, int16
+  (signed Manhattan) or float32 (Euclidean); packed chunks are uint16 whose ``content`` is
+  ``distance_colour`` (Manhattan) or ``squared_distance`` (Euclidean; sdfserver/field_values.py).
+  Each chunk's blob names its dtype: after a PATCH of the metric or sign, the next chunks carry
+  the new one.
 - ``{type: "unsubscribe", id?}`` -> ``{type: "unsubscribed", id}``
 - ``{type: "ping", id?}`` -> ``{type: "pong", id}``
 - ``{type: "camera", ...}`` -> ``{type: "frame", ...}`` pushes (see api/render_routes.py)
@@ -28,6 +32,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from types import SimpleNamespace
 from typing import Any
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
@@ -41,6 +46,7 @@ from sdfserver.api.routes import _edits_wire, batch_record
 from sdfserver.engine import Mailbox, check_subscription_region
 from sdfserver.engine.messages import Access, ChunkUpdate
 from sdfserver.errors import InvalidInput, SdfServerError
+from sdfserver.field_values import distance_dtype, packed_content
 from sdfserver.geometry import Box
 
 router = APIRouter(prefix="/v1")
@@ -66,6 +72,10 @@ async def stream(websocket: WebSocket, world_id: str) -> None:
     finally:
         metrics.ws_clients.dec()
         session.close()
+
+
+# The distances of a chunk by bytes a voxel: unsigned Manhattan, signed Manhattan, Euclidean.
+CHUNK_DTYPES = {1: "uint8", 2: "int16", 4: "float32"}
 
 
 class StreamSession:
@@ -159,11 +169,15 @@ class StreamSession:
         # Checked here too, so that a bad region is refused before "subscribed" goes out.
         check_subscription_region(region, self.world_box, self.settings.max_subscription_voxels)
         self.close()
-        dtype = "uint16" if fmt == "packed" else "uint8"
+        described = await self.engine.describe(self.world_id, self.access)
+        metric, signed = described.get("metric", "manhattan"), bool(described.get("signed", False))
+        config = SimpleNamespace(euclidean=metric == "euclidean", signed=signed)
+        dtype = "uint16" if fmt == "packed" else distance_dtype(config).name
+        content = packed_content(config) if fmt == "packed" else "distance"
         # "subscribed" goes out before the first chunks can.
         await self.send({"type": "subscribed", "id": frame.get("id"), "min": list(region.lo),
                          "max": list(region.hi), "chunk_size": self.chunk_size, "format": fmt,
-                         "dtype": dtype})
+                         "dtype": dtype, "content": content, "metric": metric, "signed": signed})
         self.mailbox = Mailbox(self.wake.set)
         await self._follow(region, fmt, dtype)
 
@@ -202,9 +216,12 @@ class StreamSession:
             update = self.mailbox.take() if subscription is not None else None
             if update is None:
                 continue
-            cs, fmt, dtype = self.chunk_size, subscription[2], subscription[3]
+            cs, fmt = self.chunk_size, subscription[2]
+            # Distances' dtype follows the world's metric and sign, which a PATCH may change
+            # while the subscription lasts: each chunk says its own, from its size.
             chunks = [{"chunk": list(key), "origin": [c * cs for c in key],
-                       "data": {"dtype": dtype, "shape": [cs, cs, cs], "data": data}}
+                       "data": {"dtype": "uint16" if fmt == "packed" else CHUNK_DTYPES[len(data) // cs ** 3],
+                                "shape": [cs, cs, cs], "data": data}}
                       for key, data in sorted(update.chunks.items())]
             await self.send({"type": "chunks", "world": self.world_id, "version": update.version,
                              "chunk_size": cs, "format": fmt, "chunks": chunks})

@@ -96,9 +96,10 @@ class Read:
 @dataclass(frozen=True)
 class Query:
     world_id: str
-    points: np.ndarray  # (N, 3) voxel coordinates
+    rows: np.ndarray  # (N, columns) in world units: engine/query.py's KINDS[kind]
     min_version: int = 0
     deadline: float = 0.0
+    kind: str = "points"  # points, spheres or rays
 
 
 @dataclass(frozen=True)
@@ -157,8 +158,8 @@ class CommandCalls:
     async def read(self, world_id: str, kind: ReadKind, box: Box | None = None, min_version: int = 0) -> "ReadResult":
         return await self.call(Read(world_id, kind, box, min_version, self._deadline()))
 
-    async def query(self, world_id: str, points: np.ndarray, min_version: int = 0) -> Any:
-        return await self.call(Query(world_id, points, min_version, self._deadline()))
+    async def query(self, world_id: str, rows: np.ndarray, min_version: int = 0, kind: str = "points") -> Any:
+        return await self.call(Query(world_id, rows, min_version, self._deadline(), kind))
 
     def _deadline(self) -> float:
         return time.monotonic() + self.max_wait_s
@@ -169,6 +170,9 @@ class ReadResult:
     origin: Vec3  # (x, y, z) of element [0, 0, 0]
     version: int  # voxels: the world's version; field: the version the field reflects
     array: np.ndarray  # C-ordered (z, y, x)
+    # "voxels", "distance" (field_values.distance_dtype), or what a packed read carries
+    # (field_values.packed_content: "distance_colour" or "squared_distance")
+    content: str = ""
 
 
 @dataclass

@@ -118,9 +118,10 @@ class Read(Request, tag=True):
 class Query(Request, tag=True):
     id: int
     world_id: str
-    points: Array  # (N, 3) float64 voxel coordinates
+    rows: Array  # (N, columns) numbers in world units, as engine/query.py's KINDS[kind] says
     min_version: int = 0
     access: Access | None = None
+    kind: str = "points"  # points, spheres or rays
 
 
 class Render(Request, tag=True):
@@ -199,13 +200,12 @@ class ReadResult(msgspec.Struct, array_like=True):
     origin: tuple[int, int, int]  # (x, y, z) of element [0, 0, 0]
     version: int
     array: Array
+    content: str = ""  # commands.ReadResult.content
 
 
 class QueryResult(msgspec.Struct, array_like=True):
     version: int
-    distances: Array  # (N,) uint8
-    colours: Array  # (N,) uint8
-    gradients: Array  # (N, 3) float32
+    arrays: dict[str, Array]  # engine/query.py's ANSWERS[kind]
 
 
 class Frame(msgspec.Struct, array_like=True):

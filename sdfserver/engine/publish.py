@@ -6,6 +6,7 @@ import numpy as np
 
 from sdfserver.engine.mailbox import ChunkKey, Subscription
 from sdfserver.errors import InvalidInput, TooLarge
+from sdfserver.field_values import distances, needs_voxels
 from sdfserver.geometry import Box, Vec3
 from sdfserver.world import RecomputeResult, World
 
@@ -28,10 +29,15 @@ def publish(world: World, result: RecomputeResult, subs: list[Subscription]) -> 
             continue
         box = region.intersect(_union([s.region for s in readers]))
         field = world.read_field(box)
+        decoded = None
         for sub in readers:
             part = region.intersect(sub.region)
             if not part.empty:
-                chunks = chunks_of(field, box.lo, part, world.config.chunk_size, sub.format)
+                if sub.format == "distance" and decoded is None:
+                    voxels = world.read_voxels(box) if needs_voxels(world.config) else None
+                    decoded = distances(field, world.config, voxels)
+                chunks = chunks_of(decoded if sub.format == "distance" else field, box.lo, part,
+                                   world.config.chunk_size)
                 merged += sub.mailbox.put(world.field_version, chunks)
     return merged
 
@@ -43,14 +49,13 @@ def _union(boxes: list[Box]) -> Box:
     return out
 
 
-def chunks_of(field: np.ndarray, origin: Vec3, part: Box, chunk_size: int, fmt: str) -> dict[ChunkKey, bytes]:
-    """Split the chunk-aligned ``part`` of ``field`` (element 0 at ``origin``) into per-chunk bytes.
+def chunks_of(array: np.ndarray, origin: Vec3, part: Box, chunk_size: int) -> dict[ChunkKey, bytes]:
+    """Split the chunk-aligned ``part`` of ``array`` (element 0 at ``origin``: the packed field, or
+    its distances) into per-chunk bytes.
 
     This is the step's one loop over chunks.
     """
-    block = field[part.slices_zyx(origin)]
-    if fmt == "distance":
-        block = (block >> 8).astype(np.uint8)
+    block = array[part.slices_zyx(origin)]
     cs = chunk_size
     nz, ny, nx = block.shape
     tiles = block.reshape(nz // cs, cs, ny // cs, cs, nx // cs, cs).transpose(0, 2, 4, 1, 3, 5)

@@ -14,9 +14,10 @@ from sdfserver.engine.batches import fail
 from sdfserver.engine.commands import (
     CopyBricks, Describe, Draw, EngineLimits, OnDevice, PickAt, Query, Read, ReadResult, StepReport, Subscribe,
 )
-from sdfserver.engine.query import query_points
+from sdfserver.engine.query import run_query
 from sdfserver.engine.subscriptions import Subscriptions
 from sdfserver.engine.worlds import WorldTable, world_config_dict
+from sdfserver.field_values import packed_content
 from sdfserver.errors import InvalidInput, TooLarge, VersionNotReached
 from sdfserver.gpu import GpuContext
 from sdfserver.render import Renderer
@@ -32,7 +33,7 @@ class Reads:
         self._renderer: Renderer | None = None
         self.handlers: dict[type, Callable[[Any], Any]] = {
             Read: self.read,
-            Query: lambda c: query_points(table.get(c.world_id), c.points),
+            Query: lambda c: run_query(table.get(c.world_id), c.kind, c.rows),
             Describe: lambda c: table.describe(c.world_id),
             Subscribe: lambda c: subscriptions.subscribe(c.subscription),
             Draw: self.draw,
@@ -96,9 +97,10 @@ class Reads:
         if box.volume > self.limits.max_read_voxels:
             raise TooLarge(f"a read of {box.volume} voxels; the limit is {self.limits.max_read_voxels}")
         if command.kind == "voxels":
-            return ReadResult(box.lo, world.version, world.read_voxels(box))
-        array = world.read_distance(box) if command.kind == "distance" else world.read_field(box)
-        return ReadResult(box.lo, world.field_version, array)
+            return ReadResult(box.lo, world.version, world.read_voxels(box), "voxels")
+        if command.kind == "distance":
+            return ReadResult(box.lo, world.field_version, world.read_distance(box), "distance")
+        return ReadResult(box.lo, world.field_version, world.read_field(box), packed_content(world.config))
 
     def draw(self, command: Draw) -> tuple[Any, float | None] | None:
         """A frame and the world's last recompute time, or None when the field did not change."""

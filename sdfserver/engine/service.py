@@ -212,13 +212,13 @@ class EngineService:
         box = None if m.lo is None or m.hi is None else Box(m.lo, m.hi)
         command = cmd.Read(m.world_id, m.kind, box, m.min_version, self._deadline())
         self._submit(client, m.id, command,
-                     lambda r: msg.ReadResult(tuple(r.origin), r.version, msg.Array.of(r.array)))
+                     lambda r: msg.ReadResult(tuple(r.origin), r.version, msg.Array.of(r.array), r.content))
 
     def _query(self, client: bytes, m: msg.Query) -> None:
         self.doorkeeper.admit(m.access, m.world_id)
-        command = cmd.Query(m.world_id, m.points.numpy(), m.min_version, self._deadline())
+        command = cmd.Query(m.world_id, m.rows.numpy(), m.min_version, self._deadline(), m.kind)
         self._submit(client, m.id, command, lambda r: msg.QueryResult(
-            r.version, msg.Array.of(r.distances), msg.Array.of(r.colours), msg.Array.of(r.gradients)))
+            r.version, {name: msg.Array.of(a) for name, a in r.arrays.items()}))
 
     def _render(self, client: bytes, m: msg.Render) -> None:
         self.doorkeeper.admit(m.access, m.world_id)

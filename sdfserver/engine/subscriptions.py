@@ -25,9 +25,8 @@ class Subscriptions:
         world = self.table.get(sub.world_id)
         region = sub.region
         check_subscription_region(region, world.world_box, self.max_voxels)
-        field = world.read_field(region)
-        sub.mailbox.put(world.field_version, chunks_of(field, region.lo, region, world.config.chunk_size,
-                                                        sub.format))
+        array = world.read_distance(region) if sub.format == "distance" else world.read_field(region)
+        sub.mailbox.put(world.field_version, chunks_of(array, region.lo, region, world.config.chunk_size))
         with self._lock:
             self._by_world.setdefault(sub.world_id, set()).add(sub)
         self.count()

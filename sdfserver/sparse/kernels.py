@@ -49,26 +49,27 @@ def _pool_args(pool: BrickPool, voxels: cl.Buffer, field: cl.Buffer) -> tuple:
 
 
 def gather(gpu: GpuContext, pool: BrickPool, bricks: Box, codes: np.ndarray, voxels: cl.Buffer,
-           field: cl.Buffer, box: Box, cap: int, brick: int) -> None:
+           field: cl.Buffer, box: Box, cap: int, brick: int, defines: dict[str, int]) -> None:
     """Fill ``voxels`` and ``field`` (dense, extent ``box``) with the world's box ``box``;
-    ``codes`` covers ``bricks``, the bricks ``box`` meets."""
+    ``codes`` covers ``bricks``, the bricks ``box`` meets; ``defines``: the world's
+    ``field_defines`` (what implicit bricks' values are)."""
     gsize, lsize = grid(box.shape_xyz)
     with gpu.uploads.staged(codes.astype(np.int32)) as staged:  # a fresh array: the write may run later
-        gpu.programs.kernel("bricks.cl", "gather_bricks")(
+        gpu.programs.kernel("bricks.cl", "gather_bricks", **defines)(
             gpu.queue, gsize, lsize, *_pool_args(pool, voxels, field), staged, int4(bricks.lo),
             int4(bricks.shape_xyz), np.int32(brick), voxels, field, int4(box.shape_xyz), int4(box.lo),
             np.int32(cap))
 
 
 def classify(gpu: GpuContext, voxels: cl.Buffer, field: cl.Buffer, dims: tuple[int, int, int], region: Box,
-             cap: int, brick: int, results: ClassifyResults) -> tuple[np.ndarray, np.ndarray]:
+             cap: int, brick: int, results: ClassifyResults, defines: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
     """For the bricks of ``region`` (coordinates in the dense box of extent ``dims``, whole
     bricks): whether each is mixed, and its first voxel; (z, y, x) arrays. Waits for the device."""
     count = region.volume // brick ** 3
     mixed, first = results.take(count)
     cl.enqueue_fill_buffer(gpu.queue, mixed, np.int32(0), 0, 4 * count)  # small: never past 2^31
     gsize, lsize = grid(region.shape_xyz)
-    gpu.programs.kernel("bricks.cl", "classify_bricks")(
+    gpu.programs.kernel("bricks.cl", "classify_bricks", **defines)(
         gpu.queue, gsize, lsize, voxels, field, int4(dims), int4(region.lo), int4(region.shape_xyz),
         np.int32(brick), np.int32(cap), mixed, first)
     shape = tuple(v // brick for v in region.shape_zyx)

@@ -22,6 +22,7 @@ import math
 import numpy as np
 import pyopencl as cl
 
+from sdfserver.world import field_defines
 from sdfserver.algorithms import RegionJob, WorldBuffers, get_algorithm
 from sdfserver.algorithms.base import grid, int4
 from sdfserver.errors import DeviceMemoryExceeded
@@ -142,7 +143,8 @@ def _build_tile(world, algorithm, region: Box, box: Box, params: TerrainSpec) ->
     local = Box(tuple(r - b for r, b in zip(region.lo, box.lo)), tuple(r - b for r, b in zip(region.hi, box.lo)))
     view = WorldBuffers(box.shape_xyz, s.voxels, s.field, s.work, s.work2)
     algorithm.run(gpu, RegionJob.halo_region(view, local, cap))
-    mixed, first = kernels.classify(gpu, s.voxels, s.field, box.shape_xyz, local, cap, brick, world.classify_results)
+    mixed, first = kernels.classify(gpu, s.voxels, s.field, box.shape_xyz, local, cap, brick, world.classify_results,
+                                    field_defines(world.config))
     codes = np.where(first == 0, AIR, solid_code(first)).astype(np.int32)
     codes[mixed] = world.pool.take(int(mixed.sum()))
     bricks = region.chunk_range(brick)

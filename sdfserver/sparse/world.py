@@ -25,6 +25,7 @@ except a pool growth, which copies the stored bricks once (``pool.py``).
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import pyopencl as cl
@@ -32,11 +33,13 @@ import pyopencl as cl
 from sdfserver import bulk
 from sdfserver.algorithms import RegionJob, WorldBuffers, get_algorithm
 from sdfserver.algorithms.base import WORK_PLANE_PAD, int4
+from sdfserver.algorithms.euclidean import EUCLIDEAN_EXACT, StageBoxes
 from sdfserver.algorithms.stats import summarize
 from sdfserver.brushes import enqueue_brushes, enqueue_voxels
 from sdfserver.dirty import DirtySet
 from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, validate_batch
 from sdfserver.errors import DeviceMemoryExceeded, InvalidInput, TooLarge
+from sdfserver.field_values import distances, needs_voxels
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
 from sdfserver.sparse import kernels
@@ -64,12 +67,16 @@ class SparseWorld:
         if config.floods:
             raise InvalidInput("a sparse world runs an algorithm without seed buffers (not jfa, jfa+1, "
                                "jfa+2 or jfa_fim)")
+        if config.generate is not None and (config.euclidean or config.signed):
+            raise InvalidInput("generate (a terrain) is for Manhattan, unsigned sparse worlds; create the world "
+                               "Euclidean or signed without it and write voxels")
         self.gpu, self.limits = gpu, limits
         self.brick = config.chunk_size
         # Every edit needs a scratch box of at least one brick grown by the cap: refuse a world
         # that could not take even that, before anything is allocated.
         side = self.brick + 2 * (-(-config.max_distance // self.brick) * self.brick)
-        smallest = tuple(min(side + 2 * SHELL_X_VOX, v) for v in config.size)
+        smallest = tuple(min(side + 2 * (config.max_distance if config.euclidean else SHELL_X_VOX), v)
+                         for v in config.size)
         gpu.check_fits(self._scratch_sizes(smallest[0] * smallest[1] * smallest[2], smallest[2]),
                        f"a sparse {'x'.join(map(str, config.size))} world's scratch box")
         self.table = BrickTable(config.chunks)
@@ -96,9 +103,10 @@ class SparseWorld:
 
     # -- memory ------------------------------------------------------------------------------
 
-    @staticmethod
-    def _scratch_sizes(voxels: int, planes: int) -> list[int]:
-        return [voxels, 2 * voxels, voxels + planes * WORK_PLANE_PAD, voxels]
+    def _scratch_sizes(self, voxels: int, planes: int) -> list[int]:
+        """voxels, field, work, work2 and, Euclidean, the transform's y-stage and stack boxes."""
+        return [voxels, 2 * voxels, voxels + planes * WORK_PLANE_PAD, voxels] + \
+            ([2 * voxels, 2 * voxels] if self.config.euclidean else [])
 
     def _ensure_scratch(self, voxels: int) -> None:
         """Hold a scratch box of at least ``voxels`` voxels; raises DeviceMemoryExceeded, keeping
@@ -113,14 +121,17 @@ class SparseWorld:
                 f"(at most {self.gpu.max_allocation_bytes / 2**20:.0f} MiB a buffer); "
                 f"{free / 2**20:.0f} MiB of the budget is free for it")
         self._release_scratch()
-        self.scratch = WorldBuffers((0, 0, 0), *self.gpu.allocate_all(sizes))
+        buffers = self.gpu.allocate_all(sizes)
+        self.scratch = WorldBuffers((0, 0, 0), *buffers[:4])
+        if len(buffers) > 4:
+            self.scratch.edt_plane, self.scratch.edt_stack = buffers[4:]
         self._scratch_sizes_held = sizes
 
     def _release_scratch(self) -> None:
         if self.scratch is not None:
             self.gpu.queue.finish()
             s = self.scratch
-            for buf, n in zip((s.voxels, s.field, s.work, s.work2), self._scratch_sizes_held):
+            for buf, n in zip((s.voxels, s.field, s.work, s.work2, s.edt_plane, s.edt_stack), self._scratch_sizes_held):
                 self.gpu.release(buf, n)
         self.scratch, self._scratch_sizes_held = None, []
 
@@ -157,7 +168,13 @@ class SparseWorld:
         return self.device_bytes / stored if stored else None
 
     def reconfigure(self, **changes) -> None:
-        raise InvalidInput("a sparse world's algorithm, cap and borders are fixed at creation")
+        """Only where the world lies and how it is coloured change (nothing recomputed): a sparse
+        world's field is never rebuilt whole."""
+        fixed = sorted(set(changes) - {"voxel_size", "origin", "palette"})
+        if fixed:
+            raise InvalidInput(f"a sparse world's {', '.join(fixed)} are fixed at creation (algorithm, cap, "
+                               f"borders, metric and sign); voxel_size, origin and palette can change")
+        self.config = replace(self.config, **changes).validated()
 
     def load_voxels(self, content) -> int:
         """Replace the whole world with a snapshot's bricks (restore); raises InvalidInput for
@@ -223,8 +240,11 @@ class SparseWorld:
         return Box.of_size(self.config.size)
 
     def scratch_box(self, region: Box) -> Box:
-        """The dense box a region is computed in: the region and its seed shell, in the world."""
+        """The dense box a region is computed in: the region and its seed shell, in the world (a
+        Euclidean field is not seeded by the field around: the region and a halo of the cap)."""
         lo, hi = region.lo, region.hi
+        if self.config.euclidean:
+            return region.grow(self.config.max_distance).intersect(self.world_box)
         return Box((lo[0] - SHELL_X_VOX, lo[1] - 1, lo[2] - 1),
                    (hi[0] + SHELL_X_VOX, hi[1] + 1, hi[2] + 1)).intersect(self.world_box)
 
@@ -325,13 +345,23 @@ class SparseWorld:
         self._ensure_scratch(box.volume)  # reserved when the batch was planned: allocates nothing
         s = self.scratch
         bricks = box.chunk_range(self.brick)
-        kernels.gather(self.gpu, self.pool, bricks, self.table.get(bricks), s.voxels, s.field, box, cap, self.brick)
+        defines = field_defines(self.config)
+        kernels.gather(self.gpu, self.pool, bricks, self.table.get(bricks), s.voxels, s.field, box, cap, self.brick,
+                       defines)
         self._write_edits(region, box)
         local = Box(tuple(r - b for r, b in zip(region.lo, box.lo)), tuple(r - b for r, b in zip(region.hi, box.lo)))
-        view = WorldBuffers(box.shape_xyz, s.voxels, s.field, s.work, s.work2)
-        run = algorithm.run(self.gpu, RegionJob.seeded_region(view, local, cap))
+        view = WorldBuffers(box.shape_xyz, s.voxels, s.field, s.work, s.work2, edt_plane=s.edt_plane,
+                            edt_stack=s.edt_stack)
+        if self.config.euclidean:  # the box holds R and a halo of the cap: every stage over all of it
+            run = EUCLIDEAN_EXACT.run_stages(self.gpu, view, s.field, StageBoxes.of_world(box.shape_xyz), cap,
+                                             self.config.signed)
+        else:
+            job = RegionJob.seeded_region(view, local, cap)
+            run = algorithm.run(self.gpu, job)
+            if self.config.signed:
+                run.events += algorithm.run(self.gpu, replace(job, invert=True)).events
         mixed, first = kernels.classify(self.gpu, s.voxels, s.field, box.shape_xyz, local, cap, self.brick,
-                                        self.classify_results)
+                                        self.classify_results, defines)
         region_bricks = region.chunk_range(self.brick)
         old = self.table.get(region_bricks)
         new = np.where(first == 0, AIR, solid_code(first)).astype(np.int32)
@@ -357,7 +387,7 @@ class SparseWorld:
         try:
             bricks = box.chunk_range(self.brick)
             kernels.gather(self.gpu, self.pool, bricks, self.table.get(bricks), voxels_buf, field_buf, box,
-                           self.config.max_distance, self.brick)
+                           self.config.max_distance, self.brick, field_defines(self.config))
             voxels = np.empty(box.shape_zyx, dtype=np.uint8)
             field = np.empty(box.shape_zyx, dtype=np.uint16)
             cl.enqueue_copy(self.gpu.queue, voxels, voxels_buf)
@@ -373,7 +403,9 @@ class SparseWorld:
         return self._gather_box(box)[1]
 
     def read_distance(self, box: Box | None = None) -> np.ndarray:
-        return (self.read_field(box) >> 8).astype(np.uint8)
+        """Distances in voxels (``field_values.distances``: uint8, int16 signed, float32 Euclidean)."""
+        voxels = self.read_voxels(box) if needs_voxels(self.config) else None
+        return distances(self.read_field(box), self.config, voxels)
 
     def read_voxels(self, box: Box | None = None) -> np.ndarray:
         return self._gather_box(box)[0]

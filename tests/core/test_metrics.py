@@ -1,0 +1,142 @@
+"""Euclidean and signed fields against scipy, dense and sparse, full and after random edits that
+add and remove voxels across chunk borders and at the world's faces (docs/algorithms.md,
+"Metrics and signs")."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.ndimage as ndi
+
+from sdfserver.edits import BoxEdit, SphereEdit, VoxelsEdit
+from sdfserver.errors import InvalidInput
+from sdfserver.field_values import distances
+from sdfserver.world import WorldConfig
+from sdfserver.world_factory import make_world
+
+COMBINATIONS = [(storage, metric, signed) for storage in ("dense", "sparse") for metric in ("manhattan", "euclidean")
+                for signed in (False, True)]
+
+
+def reference(voxels: np.ndarray, cap: int, metric: str, signed: bool) -> np.ndarray:
+    """The stored value scipy gives: Manhattan (distance << 8) | colour, Euclidean the squared
+    distance; capped; signed solids carry their distance to air, the outside counting as air."""
+    solid = voxels != 0
+    if metric == "euclidean":
+        transform, top = (lambda m: np.rint(ndi.distance_transform_edt(m) ** 2)), cap * cap
+    else:
+        transform, top = (lambda m: ndi.distance_transform_cdt(m, metric="taxicab").astype(np.float64)), cap
+    out = np.minimum(transform(~solid), top) if solid.any() else np.full(voxels.shape, float(top))
+    if signed:
+        inside = transform(np.pad(solid, 1, constant_values=False))[1:-1, 1:-1, 1:-1]
+        out = np.where(solid, np.minimum(inside, top), out)
+    out = out.astype(np.int64)
+    return out if metric == "euclidean" else (out << 8) | voxels
+
+
+def random_batch(rng: np.random.Generator, size, first: bool) -> list:
+    n = int(rng.integers(1, 60))
+    xyz = np.stack([rng.integers(0, s, n) for s in size], axis=1)
+    colours = rng.integers(1 if first else 0, 256, n)
+    centre = tuple(float(rng.uniform(-2, s + 2)) for s in size)  # sometimes past a face
+    lo = [int(rng.integers(0, s - 4)) for s in size]
+    return [VoxelsEdit(np.concatenate([xyz, colours[:, None]], axis=1).astype(np.int64)),
+            SphereEdit(center=centre, radius=float(rng.uniform(1, 10)), colour=int(rng.integers(0, 3))),
+            BoxEdit(min=tuple(lo), max=tuple(v + int(rng.integers(1, 5)) for v in lo), colour=int(rng.integers(0, 2)))]
+
+
+@pytest.mark.parametrize("storage,metric,signed", COMBINATIONS)
+@pytest.mark.parametrize("cap", [4, 255])
+def test_incremental_matches_full_and_scipy(gpu, rng, storage, metric, signed, cap):
+    size = (40, 24, 32)  # chunks of 8: borders everywhere
+    world = make_world(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap, metric=metric, signed=signed,
+                                        storage=storage))
+    try:
+        for step in range(5):
+            world.apply_edits(random_batch(rng, size, step == 0))
+            world.recompute()
+            got = world.read_field().astype(np.int64)
+            want = reference(world.read_voxels(), cap, metric, signed)
+            bad = np.argwhere(got != want)
+            assert bad.size == 0, f"step {step}: {len(bad)} voxels differ, first (z, y, x) {bad[:3].tolist()}"
+        if storage == "dense":  # the full transform gives the same field
+            incremental = world.read_field()
+            world.mark_all_dirty()
+            world.recompute()
+            assert np.array_equal(world.read_field(), incremental)
+    finally:
+        world.release()
+
+
+@pytest.mark.parametrize("metric", ["manhattan", "euclidean"])
+def test_sparse_implicit_bricks_read_as_their_values(gpu, metric):
+    """A solid block deeper than the cap leaves implicit solid bricks, and open space implicit air
+    bricks: both read back as the values scipy gives (the signed inside at minus the cap)."""
+    cap = 3
+    world = make_world(gpu, WorldConfig(size=(64, 64, 64), chunk_size=8, max_distance=cap, metric=metric,
+                                        signed=True, storage="sparse"))
+    try:
+        world.apply_edits([BoxEdit(min=(8, 8, 8), max=(48, 40, 56), colour=7)])
+        world.recompute()
+        stored = world.stored_bricks
+        assert 0 < stored < (64 // 8) ** 3 - 8  # some solid bricks and most air bricks are implicit
+        got = world.read_field().astype(np.int64)
+        assert np.array_equal(got, reference(world.read_voxels(), cap, metric, True))
+        d = world.read_distance()
+        assert d.min() == -cap and d.max() == cap
+    finally:
+        world.release()
+
+
+def test_read_distance_types_and_signs(gpu):
+    voxels = np.zeros((8, 8, 16), dtype=np.uint8)
+    voxels[4, 4, 4:12] = 9
+    for metric, signed, dtype in (("manhattan", False, np.uint8), ("manhattan", True, np.int16),
+                                  ("euclidean", False, np.float32), ("euclidean", True, np.float32)):
+        world = make_world(gpu, WorldConfig(size=(16, 8, 8), chunk_size=8, metric=metric, signed=signed))
+        try:
+            world.load_voxels(voxels)
+            world.recompute()
+            d = world.read_distance()
+            assert d.dtype == dtype
+            assert d[4, 4, 8] == (-1 if signed else 0)  # a solid one voxel from air
+            assert d[4, 5, 5] == 1 and d[4, 4, 2] == 2
+            assert d[6, 6, 3] == pytest.approx(5.0 if metric == "manhattan" else np.sqrt(1 + 4 + 4))
+            assert np.array_equal(distances(world.read_field(), world.config, world.read_voxels()), d)
+        finally:
+            world.release()
+
+
+def test_patch_switches_metric_and_sign(gpu, rng):
+    size = (32, 16, 24)
+    world = make_world(gpu, WorldConfig(size=size, chunk_size=8, max_distance=20))
+    try:
+        world.apply_edits(random_batch(rng, size, True))
+        world.recompute()
+        for metric, signed in (("euclidean", False), ("euclidean", True), ("manhattan", True), ("manhattan", False)):
+            world.reconfigure(metric=metric, signed=signed)
+            world.recompute()
+            assert np.array_equal(world.read_field().astype(np.int64),
+                                  reference(world.read_voxels(), 20, metric, signed))
+            world.apply_edits(random_batch(rng, size, False))
+            world.recompute()
+            assert np.array_equal(world.read_field().astype(np.int64),
+                                  reference(world.read_voxels(), 20, metric, signed))
+        before = world.version, world.field_version
+        world.reconfigure(voxel_size=0.25, origin=(1.0, -2.0, 3.5))
+        assert not world.dirty and (world.version, world.field_version) == before  # nothing to recompute
+    finally:
+        world.release()
+
+
+@pytest.mark.parametrize("changes,named", [
+    ({"metric": "chebyshev"}, "metric"), ({"signed": "yes"}, "signed"), ({"voxel_size": 0.0}, "voxel_size"),
+    ({"voxel_size": float("nan")}, "voxel_size"), ({"voxel_size": float("inf")}, "voxel_size"),
+    ({"origin": (0.0, float("nan"), 0.0)}, "origin"), ({"origin": (1.0, 2.0)}, "origin"),
+    ({"palette": [(1, 2, 3)] * 254}, "palette"), ({"palette": [(1, 2, 300)] * 255}, "palette"),
+    ({"palette": [(1, 2, 3.5)] * 255}, "palette"),
+    ({"metric": "euclidean", "algorithm": "jfa"}, "exact"), ({"signed": True, "algorithm": "fim"}, "exact"),
+])
+def test_bad_field_options_are_refused_by_name(changes, named):
+    with pytest.raises(InvalidInput, match=named):
+        WorldConfig(size=(16, 16, 16), chunk_size=8, **changes).validated()

@@ -8,7 +8,8 @@
   (storage/uploads.py); ``format=snapshot|npy|vox``, if given, must agree. For ``npy`` and
   ``vox`` the size is the array's (``.vox``: y-up, see storage/voxfile.py), grown with air
   to whole chunks; ``chunk_size``, ``max_distance``, ``algorithm`` and (``vox``) ``model`` are
-  query parameters. A snapshot brings its own configuration.
+  query parameters. A ``.vox`` world keeps the file's colours: its palette is the file's and each
+  voxel's value its colour index. A snapshot brings its own configuration (palette included).
 
 Files are parsed and encoded off the event loop. An upload may carry ``max_request_bytes``
 voxels in its format's encoding plus that format's framing, so every export of a world within
@@ -40,7 +41,8 @@ from sdfserver.world import WorldConfig
 router = APIRouter(prefix="/v1")
 FORMATS = "^(snapshot|npy|vox)$"
 EXTENSIONS = {"snapshot": "sdfsnap", "npy": "npy", "vox": "vox"}
-CONFIG_KEYS = ("size", "chunk_size", "max_distance", "algorithm", "lod_algorithm", "focus", "borders")
+CONFIG_KEYS = ("size", "chunk_size", "max_distance", "algorithm", "lod_algorithm", "focus", "borders",
+               "metric", "signed", "voxel_size", "origin", "palette")  # palette only where the world has one
 
 
 @router.get("/worlds/{world_id}/export", summary="Download the world's voxels as a snapshot, .npy or .vox",
@@ -56,9 +58,10 @@ async def export_world(request: Request, world_id: str,
         request.app.state.metrics.bytes_out.inc(len(body))
         return Response(body, media_type=OCTET, headers=disposition)
     read = await engine.read(world_id, "voxels")
-    config = {k: described[k] for k in CONFIG_KEYS}
+    config = {k: described[k] for k in CONFIG_KEYS if k in described}
     encode = {"snapshot": lambda: encode_snapshot(read.version, config, read.array),
-              "npy": lambda: dump_npy(read.array), "vox": lambda: dump_vox(read.array)}[format]
+              "npy": lambda: dump_npy(read.array),
+              "vox": lambda: dump_vox(read.array, described.get("palette"))}[format]
     body = await asyncio.to_thread(encode)
     request.app.state.metrics.bytes_out.inc(len(body))
     return Response(body, media_type=OCTET, headers={"X-Sdf-Version": str(read.version), **disposition})
@@ -93,13 +96,16 @@ async def import_world(request: Request,
                 return config_from_dict(snap.config), snap.voxels
             except (KeyError, TypeError, ValueError) as exc:
                 raise InvalidInput(f"uploaded snapshot: bad configuration: {exc!r}") from None
-        voxels = load_npy(data, max_voxels=limit) if format == "npy" else load_vox(data, model=model,
-                                                                                  max_voxels=limit)
+        palette = None
+        if format == "npy":
+            voxels = load_npy(data, max_voxels=limit)
+        else:
+            voxels, palette = load_vox(data, model=model, max_voxels=limit)
         if chunk_size not in (8, 16, 32, 64, 128):
             raise InvalidInput(f"chunk_size must be one of 8, 16, 32, 64, 128, got {chunk_size}")
         voxels = pad_to_chunks(voxels, chunk_size)
         return WorldConfig(size=voxels.shape[::-1], chunk_size=chunk_size, max_distance=max_distance,
-                           algorithm=algorithm), voxels
+                           algorithm=algorithm, palette=palette), voxels
 
     config, voxels = await asyncio.to_thread(parse)
     described = await request.app.state.engine.create_world(

@@ -9,11 +9,12 @@ bytes. The scene graph (``nTRN``, ``nGRP``, ``nSHP``) places the models in one s
 (``voxscene.py``); other chunks (materials, layers) are skipped.
 
 Import: z-up becomes y-up keeping the handedness — world (x, y, z) = (vx, vz, sy - 1 - vy) —
-and each palette colour maps to RGB332, ``(r >> 5) << 5 | (g >> 5) << 2 | b >> 6``. Colour
-index 0 is air; a solid voxel whose colour quantises to 0 (black) becomes 0x01, the darkest
-non-air colour, so it does not vanish. A whole scene is imported as one world: its placed voxels'
-bounding box, at most ``MAX_SCENE_SIDE`` a side. Export writes one model with the RGB332 palette
-(colour ``c`` is palette index ``c``), for worlds up to 256 voxels a side.
+and colours are kept as the file has them: a voxel's value is its MagicaVoxel colour index
+(1..255; 0 is air on both sides) and the world's palette is the file's (its ``RGBA`` chunk, else
+MagicaVoxel's default), so nothing is quantised. A whole scene is imported as one world: its
+placed voxels' bounding box, at most ``MAX_SCENE_SIDE`` a side. Export writes one model whose
+colour index is the voxel's value and whose ``RGBA`` chunk is the world's palette (RGB332 where
+the world has none), for worlds up to 256 voxels a side.
 """
 
 from __future__ import annotations
@@ -21,6 +22,8 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+
+from typing import NamedTuple
 
 from sdfserver.errors import InvalidInput, TooLarge
 from sdfserver.storage.voxscene import SceneGraph, place
@@ -41,11 +44,6 @@ def default_palette() -> np.ndarray:
     ramps = [np.stack(c, axis=1) for c in ((ramp, zeros, zeros), (zeros, ramp, zeros),
                                            (zeros, zeros, ramp), (ramp, ramp, ramp))]
     return np.concatenate([np.zeros((1, 3), np.uint8), cube, *ramps])
-
-
-def rgb_to_rgb332(rgb: np.ndarray) -> np.ndarray:
-    rgb = rgb.astype(np.uint8)
-    return ((rgb[..., 0] >> 5) << 5 | (rgb[..., 1] >> 5) << 2 | rgb[..., 2] >> 6).astype(np.uint8)
 
 
 def rgb332_to_rgb(colour: np.ndarray) -> np.ndarray:
@@ -113,8 +111,13 @@ def parse_vox(data: bytes, *, max_voxels: int | None = None) -> tuple[list[Model
     return models, palette, scene
 
 
-def load_vox(data: bytes, *, model: int | None = None, max_voxels: int | None = None) -> np.ndarray:
-    """World voxels, uint8 RGB332, (z, y, x): model ``model`` alone, or (None) the file's whole
+class VoxWorld(NamedTuple):
+    voxels: np.ndarray  # uint8 (z, y, x), each voxel its colour index
+    palette: np.ndarray  # (255, 3) uint8 RGB, row v - 1 the colour of value v (WorldConfig.palette)
+
+
+def load_vox(data: bytes, *, model: int | None = None, max_voxels: int | None = None) -> VoxWorld:
+    """World voxels and the file's palette: model ``model`` alone, or (None) the file's whole
     scene (model 0 of a file without a scene graph)."""
     models, palette, scene = parse_vox(data, max_voxels=max_voxels)
     placements = scene.placements(len(models)) if model is None else []
@@ -133,16 +136,15 @@ def load_vox(data: bytes, *, model: int | None = None, max_voxels: int | None = 
         if extent.max() > MAX_SCENE_SIDE or (max_voxels is not None and int(np.prod(extent)) > max_voxels):
             raise TooLarge(f".vox: the scene spans {extent.tolist()} voxels; a world holds at most "
                            f"{MAX_SCENE_SIDE} a side and {max_voxels} voxels (import one model with model=)")
-    colours = rgb_to_rgb332(palette)
-    colours[1:][colours[1:] == 0] = 0x01
     sx, sy, sz = (int(v) for v in extent)
     voxels = np.zeros((sy, sz, sx), dtype=np.uint8)  # world (z, y, x) from vox (x, y, z up)
-    voxels[sy - 1 - coords[:, 1], coords[:, 2], coords[:, 0]] = colours[indexes]
-    return voxels
+    voxels[sy - 1 - coords[:, 1], coords[:, 2], coords[:, 0]] = indexes
+    return VoxWorld(voxels, np.ascontiguousarray(palette[1:256]))
 
 
-def dump_vox(voxels: np.ndarray) -> bytes:
-    """World voxels (z, y, x) as a one-model .vox file with the RGB332 palette."""
+def dump_vox(voxels: np.ndarray, palette=None) -> bytes:
+    """World voxels (z, y, x) as a one-model .vox file; ``palette``: the world's (255 RGB
+    colours, row v - 1 for value v), None for RGB332."""
     nz, ny, nx = voxels.shape
     if max(voxels.shape) > MAX_SIDE:
         raise TooLarge(f".vox export holds at most {MAX_SIDE} voxels a side, got {list(voxels.shape[::-1])}")
@@ -153,7 +155,8 @@ def dump_vox(voxels: np.ndarray) -> bytes:
         return _CHUNK.pack(cid, len(content), len(children)) + content + children
 
     rgba = np.zeros((256, 4), dtype=np.uint8)
-    rgba[:255, :3] = rgb332_to_rgb(np.arange(1, 256))
+    rgba[:255, :3] = rgb332_to_rgb(np.arange(1, 256)) if palette is None \
+        else np.asarray(palette, dtype=np.uint8).reshape(255, 3)
     rgba[:255, 3] = 255
     children = (chunk(b"SIZE", struct.pack("<3i", nx, nz, ny))
                 + chunk(b"XYZI", struct.pack("<i", len(xyzi)) + xyzi.tobytes())

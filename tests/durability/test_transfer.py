@@ -74,7 +74,9 @@ def test_export_import_round_trips(start_server, tmp_path):
     assert r.status_code == 201, r.text
     got = read_voxels(http, r.json()["id"])[1]
     assert got.shape == (8, 8, 8) and np.count_nonzero(got) == 2
-    assert got[2 - 1 - 0, 0, 0] == 0xFF and got[2 - 1 - 1, 3, 2] == 0xE0  # (x, vz, sy-1-vy)
+    assert got[2 - 1 - 0, 0, 0] == 1 and got[2 - 1 - 1, 3, 2] == 216  # (x, vz, sy-1-vy), colour indexes
+    palette = r.json()["palette"]  # MagicaVoxel's default, as the file has no RGBA chunk
+    assert palette[1 - 1] == [255, 255, 255] and palette[216 - 1] == [0xEE, 0, 0]
 
     for params, body, status in (
             ({"format": "snapshot"}, b"SDFSNAP1garbage", 422), ({"format": "npy"}, b"\x93NUMPY junk", 422),

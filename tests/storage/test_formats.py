@@ -10,7 +10,8 @@ import pytest
 from sdfserver.errors import CorruptData, InvalidInput, TooLarge
 from sdfserver.storage import decode_upload, dump_npy, dump_vox, encode_snapshot, load_npy, load_vox
 from sdfserver.storage.snapshot import decode_snapshot
-from sdfserver.storage.voxfile import default_palette, rgb_to_rgb332
+from sdfserver.storage.voxfile import default_palette
+from sdfserver.world_config import rgb332_palette
 
 CONFIG = {"size": [8, 4, 6], "chunk_size": 8, "max_distance": 9, "algorithm": "exact"}
 
@@ -84,15 +85,16 @@ def test_vox_import_axes_and_palette():
     size = (5, 3, 4)  # x, y, z with z up
     voxels = [(0, 0, 0, 1), (4, 2, 3, 200), (1, 2, 0, 7), (2, 0, 3, 255)]
     data = vox_file(size, voxels, palette, extra=chunk(b"MATL", b"\x00" * 12))  # skipped
-    world = load_vox(data)
+    world, colours = load_vox(data)
     assert world.shape == (3, 4, 5)  # (z, y, x) of a world whose y is the model's z
     expected = np.zeros((3, 4, 5), np.uint8)
     for x, y, z, c in voxels:
-        r, g, b, _ = palette[c - 1]  # RGBA entry i is colour index i + 1
-        q = (r >> 5) << 5 | (g >> 5) << 2 | (b >> 6)
-        expected[size[1] - 1 - y, z, x] = q or 0x01
+        expected[size[1] - 1 - y, z, x] = c  # a voxel's value is its colour index
     np.testing.assert_array_equal(world, expected)
-    assert world[size[1] - 1 - 2, 0, 1] == 0x01
+    assert world[size[1] - 1 - 2, 0, 1] == 7
+    # The world's palette is the file's: RGBA entry i is colour index i + 1, value i + 1's colour.
+    assert colours.shape == (255, 3) and colours.dtype == np.uint8
+    np.testing.assert_array_equal(colours, np.array(palette)[:255, :3])
 
 
 def test_vox_default_palette_matches_the_spec():
@@ -103,15 +105,22 @@ def test_vox_default_palette_matches_the_spec():
     assert pal.shape == (256, 3)
     for index, abgr in spec.items():
         assert tuple(pal[index]) == (abgr & 0xFF, (abgr >> 8) & 0xFF, (abgr >> 16) & 0xFF), index
-    world = load_vox(vox_file((1, 1, 1), [(0, 0, 0, 216)]))  # no RGBA chunk: default palette
-    assert world[0, 0, 0] == rgb_to_rgb332(np.array([0xEE, 0, 0]))
+    world, colours = load_vox(vox_file((1, 1, 1), [(0, 0, 0, 216)]))  # no RGBA chunk: default palette
+    assert world[0, 0, 0] == 216 and tuple(colours[216 - 1]) == (0xEE, 0, 0)
+    np.testing.assert_array_equal(colours, pal[1:])
 
 
 def test_vox_export_round_trip():
     rng = np.random.default_rng()
     world = rng.integers(0, 256, size=(6, 4, 8), dtype=np.uint8)
     world[rng.random(world.shape) < 0.5] = 0
-    np.testing.assert_array_equal(load_vox(dump_vox(world)), world)
+    voxels, colours = load_vox(dump_vox(world))  # no palette: RGB332's
+    np.testing.assert_array_equal(voxels, world)
+    np.testing.assert_array_equal(colours, rgb332_palette())
+    palette = rng.integers(0, 256, size=(255, 3)).tolist()
+    voxels, colours = load_vox(dump_vox(world, palette))
+    np.testing.assert_array_equal(voxels, world)
+    assert colours.tolist() == palette
 
 
 @pytest.mark.parametrize("mutate, match", [
@@ -199,17 +208,16 @@ def test_a_vox_scene_places_every_model_where_its_graph_says():
     graph = (transform(0, 1) + group(1, [2, 4, 6]) + transform(2, 3) + shape(3, 0)
              + transform(4, 5, t=(10, 0, 0), r=QUARTER) + shape(5, 1)
              + transform(6, 7, t=(40, 40, 40), hidden=True) + shape(7, 0))  # hidden: left out
-    world = load_vox(scene_file(MODELS, graph))
+    world, _ = load_vox(scene_file(MODELS, graph))
     # By hand: model 0's voxel (1,1,1) minus its centre (1,1,1) -> (0,0,0); model 1's (0,0,0) and
     # (2,0,0) minus (1,0,0), turned: (0,1,0) and (0,-1,0), plus (10,0,0). Shifted by the least
     # corner (0,-1,0): (0,1,0), (10,2,0), (10,0,0); z-up (x, y, z) -> world (x, z, 2 - y).
-    palette = rgb_to_rgb332(default_palette())
     expected = np.zeros((3, 1, 11), np.uint8)
-    expected[1, 0, 0], expected[0, 0, 10], expected[2, 0, 10] = palette[5], palette[7], palette[9]
+    expected[1, 0, 0], expected[0, 0, 10], expected[2, 0, 10] = 5, 7, 9  # colour indexes
     np.testing.assert_array_equal(world, expected)
-    alone = load_vox(scene_file(MODELS, graph), model=1)  # one model, as it is in its own box
-    assert alone.shape == (1, 1, 3) and alone[0, 0, 0] == palette[7] and alone[0, 0, 2] == palette[9]
-    assert load_vox(scene_file(MODELS, b"")).shape == (2, 2, 2)  # no graph: model 0
+    alone, _ = load_vox(scene_file(MODELS, graph), model=1)  # one model, as it is in its own box
+    assert alone.shape == (1, 1, 3) and alone[0, 0, 0] == 7 and alone[0, 0, 2] == 9
+    assert load_vox(scene_file(MODELS, b"")).voxels.shape == (2, 2, 2)  # no graph: model 0
 
 
 @pytest.mark.parametrize("graph, why", [

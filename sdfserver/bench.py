@@ -9,7 +9,8 @@ Sections, each on any OpenCL device:
             with --padded, those algorithms again with padded chunk borders (§4.2.1)
   anchors   scipy's distance_transform_cdt (CPU) and cupyx's distance_transform_edt (GPU), if installed
 `sdfserver bench render ...` runs the rendering scenario instead (Tables 4.1 and 4.3; see --help there);
-`sdfserver bench seed --out DIR` reproduces all of the dissertation's chapter 4 (see --help there).
+`sdfserver bench seed --out DIR` reproduces all of the dissertation's chapter 4 (see --help there);
+`sdfserver bench metrics` compares the metrics and signs (see --help there).
 Device times come from OpenCL profiling events (sum of kernel durations). A line
 on stderr for each step and each measurement; the tables go to stdout, everything to
 --json, which is rewritten after each measurement. Ctrl-C or SIGTERM stops the run and
@@ -336,6 +337,10 @@ def main(argv: list[str] | None = None) -> int:
         from sdfserver.seedbench.cli import main as seed_main
 
         return seed_main(argv[1:])
+    if argv[:1] == ["metrics"]:  # Manhattan and Euclidean, unsigned and signed
+        from sdfserver.metricsbench import main as metrics_main
+
+        return metrics_main(argv[1:])
     args = parse_args(argv)
     results = Results({"date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                        "host": platform.node(), "argv": sys.argv, "seed": args.seed}, args.json)

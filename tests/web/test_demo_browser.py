@@ -132,8 +132,12 @@ async def _drive(base: str, tmp: Path) -> None:
         rect = await browser.evaluate("(() => { const r = document.getElementById('frame')"
                                       ".getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; })()")
         left, top, width, height = rect
-        # A cyan brush, three voxels wide, at the middle of the picture.
-        await browser.evaluate("document.querySelectorAll('#palette button')[5].click()")
+        # The picker shows the world's palette (RGB332: it has none), a button per value.
+        assert await browser.evaluate("document.querySelectorAll('#palette button').length") == 255
+        assert await browser.evaluate("document.querySelector('#palette button.selected').dataset.value") == "228"
+        # A cyan brush (RGB332 0x1f), three voxels wide, at the middle of the picture.
+        await browser.evaluate("document.querySelector('#palette button[data-value=\"31\"]').click()")
+        assert await browser.evaluate("window.sdfDemo.brush.colour") == 31
         version = worlds[0]["version"]
         await browser.click(left + width / 2, top + height / 2)
         await browser.wait_for("window.sdfDemo.edits >= 1 || window.sdfDemo.misses >= 1", 30)
@@ -164,8 +168,45 @@ async def _drive(base: str, tmp: Path) -> None:
         assert shown == pytest.approx([stats["fpsOverall"], stats["fpsRecompute"]], abs=0.051)
         assert httpx.get(base + f"/v1/worlds/{worlds[0]['id']}").json()["version"] >= version + stats["edits"]
         await browser.screenshot(tmp / "benchmark.png")
+        await _field_and_palette_controls(browser, base, worlds[0]["id"], tmp)
     finally:
         await browser.close()
+
+
+async def _field_and_palette_controls(browser: Chromium, base: str, world: str, tmp: Path) -> None:
+    """The metric and signed controls PATCH the world; the picker follows the world's palette."""
+    frames = await browser.evaluate("window.sdfDemo.framesReceived")
+    await browser.evaluate("document.getElementById('metric').value = 'euclidean'; "
+                           "document.getElementById('metric').dispatchEvent(new Event('change')); "
+                           "document.getElementById('signed').click(); "
+                           "document.getElementById('apply-field').click()")
+    deadline = time.monotonic() + 30
+    while (described := httpx.get(base + f"/v1/worlds/{world}").json())["metric"] != "euclidean":
+        assert time.monotonic() < deadline, described
+        await asyncio.sleep(0.2)
+    assert described["signed"] is True and described["algorithm"] == "exact" and described["focus"] is None
+    await browser.wait_for(f"window.sdfDemo.framesReceived > {frames}", 30)  # the new field streams
+    assert "euclidean · signed" in await browser.evaluate("document.getElementById('world-line').textContent")
+
+    rng = np.random.default_rng()
+    palette = rng.integers(0, 256, (255, 3)).tolist()
+    palette[31 - 1] = [10, 200, 30]
+    assert httpx.patch(base + f"/v1/worlds/{world}", json={"palette": palette}).status_code == 200
+    await browser.evaluate("document.getElementById('world-select').dispatchEvent(new Event('change'))")
+    await browser.wait_for("window.sdfDemo.palette[30][1] === 200", 30)
+    assert await browser.evaluate("document.querySelector('#palette button[data-value=\"31\"]').style.background") \
+        == "rgb(10, 200, 30)"
+    assert await browser.evaluate("document.getElementById('colour-picker').value") == "#0ac81e"
+    await browser.evaluate("document.querySelector('#palette button[data-value=\"200\"]').click()")
+    assert await browser.evaluate("window.sdfDemo.brush.colour") == 200
+    assert await browser.evaluate("document.getElementById('colour-picker').value") == \
+        "#" + "".join(f"{c:02x}" for c in palette[199])
+    # A custom colour picks the palette's nearest.
+    await browser.evaluate("const p = document.getElementById('colour-picker'); p.value = '#0bc81f'; "
+                           "p.dispatchEvent(new Event('input'))")
+    assert await browser.evaluate("window.sdfDemo.brush.colour") == 31
+    await browser.screenshot(tmp / "palette.png")
+    assert not await browser.evaluate("window.sdfDemo.errors.length"), await browser.evaluate("window.sdfDemo.errors")
 
 
 def test_demo_with_api_keys(keyed_server):

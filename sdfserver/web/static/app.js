@@ -8,9 +8,9 @@
 import { encode, decode } from "./msgpack.js";
 import { demoScene } from "./scene.js";
 import { Benchmark } from "./benchmode.js";
+import { nearestValue, rgbHex, selectSwatch, showSwatches, worldPalette } from "./palette.js";
 
 const ALGORITHMS = ["exact", "brute", "fim", "jfa", "jfa_fim"];
-const PALETTE = [0xe4, 0xf4, 0xfc, 0x5c, 0x1c, 0x1f, 0x0b, 0x4b, 0x8e, 0xe3, 0x92, 0xb6, 0xdb, 0xff, 0x49, 0x6d];
 const $ = (id) => document.getElementById(id);
 const canvas = $("frame");
 const ctx = canvas.getContext("2d");
@@ -21,7 +21,9 @@ window.sdfDemo = demo;  // read by the browser test
 
 const cam = { position: [0, 0, 0], yaw: 0, pitch: 0, fov: 60 };
 demo.camera = cam;
-const brush = { mode: "place", colour: PALETTE[0], size: 2 };
+const brush = { mode: "place", colour: 0xe4, size: 2 };  // colour: a voxel value, the palette's index + 1
+demo.brush = brush;
+let palette = worldPalette(null);
 let socket = null, cursor = null, viewDirty = true, lastSent = 0, worldSize = [64, 64, 64];
 const keys = new Set();
 
@@ -177,7 +179,8 @@ function waitForServer() {
 function describeWorld(w) {
   const [sx, sy, sz] = w.size;
   const shape = sx === sy && sy === sz ? `${sx}³` : `${sx}×${sy}×${sz}`;
-  return `${w.id} · ${shape} · ${w.algorithm}${w.storage === "sparse" ? " · sparse" : ""}`;
+  const field = `${w.metric === "euclidean" ? " · euclidean" : ""}${w.signed ? " · signed" : ""}`;
+  return `${w.id} · ${shape} · ${w.algorithm}${field}${w.storage === "sparse" ? " · sparse" : ""}`;
 }
 
 async function refreshWorlds(selectId) {
@@ -226,6 +229,9 @@ async function openWorld(world) {
   $("algorithm").value = world.algorithm;
   $("lod-algorithm").value = world.lod_algorithm ?? "jfa";
   $("focus-on").checked = !!world.focus;
+  $("metric").value = world.metric ?? "manhattan";
+  $("signed").checked = !!world.signed;
+  showPalette(world);
   if (world.focus) {
     $("focus-center").value = world.focus.center.join(",");
     $("focus-size").value = world.focus.size.join(",");
@@ -456,15 +462,17 @@ function setBrushSize(size) {
   viewDirty = true;
 }
 
-function rgb332ToCss(c) {
-  const r = Math.round(((c >> 5) & 7) * 255 / 7), g = Math.round(((c >> 2) & 7) * 255 / 7), b = (c & 3) * 85;
-  return `rgb(${r}, ${g}, ${b})`;
+function pickColour(value) {
+  brush.colour = value;
+  selectSwatch($("palette"), value);
+  $("colour-picker").value = rgbHex(palette[value - 1]);
 }
 
-function cssToRgb332(hex) {
-  const v = parseInt(hex.slice(1), 16);
-  const r = (v >> 16) & 255, g = (v >> 8) & 255, b = v & 255;
-  return Math.max(1, (Math.round(r * 7 / 255) << 5) | (Math.round(g * 7 / 255) << 2) | Math.round(b * 3 / 255));
+function showPalette(world) {
+  palette = worldPalette(world);
+  demo.palette = palette;
+  showSwatches($("palette"), palette, brush.colour, pickColour);
+  pickColour(brush.colour);
 }
 
 // The §3.5 benchmark mode; its numbers are in window.sdfDemo.benchmark for the browser test.
@@ -477,21 +485,10 @@ function setupPanel() {
     if (e.target.checked && demo.world) benchmark.start(Number($("bench-seed").value) >>> 0);
     else { e.target.checked = false; benchmark.stop(); }
   };
-  const palette = $("palette");
-  for (const c of PALETTE) {
-    const button = document.createElement("button");
-    button.style.background = rgb332ToCss(c);
-    button.title = `RGB332 ${c}`;
-    button.onclick = () => {
-      brush.colour = c;
-      for (const b of palette.children) b.classList.toggle("selected", b === button);
-    };
-    palette.append(button);
-  }
-  palette.children[0].classList.add("selected");
-  $("colour-picker").oninput = (e) => {
-    brush.colour = cssToRgb332(e.target.value);
-    for (const b of palette.children) b.classList.remove("selected");
+  showPalette(null);
+  $("colour-picker").oninput = (e) => {  // the nearest colour the world's palette has
+    brush.colour = nearestValue(palette, e.target.value);
+    selectSwatch($("palette"), brush.colour);
   };
   $("brush-size").oninput = (e) => setBrushSize(Number(e.target.value));
   for (const radio of document.querySelectorAll("input[name=mode]")) {
@@ -501,6 +498,15 @@ function setupPanel() {
     $(id).replaceChildren(...ALGORITHMS.map((a) => new Option(a, a)));
   }
   $("lod-algorithm").value = "jfa";
+  // Euclidean and signed fields are computed by "exact" alone, with no focus (WorldConfig).
+  for (const id of ["metric", "signed"]) {
+    $(id).onchange = () => {
+      if ($("metric").value !== "manhattan" || $("signed").checked) {
+        $("algorithm").value = "exact";
+        $("focus-on").checked = false;
+      }
+    };
+  }
   for (const id of ["ao", "shadows", "resolution", "max-fps"]) $(id).onchange = () => { viewDirty = true; };
   $("world-select").onchange = (e) => guarded("Open world", async () => {
     openWorld(await api("GET", `/v1/worlds/${encodeURIComponent(e.target.value)}`));
@@ -513,10 +519,14 @@ function setupPanel() {
   $("apply-field").onclick = () => guarded("Apply", async () => {
     const triple = (id) => $(id).value.split(",").map((v) => parseInt(v.trim(), 10));
     const body = { algorithm: $("algorithm").value, lod_algorithm: $("lod-algorithm").value,
-      focus: $("focus-on").checked ? { center: triple("focus-center"), size: triple("focus-size") } : null };
+      focus: $("focus-on").checked ? { center: triple("focus-center"), size: triple("focus-size") } : null,
+      metric: $("metric").value, signed: $("signed").checked };
     const world = await api("PATCH", `/v1/worlds/${demo.world}`, body);
     await refreshWorlds(world.id);
-    showStatus(`Field: ${world.algorithm}${world.focus ? " in focus, " + world.lod_algorithm + " outside" : ""}`);
+    showPalette(world);
+    viewDirty = true;  // a stream sends a frame for a new view, not for a reconfigured field
+    showStatus(`Field: ${world.metric ?? "manhattan"}${world.signed ? ", signed" : ""}, ${world.algorithm}`
+      + `${world.focus ? " in focus, " + world.lod_algorithm + " outside" : ""}`);
     setTimeout(() => showStatus(""), 1500);
   });
 }

@@ -1,44 +1,199 @@
-/* Point queries: the distance, colour and gradient direction of the field at
- * voxel positions (the collision and navigation query). The host floors each
- * point to its voxel and checks it lies in the world; this kernel only reads.
+/* Collision and navigation queries: points, spheres and rays against a world's field
+ * (sdfserver/engine/query.py). The host turns world units into voxel coordinates (voxel v spans
+ * [v, v + 1) on each axis), checks every input, and passes `voxel_size` so that distances leave
+ * in world units; these kernels only read the field, through field_source.h.
  *
- * The gradient is the central difference of the capped distance along each
- * axis (one-sided at the world's faces), normalised to unit length; it is zero
- * where the field is flat, e.g. everywhere at the cap. */
+ * Distances at a point are the trilinear interpolant of field_distance between voxel centres
+ * (voxel v's centre at v + 0.5), its argument clamped to the outermost centres: in the half voxel
+ * between them and the world's faces the value is the face's. The gradient is the interpolant's,
+ * taken in the cell that holds the clamped point (zero along an axis one voxel thick), and is not
+ * normalised: distances and coordinates scale alike with voxel_size, so it needs no scaling.
+ *
+ * Rays march like render.cl's `march`: DDA face-steps over the voxels, with jumps of as many
+ * face-steps as field_step allows where they are long. A ray that starts in a solid hits it at
+ * t = 0 with no face; a ray outside the world is clipped to its box first. */
 #include "sdf_common.h"
 #include "field_source.h"
 
-inline float distance_at(FIELD_ARGS, int x, int y, int z, int4 dims)
+#define JUMP_MIN_STEPS 8  /* from this many clear face-steps on, a ray jumps instead of stepping */
+
+/* The interpolated distance (voxels) at q in centre coordinates (voxel v's centre at v), and in
+ * *grad its gradient. */
+/* A corner's distance. Corners pass as three ints and become an int3 here: Intel's CPU runtime
+ * miscompiled a sparse world's reads (wrong distances in some work-items) when handed int3s built
+ * in place from the lanes of two vectors. */
+inline float at(FIELD_ARGS, int x, int y, int z, int4 dims)
 {
-    const int3 v = (int3)(clamp(x, 0, dims.x - 1), clamp(y, 0, dims.y - 1), clamp(z, 0, dims.z - 1));
-    return field_distance(FIELD_PASS, v, dims);
+    return field_distance(FIELD_PASS, (int3)(x, y, z), dims);
 }
 
-inline float central(FIELD_ARGS, int4 p, int4 step, int4 dims)
+inline float trilinear(FIELD_ARGS, float3 q, int4 dims, float3 *grad)
 {
-    const int4 lo = p - step, hi = p + step;
-    const int lo_in = lo.x >= 0 && lo.y >= 0 && lo.z >= 0;
-    const int hi_in = hi.x < dims.x && hi.y < dims.y && hi.z < dims.z;
-    const float span = (float)(lo_in + hi_in);
-    if (span == 0.0f)
-        return 0.0f;
-    return (distance_at(FIELD_PASS, hi.x, hi.y, hi.z, dims) - distance_at(FIELD_PASS, lo.x, lo.y, lo.z, dims)) / span;
+    const int3 hi = dims.xyz - 1;
+    q = clamp(q, (float3)(0.0f), convert_float3(hi));
+    const int3 a = min(convert_int3_rtn(q), max(hi - 1, (int3)(0)));
+    const int3 b = min(a + 1, hi);
+    const float3 f = q - convert_float3(a);
+    const float d000 = at(FIELD_PASS, a.x, a.y, a.z, dims);
+    const float d100 = at(FIELD_PASS, b.x, a.y, a.z, dims);
+    const float d010 = at(FIELD_PASS, a.x, b.y, a.z, dims);
+    const float d110 = at(FIELD_PASS, b.x, b.y, a.z, dims);
+    const float d001 = at(FIELD_PASS, a.x, a.y, b.z, dims);
+    const float d101 = at(FIELD_PASS, b.x, a.y, b.z, dims);
+    const float d011 = at(FIELD_PASS, a.x, b.y, b.z, dims);
+    const float d111 = at(FIELD_PASS, b.x, b.y, b.z, dims);
+    const float c00 = mix(d000, d100, f.x), c10 = mix(d010, d110, f.x);
+    const float c01 = mix(d001, d101, f.x), c11 = mix(d011, d111, f.x);
+    const float c0 = mix(c00, c10, f.y), c1 = mix(c01, c11, f.y);
+    *grad = (float3)(mix(mix(d100 - d000, d110 - d010, f.y), mix(d101 - d001, d111 - d011, f.y), f.z),
+                     mix(c10 - c00, c11 - c01, f.z),
+                     c1 - c0);
+    return mix(c0, c1, f.z);
 }
 
-__kernel void query_points(FIELD_ARGS, int4 dims, __global const int4 *points, int n,
-                           __global ushort *packed_out, __global float4 *gradient_out)
+/* points: voxel coordinates (w unused). out: n float4 (gradient, distance in world units), then
+ * n uchar colours (the value of the voxel holding the point). */
+__kernel void query_points(FIELD_ARGS, int4 dims, float voxel_size, __global const float4 *points, int n,
+                           __global float4 *out)
 {
     const int i = get_global_id(0);
     if (i >= n)
         return;
-    const int4 p = points[i];
+    const float3 p = points[i].xyz;
+    float3 g;
+    const float d = trilinear(FIELD_PASS, p - 0.5f, dims, &g);
+    const int3 v = clamp(convert_int3_rtn(p), (int3)(0), dims.xyz - 1);
     uint colour, steps;
-    field_step(FIELD_PASS, p.xyz, dims, &colour, &steps);
-    packed_out[i] = (ushort)((min((uint)fabs(distance_at(FIELD_PASS, p.x, p.y, p.z, dims)), 255u) << 8) | colour);
-    float3 g = (float3)(central(FIELD_PASS, p, (int4)(1, 0, 0, 0), dims),
-                        central(FIELD_PASS, p, (int4)(0, 1, 0, 0), dims),
-                        central(FIELD_PASS, p, (int4)(0, 0, 1, 0), dims));
+    field_step(FIELD_PASS, v, dims, &colour, &steps);
+    out[i] = (float4)(g, d * voxel_size);
+    ((__global uchar *)(out + n))[i] = (uchar)colour;
+}
+
+/* spheres: centre in voxel coordinates, radius in world units. out: (direction out of collision,
+ * clearance in world units); the direction is the unit gradient, zero where the field is flat. */
+__kernel void query_spheres(FIELD_ARGS, int4 dims, float voxel_size, __global const float4 *spheres, int n,
+                            __global float4 *out)
+{
+    const int i = get_global_id(0);
+    if (i >= n)
+        return;
+    const float4 s = spheres[i];
+    float3 g;
+    const float d = trilinear(FIELD_PASS, s.xyz - 0.5f, dims, &g);
     const float len = length(g);
-    g = len > 0.0f ? g / len : (float3)(0.0f);
-    gradient_out[i] = (float4)(g, 0.0f);
+    out[i] = (float4)(len > 0.0f ? g / len : (float3)(0.0f), d * voxel_size - s.w);
+}
+
+inline int inside(int3 v, int4 dims)
+{
+    return v.x >= 0 && v.y >= 0 && v.z >= 0 && v.x < dims.x && v.y < dims.y && v.z < dims.z;
+}
+
+/* Narrows [t0, t1] to where the ray lies in the world along one axis; *entry: the axis whose face
+ * the ray enters last (stays -1 when the origin lies inside). */
+inline void clip(float o, float d, int n, int axis, float *t0, float *t1, int *entry)
+{
+    if (d == 0.0f) {
+        if (o < 0.0f || o >= (float)n)
+            *t1 = -1.0f;
+        return;
+    }
+    const float a = (0.0f - o) / d, b = ((float)n - o) / d;
+    const float lo = fmin(a, b), hi = fmax(a, b);
+    if (lo > *t0) {
+        *t0 = lo;
+        *entry = axis;
+    }
+    *t1 = fmin(*t1, hi);
+}
+
+inline float3 next_faces(int3 v, int3 step, float3 o, float3 d)
+{
+    const float3 up = convert_float3(v) + (float3)(step.x > 0, step.y > 0, step.z > 0);
+    return (float3)(d.x != 0.0f ? (up.x - o.x) / d.x : INFINITY, d.y != 0.0f ? (up.y - o.y) / d.y : INFINITY,
+                    d.z != 0.0f ? (up.z - o.z) / d.z : INFINITY);
+}
+
+/* The first solid voxel along o + t d (|d| = 1, voxel units) with t <= t_end: 1 and its voxel,
+ * colour, entry t and entered face's axis (-1: the ray starts in it); 0 when there is none. */
+inline int first_hit(FIELD_ARGS, int4 dims, float3 o, float3 d, float t_end, int3 *voxel, uint *colour,
+                     float *t_hit, int *face)
+{
+    const int3 step = (int3)(d.x > 0.0f ? 1 : -1, d.y > 0.0f ? 1 : -1, d.z > 0.0f ? 1 : -1);
+    float t0 = 0.0f, t1 = INFINITY;
+    int entry = -1;
+    clip(o.x, d.x, dims.x, 0, &t0, &t1, &entry);
+    clip(o.y, d.y, dims.y, 1, &t0, &t1, &entry);
+    clip(o.z, d.z, dims.z, 2, &t0, &t1, &entry);
+    if (!(t1 > t0) || t0 > t_end)
+        return 0;
+    int3 v = clamp(convert_int3_rtn(o + d * t0), (int3)(0), dims.xyz - 1);
+    if (entry == 0) v.x = step.x > 0 ? 0 : dims.x - 1;
+    if (entry == 1) v.y = step.y > 0 ? 0 : dims.y - 1;
+    if (entry == 2) v.z = step.z > 0 ? 0 : dims.z - 1;
+    *face = entry;
+    float3 t_max = next_faces(v, step, o, d);
+    const float3 t_delta = (float3)(d.x != 0.0f ? fabs(1.0f / d.x) : INFINITY,
+                                    d.y != 0.0f ? fabs(1.0f / d.y) : INFINITY,
+                                    d.z != 0.0f ? fabs(1.0f / d.z) : INFINITY);
+    float t = t0;
+    const float l1 = fabs(d.x) + fabs(d.y) + fabs(d.z);
+    /* Each pass takes at least one step, and a ray crosses at most sx + sy + sz voxels. */
+    const int max_passes = dims.x + dims.y + dims.z + 3;
+    for (int pass = 0; pass < max_passes; ++pass) {
+        uint steps, distance_steps;
+        steps = field_step(FIELD_PASS, v, dims, colour, &distance_steps);
+        if (*colour) {
+            *voxel = v;
+            *t_hit = t;
+            return t <= t_end;
+        }
+        if (steps >= JUMP_MIN_STEPS) {
+            /* As in render.cl: dt = (steps - 5) / |d|_1 crosses at most steps - 2 faces, one more
+             * for rounding where the ray lands, so every voxel passed is clear. */
+            t += (float)(steps - 5) / l1;
+            v = convert_int3_rtn(o + d * t);
+            if (t > t_end || !inside(v, dims))
+                return 0;
+            t_max = next_faces(v, step, o, d);
+            continue;
+        }
+        for (uint k = 0; k < steps; ++k) {
+            const int axis = t_max.x <= t_max.y && t_max.x <= t_max.z ? 0 : (t_max.y <= t_max.z ? 1 : 2);
+            if (axis == 0) { v.x += step.x; t = t_max.x; t_max.x += t_delta.x; }
+            else if (axis == 1) { v.y += step.y; t = t_max.y; t_max.y += t_delta.y; }
+            else { v.z += step.z; t = t_max.z; t_max.z += t_delta.z; }
+            *face = axis;
+            if (t > t_end || !inside(v, dims))
+                return 0;
+        }
+    }
+    return 0;
+}
+
+/* rays: per ray two float4, (origin in voxel coordinates, max length in voxels) and (unit
+ * direction, 0). out: n float4 (entered face's normal, t in world units; a miss: 0 and the max
+ * length), then n int4 (hit voxel, its value; a miss: -1, -1, -1, 0). */
+__kernel void query_rays(FIELD_ARGS, int4 dims, float voxel_size, __global const float4 *rays, int n,
+                         __global float4 *out)
+{
+    const int i = get_global_id(0);
+    if (i >= n)
+        return;
+    const float4 o = rays[2 * i], d = rays[2 * i + 1];
+    int3 voxel;
+    uint colour = 0;
+    float t = 0.0f;
+    int face = -1;
+    __global int4 *hits = (__global int4 *)(out + n);
+    if (first_hit(FIELD_PASS, dims, o.xyz, d.xyz, o.w, &voxel, &colour, &t, &face)) {
+        const float3 normal = (float3)(face == 0 ? (d.x > 0.0f ? -1.0f : 1.0f) : 0.0f,
+                                       face == 1 ? (d.y > 0.0f ? -1.0f : 1.0f) : 0.0f,
+                                       face == 2 ? (d.z > 0.0f ? -1.0f : 1.0f) : 0.0f);
+        out[i] = (float4)(normal, t * voxel_size);
+        hits[i] = (int4)(voxel, (int)colour);
+    } else {
+        out[i] = (float4)(0.0f, 0.0f, 0.0f, o.w * voxel_size);
+        hits[i] = (int4)(-1, -1, -1, 0);
+    }
 }

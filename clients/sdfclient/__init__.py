@@ -21,14 +21,15 @@ from sdfclient.errors import (
     VersionNotReached, WritesDisabled,
 )
 from sdfclient.models import (
-    Block, Camera, ChunkUpdate, Exported, Focus, Frame, Pick, QueryResult, StreamMessage, WorldInfo,
+    Block, Camera, ChunkUpdate, Exported, Focus, Frame, Pick, QueryResult, RayResult, SphereResult, StreamMessage,
+    WorldInfo,
 )
 from sdfclient.stream import Stream
 
 __all__ = [
     "AsyncClient", "Block", "Camera", "ChunkUpdate", "Client", "DeviceMemoryExceeded", "Exported", "Focus",
     "Frame", "InternalServerError", "InvalidEdit", "InvalidInput", "NotFound", "NotReady", "Pick",
-    "ProtocolError", "QueryResult", "RateLimited", "SdfClientError", "ServerError", "Stream", "StreamClosed",
-    "StreamMessage", "Timeout", "TooLarge", "TransportError", "Unauthorized", "VersionNotReached",
-    "WorldInfo", "WritesDisabled", "edits",
+    "ProtocolError", "QueryResult", "RateLimited", "RayResult", "SdfClientError", "ServerError", "SphereResult",
+    "Stream", "StreamClosed", "StreamMessage", "Timeout", "TooLarge", "TransportError", "Unauthorized",
+    "VersionNotReached", "WorldInfo", "WritesDisabled", "edits",
 ]

@@ -18,7 +18,9 @@ import numpy as np
 from sdfclient import _wire
 from sdfclient.edits import normalize
 from sdfclient.errors import ProtocolError, retry_after, server_error
-from sdfclient.models import Block, Camera, Exported, Focus, Frame, Pick, QueryResult, WorldInfo
+from sdfclient.models import (
+    Block, Camera, Exported, Focus, Frame, Pick, QueryResult, RayResult, SphereResult, WorldInfo,
+)
 
 BoxArg = tuple[Sequence[int], Sequence[int]] | None
 OCTET = "application/octet-stream"
@@ -144,6 +146,21 @@ def _query(response: httpx.Response) -> QueryResult:
     colours = _array(body.get("colours", np.zeros(len(distances), np.uint8)), np.uint8)
     return QueryResult(distances=distances, gradients=gradients.reshape(-1, 3), colours=colours,
                        version=int(body.get("version", 0)))
+
+
+def _spheres(response: httpx.Response) -> SphereResult:
+    body = _expect_dict(checked(response), "sphere query")
+    return SphereResult(clearances=_array(body["clearances"], np.float32),
+                        directions=_array(body["directions"], np.float32).reshape(-1, 3),
+                        version=int(body.get("version", 0)))
+
+
+def _rays(response: httpx.Response) -> RayResult:
+    body = _expect_dict(checked(response), "ray query")
+    return RayResult(hits=_array(body["hits"]).astype(bool), distances=_array(body["distances"], np.float32),
+                     normals=_array(body["normals"], np.float32).reshape(-1, 3),
+                     colours=_array(body["colours"], np.uint8), voxels=_array(body["voxels"], np.int32).reshape(-1, 3),
+                     version=int(body.get("version", 0)))
 
 
 def _int_header(response: httpx.Response, name: str) -> int:
@@ -282,13 +299,31 @@ def read_voxels(world_id: str, box: BoxArg, min_version: int | None, timeout: fl
                 timeout=_wait_timeout(min_version, timeout))
 
 
-def query(world_id: str, points: Any, min_version: int | None) -> Call:
-    array = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+def _rows(kind: str, rows: Any, columns: int) -> np.ndarray:
+    array = np.asarray(rows, dtype=np.float64)
+    if array.ndim != 2 or array.shape[1] != columns or len(array) == 0:
+        raise ValueError(f"{kind} must be a non-empty N x {columns} array, got shape {array.shape}")
     if not np.isfinite(array).all():
-        raise ValueError("query points must be finite")
+        raise ValueError(f"query {kind} must be finite")
+    return array.astype(np.float32)
+
+
+def _query_call(world_id: str, kind: str, rows: np.ndarray, parse: Callable[[httpx.Response], Any],
+                min_version: int | None) -> Call:
     params = {} if min_version is None else {"min_version": str(int(min_version))}
-    return Call("POST", _world_path(world_id) + "/query", _query, params=params,
-                body={"points": array.astype(np.float32)})
+    return Call("POST", _world_path(world_id) + "/query", parse, params=params, body={kind: rows})
+
+
+def query(world_id: str, points: Any, min_version: int | None) -> Call:
+    return _query_call(world_id, "points", _rows("points", np.reshape(points, (-1, 3)), 3), _query, min_version)
+
+
+def query_spheres(world_id: str, spheres: Any, min_version: int | None) -> Call:
+    return _query_call(world_id, "spheres", _rows("spheres", spheres, 4), _spheres, min_version)
+
+
+def query_rays(world_id: str, rays: Any, min_version: int | None) -> Call:
+    return _query_call(world_id, "rays", _rows("rays", rays, 7), _rays, min_version)
 
 
 def export_world(world_id: str, format: str) -> Call:  # noqa: A002

@@ -26,7 +26,7 @@ import httpx
 
 from sdfclient import _protocol as p
 from sdfclient.errors import Timeout, TransportError
-from sdfclient.models import Block, Camera, Exported, Frame, Pick, QueryResult, WorldInfo
+from sdfclient.models import Block, Camera, Exported, Frame, Pick, QueryResult, RayResult, SphereResult, WorldInfo
 
 DEFAULT_TIMEOUT_S = 30.0
 
@@ -112,8 +112,16 @@ class Client:
         return self._send(p.read_voxels(world_id, box, min_version, self.timeout))
 
     def query(self, world_id: str, points: Any, *, min_version: int | None = None) -> QueryResult:
-        """Distances and gradient directions at ``points`` (N x 3, x y z)."""
+        """Distances, gradients and voxel values at ``points`` (N x 3, x y z, world units)."""
         return self._send(p.query(world_id, points, min_version))
+
+    def query_spheres(self, world_id: str, spheres: Any, *, min_version: int | None = None) -> SphereResult:
+        """Clearances and ways out of collision of ``spheres`` (N x 4, x y z r, world units)."""
+        return self._send(p.query_spheres(world_id, spheres, min_version))
+
+    def query_rays(self, world_id: str, rays: Any, *, min_version: int | None = None) -> RayResult:
+        """First hits of ``rays`` (N x 7, ox oy oz dx dy dz max_length, world units)."""
+        return self._send(p.query_rays(world_id, rays, min_version))
 
     # -- files ----------------------------------------------------------------------------------
 
@@ -216,6 +224,12 @@ class AsyncClient:
 
     async def query(self, world_id: str, points: Any, *, min_version: int | None = None) -> QueryResult:
         return await self._send(p.query(world_id, points, min_version))
+
+    async def query_spheres(self, world_id: str, spheres: Any, *, min_version: int | None = None) -> SphereResult:
+        return await self._send(p.query_spheres(world_id, spheres, min_version))
+
+    async def query_rays(self, world_id: str, rays: Any, *, min_version: int | None = None) -> RayResult:
+        return await self._send(p.query_rays(world_id, rays, min_version))
 
     async def export_world(self, world_id: str, format: str = "snapshot", *,  # noqa: A002
                            path: str | Path | None = None) -> Exported:

@@ -101,12 +101,34 @@ class Block:
 
 @dataclass(frozen=True)
 class QueryResult:
-    """Distances at points, the colour the field records there, and the gradient direction."""
+    """The field at points (world units): distances interpolated between voxel centres, the
+    interpolant's gradient, and the value of the voxel holding each point."""
 
-    distances: np.ndarray  # (N,)
-    gradients: np.ndarray  # (N, 3) x, y, z unit vectors; zero where the field is flat
+    distances: np.ndarray  # (N,) float32 world units; negative inside solids of a signed world
+    gradients: np.ndarray  # (N, 3) float32 d(distance)/d(world unit), x y z; not normalised
     version: int
-    colours: np.ndarray | None = None  # (N,) uint8, 0 in air
+    colours: np.ndarray | None = None  # (N,) uint8 voxel values, 0 in air
+
+
+@dataclass(frozen=True)
+class SphereResult:
+    """Spheres against the field: how far each is from touching, and the way out."""
+
+    clearances: np.ndarray  # (N,) float32 world units: the distance at the centre minus the radius
+    directions: np.ndarray  # (N, 3) float32 unit vectors out of collision; zero where the field is flat
+    version: int
+
+
+@dataclass(frozen=True)
+class RayResult:
+    """Each ray's first solid voxel within its max length."""
+
+    hits: np.ndarray  # (N,) bool
+    distances: np.ndarray  # (N,) float32 world units along the normalised direction (a miss: max_length)
+    normals: np.ndarray  # (N, 3) float32 the entered face's normal (zero: a miss, or a ray starting in a solid)
+    colours: np.ndarray  # (N,) uint8 the voxel value hit (0: a miss)
+    voxels: np.ndarray  # (N, 3) int32 the voxel hit (-1, -1, -1: a miss)
+    version: int
 
 
 @dataclass(frozen=True)

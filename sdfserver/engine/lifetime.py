@@ -26,7 +26,7 @@ import pyopencl as cl
 from sdfserver.algorithms.exact import Exact
 from sdfserver.edits import parse_edits
 from sdfserver.engine.commands import StepReport
-from sdfserver.engine.query import query_points
+from sdfserver.engine.query import run_query
 from sdfserver.errors import NotReady, SdfServerError
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
@@ -51,7 +51,9 @@ def warm_up(gpu: GpuContext) -> None:
             {"op": "sphere", "center": [10, 10, 10], "radius": 2, "colour": 2}]))
         world.recompute()
         world.read_field(Box((0, 0, 0), (8, 8, 8)))
-        query_points(world, np.array([[1.0, 2.0, 3.0]]))
+        run_query(world, "points", np.array([[1.0, 2.0, 3.0]]))
+        run_query(world, "spheres", np.array([[1.0, 2.0, 3.0, 1.0]]))
+        run_query(world, "rays", np.array([[1.0, 2.0, 3.0, 1.0, 0.0, 0.0, 8.0]]))
     finally:
         world.release()
 

@@ -331,7 +331,7 @@ def small(outputs: list[tuple[bytes, Any]]) -> bool:
         elif isinstance(result, msg.Frame):
             carried += len(result.pixels.data)
         elif isinstance(result, msg.QueryResult):
-            carried += len(result.distances.data) + len(result.colours.data) + len(result.gradients.data)
+            carried += sum(len(a.data) for a in result.arrays.values())
         elif isinstance(result, (bytes, str)):
             carried += len(result)
     return carried <= DIRECT_SEND_BYTES

@@ -76,7 +76,7 @@ def test_fields_equal_the_oracle_after_random_edits(client, world):
 def test_query_gives_the_field_at_points(client, world):
     version = client.edit(world.id, [edits.box((0, 0, 0), (48, 2, 32), colour=7)])
     points = np.array([[10, y, 12] for y in range(0, 12)] + [[47, 31, 31], [0, 0, 0]])
-    result = client.query(world.id, points, min_version=version)
+    result = client.query(world.id, points + 0.5, min_version=version)  # voxel centres
     field = client.read_field(world.id, min_version=version).distance
     expected = field[points[:, 2], points[:, 1], points[:, 0]]
     np.testing.assert_allclose(result.distances, expected)

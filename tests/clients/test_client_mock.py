@@ -258,3 +258,32 @@ def test_export_import_and_render_requests(tmp_path):
     assert body["shadows"] is True and body["quality"] == 70 and body["width"] == 3
     assert (frame.field_version, frame.width, frame.height, frame.render_ms) == (5, 3, 2, 0.25)
     np.testing.assert_array_equal(frame.pixels, pixels)
+
+
+def test_sphere_and_ray_queries_send_blobs_and_parse_answers():
+    answers = {("POST", "/v1/worlds/w/query"): lambda request: msgpack_response(200, (
+        {"version": 2, "clearances": np.array([0.5], np.float32), "directions": np.array([[0, 1, 0]], np.float32)}
+        if "spheres" in _wire.decode(request.content) else
+        {"version": 2, "hits": np.array([1, 0], np.uint8), "distances": np.array([3.0, 9.0], np.float32),
+         "normals": np.array([[-1, 0, 0], [0, 0, 0]], np.float32), "colours": np.array([7, 0], np.uint8),
+         "voxels": np.array([[4, 1, 1], [-1, -1, -1]], np.int32)}))}
+    handler = Recorder(answers)
+
+    async def run_async():
+        async with sdfclient.AsyncClient("http://sdf.test", transport=httpx.MockTransport(handler)) as client:
+            return await client.query_rays("w", [[0, 1, 1, 1, 0, 0, 9], [0, 1, 1, -1, 0, 0, 9]])
+
+    with sdfclient.Client("http://sdf.test", transport=httpx.MockTransport(handler)) as client:
+        spheres = client.query_spheres("w", np.array([[1.0, 2.0, 3.0, 0.5]]), min_version=2)
+        for bad in ([[1.0, 2.0, 3.0]], [[1.0, 2.0, 3.0, float("inf")]], np.zeros((0, 4))):
+            with pytest.raises(ValueError):
+                client.query_spheres("w", bad)
+        with pytest.raises(ValueError):
+            client.query_rays("w", [[0, 1, 1, 1, 0, 0]])
+    rays = asyncio.run(run_async())
+    assert spheres.version == 2 and spheres.clearances.tolist() == [0.5] and spheres.directions.shape == (1, 3)
+    sent = _wire.decode(handler.requests[0].content)
+    assert sent["spheres"].dtype == np.float32 and sent["spheres"].tolist() == [[1.0, 2.0, 3.0, 0.5]]
+    assert handler.requests[0].url.params["min_version"] == "2"
+    assert rays.hits.dtype == bool and rays.hits.tolist() == [True, False] and rays.voxels.tolist()[1] == [-1, -1, -1]
+    assert _wire.decode(handler.requests[1].content)["rays"].shape == (2, 7) and len(handler.requests) == 2

@@ -41,13 +41,14 @@ def test_paint_sphere(server_url):
 
 def test_query_points(server_url):
     out = _run("query_points.py", server_url)
-    found = re.findall(r"point \[10, (\d+), 12\]: distance ([\d.]+), gradient \[(.*)\]", out)
+    found = re.findall(r"point \[10.5, (\d+).5, 12.5\]: distance ([\d.]+), gradient \[(.*)\]", out)
     assert len(found) == 6
     for height, dist, grad in found:
         assert float(dist) == float(height)
-        if int(height) > 0:
-            gx, gy, gz = (float(v) for v in grad.split(","))
-            assert gy > 0 and gx == 0 and gz == 0
+        gx, gy, gz = (float(v) for v in grad.split(","))
+        assert gy > 0 and gx == 0 and gz == 0
+    assert "sphere clearance 2, way out [0.0, 1.0, 0.0]\n" in out
+    assert "ray down: hit True at 4.5, voxel [10, 0, 12], normal [0.0, 1.0, 0.0]\n" in out
 
 
 def test_stream_changes(server_url):

@@ -72,9 +72,13 @@ def test_requests_round_trip_through_msgspec_and_answer_in_order(served):
     voxels = read.array.numpy()
     assert read.version == 1 and voxels[5, 4, 3] == 7  # the later duplicate wins
     assert voxels[8:10, 8:10, 8:10].tolist() == np.full((2, 2, 2), 2).tolist()
-    points = msg.Array.of(np.array([[3.0, 4.0, 5.0], [0.0, 0.0, 0.0]]))
+    points = msg.Array.of(np.array([[3.5, 4.5, 5.5], [0.0, 0.0, 0.0]]))  # a voxel's centre, a corner
     query = msg.decode_result(ask(msg.Query(4, world["id"], points, 1)).result, msg.QueryResult)
-    assert query.distances.numpy().tolist()[0] == 0 and query.distances.numpy()[1] > 0
+    distances = query.arrays["distances"].numpy()
+    assert distances.tolist()[0] == 0 and distances[1] > 0 and query.arrays["colours"].numpy()[0] == 7
+    rays = msg.Array.of(np.array([[0.5, 4.5, 5.5, 1.0, 0.0, 0.0, 16.0]]))
+    hit = msg.decode_result(ask(msg.Query(5, world["id"], rays, 1, None, "rays")).result, msg.QueryResult)
+    assert hit.arrays["voxels"].numpy().tolist() == [[3, 4, 5]] and hit.arrays["distances"].numpy()[0] == 2.5
 
 
 def test_a_bad_batch_fails_alone_and_changes_nothing(served):

@@ -34,7 +34,11 @@
  * Build options: SEG (elements per work-item), AXIS (pass_yz: 1 = y, 2 = z),
  * VEC (pass_yz: x-columns per work-item, 2, 4 or 8), LOCAL_X, LOCAL_Y (the
  * work-group: pass_x (segments, line pairs); pass_yz (x-lanes, segments)),
- * FIRST, LAST, SDF_PTX_16X2, INVERT.
+ * FIRST, LAST, SDF_PTX_16X2, INVERT, WORLD_OUT.
+ *
+ * WORLD_OUT 1 (pass_x with FIRST and not LAST): the Euclidean transform's x stage
+ * (kernels/edt.cl) — the 1-D distances written into `work` in the world's layout, over R only
+ * (R's x-bounds multiples of 8; W is R grown along x), where they stay between recomputes.
  *
  * INVERT 1 computes a signed world's other transform: the distance from each solid to the
  * nearest air voxel (the seeds are the air voxels; the world's outside is air, so the last pass
@@ -171,6 +175,21 @@ inline void load8(uint *out, __global const uchar *row)
 }
 #endif
 
+#ifndef WORLD_OUT
+#define WORLD_OUT 0
+#endif
+#if WORLD_OUT
+/* 8 x-stage distances of one line: the plain run writes them all; the inverted one only over the
+ * solids, each voxel's distance to the other kind being the one of the two that is not 0. */
+inline void store_line8(__global uchar *line, __global const uchar *voxels, uchar8 d)
+{
+#if INVERT
+    const uchar8 v = *(__global const uchar8 *)voxels;
+    d = select(*(__global const uchar8 *)line, d, as_uchar8(v != (uchar8)(0)));
+#endif
+    *(__global uchar8 *)line = d;
+}
+#endif
 #if LAST && INVERT
 #error the inverted transform writes the field from pass_yz (PASS_ORDER ends with y or z)
 #endif
@@ -243,6 +262,15 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
             pack8(field + a.world_row + t, voxels + a.world_row + t, out_a);
         if (b.valid && b.in_r && x_in_r)
             pack8(field + b.world_row + t, voxels + b.world_row + t, out_b);
+#elif WORLD_OUT
+        /* The Euclidean transform's x stage (kernels/edt.cl): world layout, R only. */
+        const int wx = w_lo.x + t;
+        if (wx >= r_lo.x && wx < r_hi.x) {
+            if (a.valid)
+                store_line8(work + a.world_row + t, voxels + a.world_row + t, convert_uchar8(out_a));
+            if (b.valid)
+                store_line8(work + b.world_row + t, voxels + b.world_row + t, convert_uchar8(out_b));
+        }
 #else
         if (a.valid)
             *(__global uchar8 *)(work + a.work_row + t) = convert_uchar8(out_a);

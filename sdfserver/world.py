@@ -104,13 +104,13 @@ OPTIONAL_BUFFERS = ("seeds", "seeds2", "edt_plane", "edt_stack")
 def optional_sizes(config: WorldConfig) -> dict[str, int]:
     """The buffers only some worlds hold, by WorldBuffers name, in bytes: jump flooding's two
     nearest-seed boxes (uint, while an algorithm the world runs floods: ``config.floods``) and the
-    Euclidean transform's y-stage and stack boxes (ushort, Euclidean worlds)."""
+    Euclidean transform's y-stage box (ushort) and envelope stacks (uint), Euclidean worlds."""
     n = config.size[0] * config.size[1] * config.size[2]
     sizes = {}
     if config.floods:
         sizes.update(seeds=4 * n, seeds2=4 * n)
     if config.euclidean:
-        sizes.update(edt_plane=2 * n, edt_stack=2 * n)
+        sizes.update(edt_plane=2 * n, edt_stack=4 * n)
     return sizes
 
 

@@ -58,8 +58,8 @@ class WorldBuffers:
     # worlds whose algorithms flood (World.buffer_bytes); None otherwise.
     seeds: cl.Buffer | None = None
     seeds2: cl.Buffer | None = None
-    # ushort, world-sized: the Euclidean transform's y-stage result and its envelope stacks
-    # (kernels/edt.cl), allocated only for Euclidean worlds; `work` holds its x-stage result.
+    # World-sized, Euclidean worlds only (kernels/edt.cl): the transform's y-stage result (ushort)
+    # and its envelope stacks (uint); `work` holds its x-stage result.
     edt_plane: cl.Buffer | None = None
     edt_stack: cl.Buffer | None = None
 

@@ -22,11 +22,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sdfserver.algorithms.base import AlgorithmRun, WorldBuffers, int4
+from sdfserver.algorithms.base import AlgorithmRun, RegionJob, WorldBuffers, _work_box, int4
+from sdfserver.algorithms.exact import Exact, pass_args
 from sdfserver.geometry import Box, merge_regions
 from sdfserver.gpu import GpuContext
 
-X_GROUP = (64, 1)  # edt_x: (y, z) lines
+EXACT = Exact()  # its x pass is the x stage
 YZ_GROUP = (64, 1)  # edt_yz: x-columns across a warp, one line each
 
 
@@ -84,11 +85,16 @@ class EuclideanExact:
         wrote, in the queue's order). ``field`` is the buffer the last stage writes."""
         run = AlgorithmRun(bytes_moved=bytes_moved(stages, cap, buffers.dims))
         dims, queue, sign = int4(buffers.dims), gpu.queue, int(signed)
-        edt_x = gpu.programs.kernel("edt.cl", "edt_x", SIGNED=sign)
         for box in stages.x:
-            nx, ny, nz = box.shape_xyz
-            run.events.append(edt_x(queue, _grid((ny, nz), X_GROUP), X_GROUP, buffers.voxels, buffers.work, dims,
-                                    int4(box.lo), int4(box.hi), np.int32(cap)))
+            # The x stage is the Manhattan transform's x pass (a 1-D distance is the same in both
+            # metrics), written in the world's layout over the box, x snapped to 8 as it needs.
+            region = Box((box.lo[0] // 8 * 8, *box.lo[1:]), (min(buffers.dims[0], -(-box.hi[0] // 8) * 8), *box.hi[1:]))
+            job = RegionJob.halo_region(buffers, region, cap)
+            job.work_box = _work_box(buffers, Box((region.lo[0] - cap, *region.lo[1:]), (region.hi[0] + cap, *region.hi[1:])))
+            for invert in (False, True) if signed else (False,):
+                kernel, _, global_, local = EXACT.launch_shape(gpu, 0, job.work_box.shape_xyz[0], *job.work_box.shape_xyz,
+                                                               first=True, invert=invert, world_out=True)
+                run.events.append(kernel(queue, global_, local, *pass_args(job)))
         for axis, boxes, source, target in ((1, stages.y, buffers.work, buffers.edt_plane),
                                             (2, stages.z, buffers.edt_plane, field)):
             kernel = gpu.programs.kernel("edt.cl", "edt_yz", SIGNED=sign, AXIS=axis)

@@ -101,7 +101,7 @@ class Exact:
     def launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int,
                      seg: int | None = None, lanes: int | None = None, vec: int | None = None,
                      x_threads: int = X_PASS_THREADS, first: bool = False, last: bool = False,
-                     invert: bool = False):
+                     invert: bool = False, world_out: bool = False):
         """The kernel, segments per line, and global/local sizes for one pass.
 
         Each pass is compiled for its work-group shape (reqd_work_group_size),
@@ -117,7 +117,8 @@ class Exact:
             pairs = -(-(ny * nz) // 2)
             global_ = (nseg, -(-pairs // per_group) * per_group)
             kernel = gpu.programs.kernel("exact.cl", "pass_x", SEG=seg, LOCAL_X=local[0], LOCAL_Y=local[1],
-                                         FIRST=int(first), LAST=int(last), **({"INVERT": 1} if invert else {}))
+                                         FIRST=int(first), LAST=int(last), **({"INVERT": 1} if invert else {}),
+                                         **({"WORLD_OUT": 1} if world_out else {}))
         else:
             lanes, vec = lanes or shape.lanes, vec or shape.vec
             local = (lanes, nseg)

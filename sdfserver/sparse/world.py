@@ -75,8 +75,8 @@ class SparseWorld:
         # Every edit needs a scratch box of at least one brick grown by the cap: refuse a world
         # that could not take even that, before anything is allocated.
         side = self.brick + 2 * (-(-config.max_distance // self.brick) * self.brick)
-        smallest = tuple(min(side + 2 * (config.max_distance if config.euclidean else SHELL_X_VOX), v)
-                         for v in config.size)
+        smallest = tuple(min(side + 2 * (-(-config.max_distance // SHELL_X_VOX) * SHELL_X_VOX
+                                         if config.euclidean else SHELL_X_VOX), v) for v in config.size)
         gpu.check_fits(self._scratch_sizes(smallest[0] * smallest[1] * smallest[2], smallest[2]),
                        f"a sparse {'x'.join(map(str, config.size))} world's scratch box")
         self.table = BrickTable(config.chunks)
@@ -106,7 +106,7 @@ class SparseWorld:
     def _scratch_sizes(self, voxels: int, planes: int) -> list[int]:
         """voxels, field, work, work2 and, Euclidean, the transform's y-stage and stack boxes."""
         return [voxels, 2 * voxels, voxels + planes * WORK_PLANE_PAD, voxels] + \
-            ([2 * voxels, 2 * voxels] if self.config.euclidean else [])
+            ([2 * voxels, 4 * voxels] if self.config.euclidean else [])
 
     def _ensure_scratch(self, voxels: int) -> None:
         """Hold a scratch box of at least ``voxels`` voxels; raises DeviceMemoryExceeded, keeping
@@ -243,8 +243,11 @@ class SparseWorld:
         """The dense box a region is computed in: the region and its seed shell, in the world (a
         Euclidean field is not seeded by the field around: the region and a halo of the cap)."""
         lo, hi = region.lo, region.hi
-        if self.config.euclidean:
-            return region.grow(self.config.max_distance).intersect(self.world_box)
+        if self.config.euclidean:  # x by whole 8s: the x stage loads rows as aligned 8-voxel vectors
+            cap = self.config.max_distance
+            halo_x = -(-cap // SHELL_X_VOX) * SHELL_X_VOX
+            return Box((lo[0] - halo_x, lo[1] - cap, lo[2] - cap),
+                       (hi[0] + halo_x, hi[1] + cap, hi[2] + cap)).intersect(self.world_box)
         return Box((lo[0] - SHELL_X_VOX, lo[1] - 1, lo[2] - 1),
                    (hi[0] + SHELL_X_VOX, hi[1] + 1, hi[2] + 1)).intersect(self.world_box)
 

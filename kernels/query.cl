@@ -1,7 +1,8 @@
 /* Collision and navigation queries: points, spheres and rays against a world's field
- * (sdfserver/engine/query.py). The host turns world units into voxel coordinates (voxel v spans
- * [v, v + 1) on each axis), checks every input, and passes `voxel_size` so that distances leave
- * in world units; these kernels only read the field, through field_source.h.
+ * (sdfserver/engine/query.py). World unit w lies at voxel coordinate (w - origin) / voxel_size
+ * (voxel v spans [v, v + 1) on each axis): points and spheres arrive in world units, with `place`
+ * = (origin, voxel_size), rays already in voxel coordinates; the host has checked every input.
+ * Distances leave in world units. These kernels only read the field, through field_source.h.
  *
  * Distances at a point are the trilinear interpolant of field_distance between voxel centres
  * (voxel v's centre at v + 0.5), its argument clamped to the outermost centres: in the half voxel
@@ -51,27 +52,27 @@ inline float trilinear(FIELD_ARGS, float3 q, int4 dims, float3 *grad)
     return mix(c0, c1, f.z);
 }
 
-/* points: voxel coordinates (w unused). out: n float4 (gradient, distance in world units), then
+/* points: n packed (x, y, z), world units. out: n float4 (gradient, distance in world units), then
  * n uchar colours (the value of the voxel holding the point). */
-__kernel void query_points(FIELD_ARGS, int4 dims, float voxel_size, __global const float4 *points, int n,
+__kernel void query_points(FIELD_ARGS, int4 dims, float4 place, __global const float *points, int n,
                            __global float4 *out)
 {
     const int i = get_global_id(0);
     if (i >= n)
         return;
-    const float3 p = points[i].xyz;
+    const float3 p = (vload3(i, points) - place.xyz) / place.w;
     float3 g;
     const float d = trilinear(FIELD_PASS, p - 0.5f, dims, &g);
     const int3 v = clamp(convert_int3_rtn(p), (int3)(0), dims.xyz - 1);
     uint colour, steps;
     field_step(FIELD_PASS, v, dims, &colour, &steps);
-    out[i] = (float4)(g, d * voxel_size);
+    out[i] = (float4)(g, d * place.w);
     ((__global uchar *)(out + n))[i] = (uchar)colour;
 }
 
-/* spheres: centre in voxel coordinates, radius in world units. out: (direction out of collision,
- * clearance in world units); the direction is the unit gradient, zero where the field is flat. */
-__kernel void query_spheres(FIELD_ARGS, int4 dims, float voxel_size, __global const float4 *spheres, int n,
+/* spheres: (x, y, z, r), world units. out: (direction out of collision, clearance in world units);
+ * the direction is the unit gradient, zero where the field is flat. */
+__kernel void query_spheres(FIELD_ARGS, int4 dims, float4 place, __global const float4 *spheres, int n,
                             __global float4 *out)
 {
     const int i = get_global_id(0);
@@ -79,9 +80,9 @@ __kernel void query_spheres(FIELD_ARGS, int4 dims, float voxel_size, __global co
         return;
     const float4 s = spheres[i];
     float3 g;
-    const float d = trilinear(FIELD_PASS, s.xyz - 0.5f, dims, &g);
+    const float d = trilinear(FIELD_PASS, (s.xyz - place.xyz) / place.w - 0.5f, dims, &g);
     const float len = length(g);
-    out[i] = (float4)(len > 0.0f ? g / len : (float3)(0.0f), d * voxel_size - s.w);
+    out[i] = (float4)(len > 0.0f ? g / len : (float3)(0.0f), d * place.w - s.w);
 }
 
 inline int inside(int3 v, int4 dims)
@@ -174,9 +175,10 @@ inline int first_hit(FIELD_ARGS, int4 dims, float3 o, float3 d, float t_end, int
 /* rays: per ray two float4, (origin in voxel coordinates, max length in voxels) and (unit
  * direction, 0). out: n float4 (entered face's normal, t in world units; a miss: 0 and the max
  * length), then n int4 (hit voxel, its value; a miss: -1, -1, -1, 0). */
-__kernel void query_rays(FIELD_ARGS, int4 dims, float voxel_size, __global const float4 *rays, int n,
+__kernel void query_rays(FIELD_ARGS, int4 dims, float4 place, __global const float4 *rays, int n,
                          __global float4 *out)
 {
+    const float voxel_size = place.w;
     const int i = get_global_id(0);
     if (i >= n)
         return;

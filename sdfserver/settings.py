@@ -83,7 +83,8 @@ class Settings(BaseSettings):
     max_worlds: int = Field(64, ge=1, description="Most worlds that may live in the server at once (413 above it).")
     max_read_voxels: int = Field(
         1 << 27, ge=1, description="Largest box one field or voxel read may cover, in voxels (413 above it).")
-    max_query_points: int = Field(1 << 16, ge=1, description="Most points in one point query (413 above it).")
+    max_query_points: int = Field(1 << 17, ge=1, description="Most points, spheres or rays in one query "
+                                                             "(POST /v1/worlds/{id}/query; 413 above it).")
     move_release_timeout_s: float = Field(
         10.0, gt=0, le=600, description="How long a world's move (POST /v1/worlds/{id}/move) waits for its engine "
                                         "to hand it over; past that the target engine takes the world over and its "

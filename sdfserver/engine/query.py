@@ -19,6 +19,7 @@ One upload, one kernel launch and one download a query (``kernels/query.cl``).
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +33,7 @@ KINDS = {"points": 3, "spheres": 4, "rays": 7}  # columns of each kind's rows
 ANSWERS = {"points": ("distances", "gradients", "colours"), "spheres": ("clearances", "directions"),
            "rays": ("hits", "distances", "normals", "colours", "voxels")}
 LOCAL = 64
+PLACE = struct.Struct("<4f")  # the kernels' float4 place: (origin, voxel_size)
 
 
 @dataclass(frozen=True)
@@ -41,7 +43,7 @@ class QueryResult:
 
 
 def checked_rows(kind: str, rows: np.ndarray) -> np.ndarray:
-    """(N, KINDS[kind]) finite numbers as float64; InvalidInput naming the field otherwise."""
+    """(N, KINDS[kind]) numbers; InvalidInput naming the field otherwise (values are checked later)."""
     if kind not in KINDS:
         raise InvalidInput(f"unknown query kind {kind!r}; ask one of {', '.join(KINDS)}")
     rows = np.asarray(rows)
@@ -50,48 +52,52 @@ def checked_rows(kind: str, rows: np.ndarray) -> np.ndarray:
         raise InvalidInput(f"{kind} must be an (N, {width}) numeric array, got {rows.dtype} {list(rows.shape)}")
     if rows.shape[0] == 0:
         raise InvalidInput(f"{kind} must not be empty")
-    rows = rows.astype(np.float64, copy=False)
-    bad = np.flatnonzero(~np.isfinite(rows).all(axis=1))
-    if bad.size:
-        raise InvalidInput(f"{kind}[{bad[0]}] holds NaN or an infinity ({bad.size} such rows)")
     return rows
 
 
-def voxel_coordinates(kind: str, xyz: np.ndarray, config: WorldConfig) -> np.ndarray:
-    """World units -> voxel coordinates, each inside the world's box [0, size)."""
-    v = (xyz - np.asarray(config.origin)) / config.voxel_size
-    outside = np.flatnonzero(((v < 0) | (v >= np.asarray(config.size))).any(axis=1))
-    if outside.size:
-        lo = np.asarray(config.origin)
-        hi = lo + np.asarray(config.size) * config.voxel_size
-        raise InvalidInput(f"{kind}[{outside[0]}] at {xyz[outside[0]].tolist()} lies outside the world's box "
-                           f"{lo.tolist()}..{hi.tolist()} (world units; {outside.size} outside)")
-    return v
+def first_row(kind: str, rows: np.ndarray, bad: np.ndarray, what: str) -> InvalidInput:
+    """The error that names the first row where ``bad`` (N, k) holds."""
+    flagged = np.flatnonzero(bad.reshape(len(rows), -1).any(axis=1))
+    return InvalidInput(f"{kind}[{flagged[0]}] {what}: {rows[flagged[0]].tolist()} ({flagged.size} such rows)")
 
 
 def device_rows(kind: str, rows: np.ndarray, config: WorldConfig) -> np.ndarray:
-    """Checked rows as the kernel reads them: float32, one float4 a point or sphere, two a ray."""
+    """Checked rows as the kernel reads them, float32: points (N, 3) and spheres (N, 4) in world
+    units as sent, rays (N, 8) in voxel coordinates (origin, max length; unit direction, 0).
+    Whole-array passes over what the kernel will see; a row is looked for only once a check fails."""
     rows = checked_rows(kind, rows)
-    n = len(rows)
     if kind == "rays":
-        out = np.zeros((n, 8), dtype=np.float32)
-        direction, max_length = rows[:, 3:6], rows[:, 6]
-        norm = np.linalg.norm(direction, axis=1)
-        for name, bad in (("direction of length 0", norm == 0), ("negative max_length", max_length < 0)):
-            if bad.any():
-                i = int(np.flatnonzero(bad)[0])
-                raise InvalidInput(f"rays[{i}] has a {name}: {rows[i].tolist()}")
-        out[:, :3] = (rows[:, :3] - np.asarray(config.origin)) / config.voxel_size
-        out[:, 3] = max_length / config.voxel_size
-        out[:, 4:7] = direction / norm[:, None]
-        return out
-    out = np.zeros((n, 4), dtype=np.float32)
-    out[:, :3] = voxel_coordinates(kind, rows[:, :3], config)
-    if kind == "spheres":
-        negative = np.flatnonzero(rows[:, 3] < 0)
-        if negative.size:
-            raise InvalidInput(f"spheres[{negative[0]}] has a negative radius: {rows[negative[0]].tolist()}")
-        out[:, 3] = rows[:, 3]
+        return ray_rows(rows, config)
+    out = np.ascontiguousarray(rows, dtype=np.float32)  # no copy for a float32 blob
+    xyz = out[:, :3]
+    lo = np.asarray(config.origin)
+    hi = lo + np.asarray(config.size) * config.voxel_size
+    if not ((xyz >= lo.astype(np.float32)) & (xyz < hi.astype(np.float32))).all():  # NaN fails both
+        if not np.isfinite(out).all():
+            raise first_row(kind, rows, ~np.isfinite(out), "holds NaN or an infinity")
+        raise first_row(kind, rows, (xyz < lo) | (xyz >= hi),
+                        f"lies outside the world's box {lo.tolist()}..{hi.tolist()} (world units)")
+    if kind == "spheres" and not ((out[:, 3] >= 0) & (out[:, 3] < np.inf)).all():
+        raise first_row(kind, rows, ~((out[:, 3] >= 0) & (out[:, 3] < np.inf)),
+                        "has a negative radius, NaN or an infinity")
+    return out
+
+
+def ray_rows(rows: np.ndarray, config: WorldConfig) -> np.ndarray:
+    if not np.isfinite(rows).all():
+        raise first_row("rays", rows, ~np.isfinite(rows), "holds NaN or an infinity")
+    direction = rows[:, 3:6].astype(np.float64)
+    norm = np.sqrt((direction * direction).sum(axis=1))
+    if not norm.all():
+        raise first_row("rays", rows, norm == 0, "has a direction of length 0")
+    if (rows[:, 6] < 0).any():
+        raise first_row("rays", rows, rows[:, 6] < 0, "has a negative max_length")
+    out = np.zeros((len(rows), 8), dtype=np.float32)
+    out[:, :3] = (rows[:, :3] - np.asarray(config.origin)) / config.voxel_size
+    out[:, 3] = rows[:, 6] / config.voxel_size
+    out[:, 4:7] = direction / norm[:, None]
+    if not np.isfinite(out).all():
+        raise first_row("rays", rows, ~np.isfinite(out), "holds a number past float32's range")
     return out
 
 
@@ -107,7 +113,7 @@ def run_query(world: World, kind: str, rows: np.ndarray) -> QueryResult:
         defines, field = world.field_source()
         gpu.programs.kernel("query.cl", f"query_{kind}", **defines)(
             gpu.queue, (-(-n // LOCAL) * LOCAL,), (LOCAL,), *field, int4(config.size),
-            np.float32(config.voxel_size), in_buf, np.int32(n), out_buf)
+            PLACE.pack(*config.origin, config.voxel_size), in_buf, np.int32(n), out_buf)
         raw = np.empty(out_bytes, dtype=np.uint8)
         cl.enqueue_copy(gpu.queue, raw, out_buf, is_blocking=True)
     finally:

@@ -8,8 +8,10 @@
  *   x       voxels -> line:  the 1-D distance along x to the nearest seed, uchar, capped at cap: the
  *           Manhattan transform's x pass (kernels/exact.cl, WORLD_OUT), a 1-D distance being the
  *           same in both metrics
- *   edt_yz  AXIS 1:  line -> plane: min over y' of line(y')^2 + (y - y')^2, ushort, capped at cap^2
- *   edt_yz  AXIS 2:  plane -> field: min over z' of plane(z')^2 + (z - z')^2, ushort, capped
+ *   edt_yz  LAST 0:  line -> plane: min over z' of line(z')^2 + (z - z')^2, ushort, capped at cap^2
+ *   edt_yz  LAST 1:  plane -> field: min over y' of plane(y')^2 + (y - y')^2, ushort, capped
+ * (the order of the last two is free, the transform being separable: sdfserver/algorithms/
+ * euclidean.py's STAGE_AXES says which it runs).
  * Each stage writes only its output box O, reading its input along its axis over O grown by the
  * cap (values past the cap cannot lower a capped result), so the world-sized `line` and `plane`
  * buffers stay current between recomputes and an edit's stages cover the boxes it can change.
@@ -27,7 +29,8 @@
  * enter, and only sites owning an output position stay. The second scan walks the outputs
  * forward, moving to the next site where the two parabolas cross.
  *
- * Build options: SIGNED (0 or 1); edt_yz: AXIS (1 = y, 2 = z).
+ * Build options: SIGNED (0 or 1); edt_yz: AXIS (1 = y, 2 = z), LAST (1: reads the second
+ * stage's squares and writes the field).
  */
 #include "sdf_common.h"
 
@@ -45,12 +48,12 @@ inline int floor_div(int a, int b)
 
 #ifdef AXIS
 /* The height of the parabola a stage's value stands for. */
-#if AXIS == 1
-#define IN_T uchar
-#define HEIGHT_OF(v) ((int)(v) * (int)(v))
-#else
+#if LAST
 #define IN_T ushort
 #define HEIGHT_OF(v) ((int)(v))
+#else
+#define IN_T uchar
+#define HEIGHT_OF(v) ((int)(v) * (int)(v))
 #endif
 
 /* A stack entry: a site's position along the line and its parabola's height. */
@@ -160,7 +163,7 @@ inline void envelope(__global const IN_T *in, __global const uchar *voxels, __gl
                 const int d = u - POS(cur);
                 value = min(value, d * d + HEIGHT(cur));
             }
-#if AXIS == 2 && SIGNED
+#if LAST && SIGNED
             if (kind == 1) {  /* a solid: the world's outside is air */
                 const int face = min(face_lo, min(u + 1, len - u));
                 value = min(value, face * face);
@@ -171,39 +174,34 @@ inline void envelope(__global const IN_T *in, __global const uchar *voxels, __gl
     }
 }
 
-/* One work-item a line along AXIS through O: x across the work-items of a warp (coalesced), the
- * other axis (z for AXIS 1, y for AXIS 2) across the second dimension. */
+/* One work-item a line along AXIS (1 = y, 2 = z) through O: x across the work-items of a warp
+ * (coalesced), the third axis across the second dimension. */
 __kernel void edt_yz(__global const IN_T *in, __global const uchar *voxels, __global ushort *out,
                      __global uint *stack, int4 dims, int4 o_lo, int4 o_hi, int cap)
 {
     const int lx = get_global_id(0), lo = get_global_id(1);
     const int nx = o_hi.x - o_lo.x;
-#if AXIS == 1
-    const int other = o_lo.z + lo, o0 = o_lo.y, o1 = o_hi.y, other_hi = o_hi.z, other_n = o_hi.z - o_lo.z;
-#else
-    const int other = o_lo.y + lo, o0 = o_lo.z, o1 = o_hi.z, other_hi = o_hi.y, other_n = o_hi.y - o_lo.y;
-#endif
     const int x = o_lo.x + lx;
-    if (x >= o_hi.x || other >= other_hi)
-        return;
 #if AXIS == 1
-    const int len = dims.y;
+    const int other = o_lo.z + lo, o0 = o_lo.y, o1 = o_hi.y, other_n = o_hi.z - o_lo.z;
+    const int len = dims.y, other_len = dims.z;
     const size_t step = (size_t)dims.x, base = world_index(x, 0, other, dims);
 #else
-    const int len = dims.z;
+    const int other = o_lo.y + lo, o0 = o_lo.z, o1 = o_hi.z, other_n = o_hi.y - o_lo.y;
+    const int len = dims.z, other_len = dims.y;
     const size_t step = (size_t)dims.x * (size_t)dims.y, base = world_index(x, other, 0, dims);
 #endif
+    if (x >= o_hi.x || lo >= other_n)
+        return;
     const int w0 = max(0, o0 - cap), w1 = min(len, o1 + cap);
     /* Each line's stack: as many entries as the line has outputs; entry k of every line of the
      * launch together, so that a warp's pushes and reads at similar depths share cache lines. */
     const size_t stride = (size_t)nx * (size_t)other_n;
     __global uint *line_stack = stack + (size_t)lo * (size_t)nx + (size_t)lx;
     const int cap2 = cap * cap;
-    int face_lo = 0x7fff;
-#if AXIS == 2 && SIGNED
-    /* The nearest x or y face, for solids (the z faces come with u). */
-    face_lo = min(min(x + 1, dims.x - x), min(other + 1, dims.y - other));
-#endif
+    /* The nearest face across x and the third axis, for a signed world's solids (the faces
+     * along the line come with u). */
+    const int face_lo = min(min(x + 1, dims.x - x), min(other + 1, other_len - other));
     envelope(in + base, voxels + base, out + base, step, line_stack, stride, len, w0, w1, o0, o1, cap2, 0, face_lo);
 #if SIGNED
     envelope(in + base, voxels + base, out + base, step, line_stack, stride, len, w0, w1, o0, o1, cap2, 1, face_lo);

@@ -104,7 +104,7 @@ OPTIONAL_BUFFERS = ("seeds", "seeds2", "edt_plane", "edt_stack")
 def optional_sizes(config: WorldConfig) -> dict[str, int]:
     """The buffers only some worlds hold, by WorldBuffers name, in bytes: jump flooding's two
     nearest-seed boxes (uint, while an algorithm the world runs floods: ``config.floods``) and the
-    Euclidean transform's y-stage box (ushort) and envelope stacks (uint), Euclidean worlds."""
+    Euclidean transform's second-stage box (ushort) and envelope stacks (uint), Euclidean worlds."""
     n = config.size[0] * config.size[1] * config.size[2]
     sizes = {}
     if config.floods:

@@ -58,7 +58,7 @@ class WorldBuffers:
     # worlds whose algorithms flood (World.buffer_bytes); None otherwise.
     seeds: cl.Buffer | None = None
     seeds2: cl.Buffer | None = None
-    # World-sized, Euclidean worlds only (kernels/edt.cl): the transform's y-stage result (ushort)
+    # World-sized, Euclidean worlds only (kernels/edt.cl): the transform's second-stage result (ushort)
     # and its envelope stacks (uint); `work` holds its x-stage result.
     edt_plane: cl.Buffer | None = None
     edt_stack: cl.Buffer | None = None

@@ -40,10 +40,16 @@
 #define SIGNED 0
 #endif
 
-/* floor(a / b) for b > 0 (C division truncates toward zero). */
+/* floor(a / b) for b > 0 and |a| < 2^24: a float quotient (exact operands; the rounded quotient
+ * is within one of the true one), corrected by the remainder. Integer division costs a GPU many
+ * instructions, and the envelope divides once for each site it enters or leaves. */
 inline int floor_div(int a, int b)
 {
-    return a >= 0 ? a / b : -((-a + b - 1) / b);
+    int q = (int)floor((float)a / (float)b);
+    const int r = a - q * b;
+    q -= r < 0;
+    q += r >= b;
+    return q;
 }
 
 #ifdef AXIS

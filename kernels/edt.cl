@@ -134,13 +134,10 @@ inline void envelope(__global const IN_T *in, __global const uchar *voxels, __gl
             if (u0 + j < w1 && h[j] < cap2)
                 enter(u0 + j, h[j], &q, &top, &below, &top_t, stack, stride, o0, o1);
     }
-    /* Forward over the outputs, moving to the next site where it starts to own them. */
-    int k = 0, next_t = 0x7fffffff;
-    uint cur = q >= 0 ? stack[0] : 0u, next = 0u;
-    if (q >= 1) {
-        next = stack[stride];
-        next_t = first_owned(cur, next);
-    }
+    /* Forward over the outputs, moving to the next site while it is no higher at u (along the
+     * envelope the values at one u fall, then rise: no division needed). */
+    int k = 0;
+    uint cur = q >= 0 ? stack[0] : 0u, next = q >= 1 ? stack[stride] : 0u;
     for (int u0 = o0; u0 < o1; u0 += BATCH) {
 #if SIGNED
         uchar v[BATCH];
@@ -151,14 +148,13 @@ inline void envelope(__global const IN_T *in, __global const uchar *voxels, __gl
             const int u = u0 + j;
             if (u >= o1)
                 break;
-            while (u >= next_t) {
+            while (k < q) {
+                const int dc = u - POS(cur), dn = u - POS(next);
+                if (dn * dn + HEIGHT(next) > dc * dc + HEIGHT(cur))
+                    break;
                 cur = next;
-                if (++k < q) {
+                if (++k < q)
                     next = stack[(size_t)(k + 1) * stride];
-                    next_t = first_owned(cur, next);
-                } else {
-                    next_t = 0x7fffffff;
-                }
             }
 #if SIGNED
             if ((v[j] != 0) != kind)

@@ -52,10 +52,13 @@ inline float trilinear(FIELD_ARGS, float3 q, int4 dims, float3 *grad)
     return mix(c0, c1, f.z);
 }
 
-/* points: n packed (x, y, z), world units. out: n float4 (gradient, distance in world units), then
- * n uchar colours (the value of the voxel holding the point). */
+/* Each kernel writes its answers as whole arrays one after another in `out`, so that the host
+ * downloads once and hands each on without a copy (engine/query.py's `answers`). */
+
+/* points: n packed (x, y, z), world units. out: n distances (world units), n packed gradients
+ * (x, y, z), n uchar colours (the value of the voxel holding the point). */
 __kernel void query_points(FIELD_ARGS, int4 dims, float4 place, __global const float *points, int n,
-                           __global float4 *out)
+                           __global float *out)
 {
     const int i = get_global_id(0);
     if (i >= n)
@@ -66,14 +69,15 @@ __kernel void query_points(FIELD_ARGS, int4 dims, float4 place, __global const f
     const int3 v = clamp(convert_int3_rtn(p), (int3)(0), dims.xyz - 1);
     uint colour, steps;
     field_step(FIELD_PASS, v, dims, &colour, &steps);
-    out[i] = (float4)(g, d * place.w);
-    ((__global uchar *)(out + n))[i] = (uchar)colour;
+    out[i] = d * place.w;
+    vstore3(g, i, out + n);
+    ((__global uchar *)(out + 4 * (size_t)n))[i] = (uchar)colour;
 }
 
-/* spheres: (x, y, z, r), world units. out: (direction out of collision, clearance in world units);
- * the direction is the unit gradient, zero where the field is flat. */
+/* spheres: (x, y, z, r), world units. out: n clearances (world units), n packed directions out of
+ * collision: the unit gradient, zero where the field is flat. */
 __kernel void query_spheres(FIELD_ARGS, int4 dims, float4 place, __global const float4 *spheres, int n,
-                            __global float4 *out)
+                            __global float *out)
 {
     const int i = get_global_id(0);
     if (i >= n)
@@ -82,7 +86,8 @@ __kernel void query_spheres(FIELD_ARGS, int4 dims, float4 place, __global const 
     float3 g;
     const float d = trilinear(FIELD_PASS, (s.xyz - place.xyz) / place.w - 0.5f, dims, &g);
     const float len = length(g);
-    out[i] = (float4)(len > 0.0f ? g / len : (float3)(0.0f), d * place.w - s.w);
+    out[i] = d * place.w - s.w;
+    vstore3(len > 0.0f ? g / len : (float3)(0.0f), i, out + n);
 }
 
 inline int inside(int3 v, int4 dims)
@@ -173,10 +178,10 @@ inline int first_hit(FIELD_ARGS, int4 dims, float3 o, float3 d, float t_end, int
 }
 
 /* rays: per ray two float4, (origin in voxel coordinates, max length in voxels) and (unit
- * direction, 0). out: n float4 (entered face's normal, t in world units; a miss: 0 and the max
- * length), then n int4 (hit voxel, its value; a miss: -1, -1, -1, 0). */
+ * direction, 0). out: n t (world units; a miss: the max length), n packed normals of the entered
+ * face (a miss: 0), n packed int hit voxels (a miss: -1s), n uchar voxel values (a miss: 0). */
 __kernel void query_rays(FIELD_ARGS, int4 dims, float4 place, __global const float4 *rays, int n,
-                         __global float4 *out)
+                         __global float *out)
 {
     const float voxel_size = place.w;
     const int i = get_global_id(0);
@@ -187,15 +192,20 @@ __kernel void query_rays(FIELD_ARGS, int4 dims, float4 place, __global const flo
     uint colour = 0;
     float t = 0.0f;
     int face = -1;
-    __global int4 *hits = (__global int4 *)(out + n);
+    __global int *hit_voxels = (__global int *)(out + 4 * (size_t)n);
+    __global uchar *colours = (__global uchar *)(out + 7 * (size_t)n);
     if (first_hit(FIELD_PASS, dims, o.xyz, d.xyz, o.w, &voxel, &colour, &t, &face)) {
         const float3 normal = (float3)(face == 0 ? (d.x > 0.0f ? -1.0f : 1.0f) : 0.0f,
                                        face == 1 ? (d.y > 0.0f ? -1.0f : 1.0f) : 0.0f,
                                        face == 2 ? (d.z > 0.0f ? -1.0f : 1.0f) : 0.0f);
-        out[i] = (float4)(normal, t * voxel_size);
-        hits[i] = (int4)(voxel, (int)colour);
+        out[i] = t * voxel_size;
+        vstore3(normal, i, out + n);
+        vstore3(voxel, i, hit_voxels);
+        colours[i] = (uchar)colour;
     } else {
-        out[i] = (float4)(0.0f, 0.0f, 0.0f, o.w * voxel_size);
-        hits[i] = (int4)(-1, -1, -1, 0);
+        out[i] = o.w * voxel_size;
+        vstore3((float3)(0.0f), i, out + n);
+        vstore3((int3)(-1), i, hit_voxels);
+        colours[i] = 0;
     }
 }

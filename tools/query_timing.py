@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from sdfserver.algorithms.base import int4
 from sdfserver.edits import parse_edits
 from sdfserver.engine.query import run_query
 from sdfserver.gpu import GpuContext, choose_device
@@ -49,11 +50,49 @@ def median_ms(fn, reps: int) -> float:
     return statistics.median(times)
 
 
+def breakdown(world: World, data: np.ndarray, reps: int) -> None:
+    """Where one points query's time goes on the engine, and what crossing processes costs."""
+    import pyopencl as cl
+
+    from sdfserver.engine import messages as msg
+    from sdfserver.engine.query import LOCAL, PLACE, device_rows
+
+    gpu, config, n = world.gpu, world.config, len(data)
+    defines, field = world.field_source()
+    kernel = gpu.programs.kernel("query.cl", "query_points", **defines)
+    inputs = device_rows("points", data, config)
+    in_buf = gpu.upload(inputs)
+    out_buf = cl.Buffer(gpu.context, cl.mem_flags.WRITE_ONLY, size=17 * n)
+    raw = np.empty(17 * n, np.uint8)
+
+    def launch() -> None:
+        kernel(gpu.queue, (-(-n // LOCAL) * LOCAL,), (LOCAL,), *field, int4(config.size),
+               PLACE.pack(*config.origin, config.voxel_size), in_buf, np.int32(n), out_buf).wait()
+
+    result = run_query(world, "points", data)
+    encoded = msg.REQUEST_ENCODER.encode(msg.QueryResult(1, {k: msg.Array.of(a) for k, a in result.arrays.items()}))
+    steps = {
+        "checks (device_rows)": lambda: device_rows("points", data, config),
+        "upload (a new buffer)": lambda: gpu.upload(inputs).release(),
+        "kernel (launch + wait)": launch,
+        "download (blocking)": lambda: cl.enqueue_copy(gpu.queue, raw, out_buf, is_blocking=True),
+        "result -> msgspec bytes": lambda: msg.REQUEST_ENCODER.encode(
+            msg.QueryResult(1, {k: msg.Array.of(a) for k, a in result.arrays.items()})),
+        "msgspec bytes -> arrays": lambda: {k: a.numpy() for k, a in msg.decode_result(
+            msg.msgspec.msgpack.decode(encoded), msg.QueryResult).arrays.items()},
+    }
+    for name, fn in steps.items():
+        print(f"| {name} | {median_ms(fn, reps):.3f} |")
+    in_buf.release()
+    out_buf.release()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--device", default=None, help="a device name fragment (default: the first usable)")
     ap.add_argument("--url", default=None, help="also time through this server")
     ap.add_argument("--reps", type=int, default=30)
+    ap.add_argument("--breakdown", action="store_true", help="also time the steps of one points query")
     args = ap.parse_args()
     gpu = GpuContext(choose_device(args.device))
     rng = np.random.default_rng(1)
@@ -68,6 +107,10 @@ def main() -> None:
                 data = rows(kind, rng, 0.5)
                 ms = median_ms(lambda: run_query(world, kind, data), args.reps)
                 print(f"| {metric} | {kind} | {len(data)} | {ms:.3f} |")
+            if args.breakdown:
+                print(f"\n| {metric}: 100,000 points, step | ms (median) |\n| --- | --- |")
+                breakdown(world, rows("points", rng, 0.5), args.reps)
+                print("\n| metric | kind | rows | engine path ms (median) |\n| --- | --- | --- | --- |")
         finally:
             world.release()
     if args.url:
@@ -75,7 +118,8 @@ def main() -> None:
 
         from sdfserver import wire
         http = httpx.Client(base_url=args.url, timeout=60)
-        print("\n| metric | kind | rows | HTTP round trip ms (median) |\n| --- | --- | --- | --- |")
+        print("\n| metric | kind | rows | HTTP round trip ms (median) | of which the client's encoding and decoding |"
+              "\n| --- | --- | --- | --- | --- |")
         for metric in ("manhattan", "euclidean"):
             wid = http.post("/v1/worlds", json={"size": list(SIZE), "chunk_size": 32, "max_distance": 32,
                                                 "metric": metric, "voxel_size": 0.5}).json()["id"]
@@ -89,7 +133,10 @@ def main() -> None:
                     answer = http.post(f"/v1/worlds/{wid}/query?min_version={version}", content=body, headers=headers)
                     assert answer.status_code == 200, answer.text
                 ms = median_ms(ask, args.reps)
-                print(f"| {metric} | {kind} | {COUNTS[kind]} | {ms:.3f} |")
+                answer = http.post(f"/v1/worlds/{wid}/query", content=body, headers=headers).content
+                client_ms = median_ms(lambda: (wire.encode({kind: rows(kind, rng, 0.5)}),
+                                               wire.decode_arrays(wire.decode(answer))), args.reps)
+                print(f"| {metric} | {kind} | {COUNTS[kind]} | {ms:.3f} | {client_ms:.3f} |")
             http.delete(f"/v1/worlds/{wid}")
 
 

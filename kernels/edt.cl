@@ -30,7 +30,7 @@
  * forward, moving to the next site where the two parabolas cross.
  *
  * Build options: SIGNED (0 or 1); edt_yz: AXIS (1 = y, 2 = z), LAST (1: reads the second
- * stage's squares and writes the field).
+ * stage's squares and writes the field), BATCH (sites a work-item loads at once; default 8).
  */
 #include "sdf_common.h"
 
@@ -108,7 +108,9 @@ inline void enter(int u, int hu, int *q, uint *top, uint *below, int *top_t, __g
 
 /* Sites and outputs go BATCH at a time: the batch's loads are issued together, so a work-item
  * waits for memory once a batch rather than once a voxel. */
+#ifndef BATCH
 #define BATCH 8
+#endif
 
 /* The lower envelope of one kind's parabolas (sites over [w0, w1)) on the outputs [o0, o1),
  * written where the voxel is of that kind (every voxel, unsigned). The stack holds at most one
@@ -120,9 +122,16 @@ inline void envelope(__global const IN_T *in, __global const uchar *voxels, __gl
 {
     int q = -1, top_t = o0;
     uint top = 0, below = 0;  /* entries q and q - 1 */
+#if SIGNED
+    /* A seed (height 0: a voxel of the other kind) between two seeds along the line is never the
+     * lowest at an output (one of its neighbours is nearer to any other position, and outputs are
+     * only this kind's voxels), so it does not enter: in a signed world's inside transform most
+     * of the line is air, which would otherwise enter site by site. 1 stands for "unknown". */
+    int before = 1;
+#endif
     for (int u0 = w0; u0 < w1; u0 += BATCH) {
-        int h[BATCH];
-        _Pragma("unroll") for (int j = 0; j < BATCH; ++j) {
+        int h[BATCH + 1];
+        _Pragma("unroll") for (int j = 0; j < BATCH + SIGNED; ++j) {
             const size_t at = (size_t)min(u0 + j, w1 - 1) * step;
             h[j] = HEIGHT_OF(in[at]);
 #if SIGNED
@@ -130,9 +139,24 @@ inline void envelope(__global const IN_T *in, __global const uchar *voxels, __gl
                 h[j] = 0;
 #endif
         }
-        _Pragma("unroll") for (int j = 0; j < BATCH; ++j)
-            if (u0 + j < w1 && h[j] < cap2)
-                enter(u0 + j, h[j], &q, &top, &below, &top_t, stack, stride, o0, o1);
+#if SIGNED
+        if (u0 + BATCH >= w1)
+            h[BATCH] = 1;
+#endif
+        _Pragma("unroll") for (int j = 0; j < BATCH; ++j) {
+            const int u = u0 + j;
+            if (u >= w1 || h[j] >= cap2)
+                continue;
+#if SIGNED
+            const int left = j > 0 ? h[j - 1] : before, right = u + 1 < w1 ? h[j + 1] : 1;
+            if (h[j] == 0 && left == 0 && right == 0)
+                continue;
+#endif
+            enter(u, h[j], &q, &top, &below, &top_t, stack, stride, o0, o1);
+        }
+#if SIGNED
+        before = h[BATCH - 1];
+#endif
     }
     /* Forward over the outputs, moving to the next site while it is no higher at u (along the
      * envelope the values at one u fall, then rise: no division needed). */

@@ -127,14 +127,15 @@ def main() -> None:
             version = r.json()["version"]
             headers = {"content-type": wire.CONTENT_TYPE, "accept": wire.CONTENT_TYPE}
             for kind in COUNTS:
-                body = wire.encode({kind: rows(kind, rng, 0.5)})
+                sent = rows(kind, rng, 0.5)
+                body = wire.encode({kind: sent})
 
                 def ask() -> None:
                     answer = http.post(f"/v1/worlds/{wid}/query?min_version={version}", content=body, headers=headers)
                     assert answer.status_code == 200, answer.text
                 ms = median_ms(ask, args.reps)
                 answer = http.post(f"/v1/worlds/{wid}/query", content=body, headers=headers).content
-                client_ms = median_ms(lambda: (wire.encode({kind: rows(kind, rng, 0.5)}),
+                client_ms = median_ms(lambda: (wire.encode({kind: sent}),
                                                wire.decode_arrays(wire.decode(answer))), args.reps)
                 print(f"| {metric} | {kind} | {COUNTS[kind]} | {ms:.3f} | {client_ms:.3f} |")
             http.delete(f"/v1/worlds/{wid}")

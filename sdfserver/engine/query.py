@@ -136,7 +136,3 @@ def answers(kind: str, raw: np.ndarray, n: int) -> dict[str, np.ndarray]:
     colours = raw[28 * n:]
     return {"hits": colours > 0, "distances": distances, "normals": vectors,
             "colours": colours, "voxels": raw[16 * n:28 * n].view(np.int32).reshape(n, 3)}
-
-
-def query_points(world: World, points: np.ndarray) -> QueryResult:
-    return run_query(world, "points", points)

@@ -74,34 +74,43 @@ inline int first_owned(uint a, uint b)
     return 1 + floor_div(sb * sb - sa * sa + HEIGHT(b) - HEIGHT(a), 2 * (sb - sa));
 }
 
+/* The top of a line's stack, the top entries kept in registers: a pop then needs no load right
+ * away, and the one it starts is not needed until two pops later. */
+typedef struct {
+    int q;          /* index of the top entry; -1: empty */
+    int top_t;      /* the first output the top entry owns */
+    uint e0, e1, e2; /* entries q, q - 1, q - 2 */
+} Stack;
+
 /* Enter site u (height hu < cap^2) into the envelope: pop the sites it beats where they start
  * to own outputs, then push it if it owns one before o1. */
-inline void enter(int u, int hu, int *q, uint *top, uint *below, int *top_t, __global uint *stack, size_t stride,
-                  int o0, int o1)
+inline void enter(int u, int hu, Stack *st, __global uint *stack, size_t stride, int o0, int o1)
 {
     const uint e = ENTRY(u, hu);
-    while (*q >= 0) {
-        const int a = *top_t - POS(*top), b = *top_t - u;
-        if (a * a + HEIGHT(*top) <= b * b + hu)
+    while (st->q >= 0) {
+        const int a = st->top_t - POS(st->e0), b = st->top_t - u;
+        if (a * a + HEIGHT(st->e0) <= b * b + hu)
             break;
-        if (--*q >= 0) {
-            *top = *below;
-            *below = *q > 0 ? stack[(size_t)(*q - 1) * stride] : 0u;
-            *top_t = *q > 0 ? first_owned(*below, *top) : o0;
+        if (--st->q >= 0) {
+            st->e0 = st->e1;
+            st->e1 = st->e2;
+            st->e2 = st->q >= 2 ? stack[(size_t)(st->q - 2) * stride] : 0u;
+            st->top_t = st->q > 0 ? first_owned(st->e1, st->e0) : o0;
         }
     }
-    if (*q < 0) {
-        *q = 0;
-        *top = e;
-        *top_t = o0;
+    if (st->q < 0) {
+        st->q = 0;
+        st->e0 = e;
+        st->top_t = o0;
         stack[0] = e;
     } else {
-        const int t = first_owned(*top, e);
+        const int t = first_owned(st->e0, e);
         if (t < o1) {
-            *below = *top;
-            *top = e;
-            *top_t = t;
-            stack[(size_t)(++*q) * stride] = e;
+            st->e2 = st->e1;
+            st->e1 = st->e0;
+            st->e0 = e;
+            st->top_t = t;
+            stack[(size_t)(++st->q) * stride] = e;
         }
     }
 }
@@ -120,8 +129,7 @@ inline void envelope(__global const IN_T *in, __global const uchar *voxels, __gl
                      __global uint *stack, size_t stride, int len, int w0, int w1, int o0, int o1, int cap2,
                      int kind, int face_lo)
 {
-    int q = -1, top_t = o0;
-    uint top = 0, below = 0;  /* entries q and q - 1 */
+    Stack st = {-1, o0, 0u, 0u, 0u};
 #if SIGNED
     /* A seed (height 0: a voxel of the other kind) between two seeds along the line is never the
      * lowest at an output (one of its neighbours is nearer to any other position, and outputs are
@@ -152,7 +160,7 @@ inline void envelope(__global const IN_T *in, __global const uchar *voxels, __gl
             if (h[j] == 0 && left == 0 && right == 0)
                 continue;
 #endif
-            enter(u, h[j], &q, &top, &below, &top_t, stack, stride, o0, o1);
+            enter(u, h[j], &st, stack, stride, o0, o1);
         }
 #if SIGNED
         before = h[BATCH - 1];
@@ -160,8 +168,11 @@ inline void envelope(__global const IN_T *in, __global const uchar *voxels, __gl
     }
     /* Forward over the outputs, moving to the next site while it is no higher at u (along the
      * envelope the values at one u fall, then rise: no division needed). */
+    /* The next entries are loaded ahead, so that moving on rarely waits for memory. */
+    const int q = st.q;
     int k = 0;
-    uint cur = q >= 0 ? stack[0] : 0u, next = q >= 1 ? stack[stride] : 0u;
+    uint cur = q >= 0 ? stack[0] : 0u, n1 = q >= 1 ? stack[stride] : 0u, n2 = q >= 2 ? stack[2 * stride] : 0u;
+    uint n3 = q >= 3 ? stack[3 * stride] : 0u;
     for (int u0 = o0; u0 < o1; u0 += BATCH) {
 #if SIGNED
         uchar v[BATCH];
@@ -173,12 +184,14 @@ inline void envelope(__global const IN_T *in, __global const uchar *voxels, __gl
             if (u >= o1)
                 break;
             while (k < q) {
-                const int dc = u - POS(cur), dn = u - POS(next);
-                if (dn * dn + HEIGHT(next) > dc * dc + HEIGHT(cur))
+                const int dc = u - POS(cur), dn = u - POS(n1);
+                if (dn * dn + HEIGHT(n1) > dc * dc + HEIGHT(cur))
                     break;
-                cur = next;
-                if (++k < q)
-                    next = stack[(size_t)(k + 1) * stride];
+                cur = n1;
+                n1 = n2;
+                n2 = n3;
+                ++k;
+                n3 = k + 3 <= q ? stack[(size_t)(k + 3) * stride] : 0u;
             }
 #if SIGNED
             if ((v[j] != 0) != kind)

@@ -42,7 +42,9 @@
  *
  * INVERT 1 computes a signed world's other transform: the distance from each solid to the
  * nearest air voxel (the seeds are the air voxels; the world's outside is air, so the last pass
- * also takes each solid's distance to the nearest face) and writes it over R's solids only,
+ * also takes each solid's distance to the nearest face of the world, whose box in the buffer's
+ * coordinates is world_lo..world_hi: a sparse world's scratch box is not the world) and writes
+ * it over R's solids only,
  * after the plain transform has written R. On the seed shell a voxel of the seeds' kind starts at
  * 0 whatever the field holds there (a signed world's solids hold their inside distance).
  */
@@ -208,7 +210,7 @@ inline void pack8(__global ushort *field, __global const uchar *voxels, ushort8 
  * per 16-bit lane) and loads them as uchar8 vectors. */
 __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *voxels,
                      __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
-                     int4 r_lo, int4 r_hi, int seeded, int cap, int plane)
+                     int4 r_lo, int4 r_hi, int seeded, int cap, int plane, int4 world_lo, int4 world_hi)
 {
     __local uint scan[4 * LOCAL_X * LOCAL_Y];
     const int seg = get_local_id(0);
@@ -288,16 +290,16 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
 #define CAT(a, b) CAT_(a, b)
 #define ucharV CAT(uchar, VEC)
 #define ushortV CAT(ushort, VEC)
-#define shortV CAT(short, VEC)
+#define intV CAT(int, VEC)
 #define convert_ucharV CAT(convert_uchar, VEC)
 #define convert_ushortV CAT(convert_ushort, VEC)
 #define as_ushortV CAT(as_ushort, VEC)
 #if VEC == 2
-#define LANE_OFFSETS ((short2)(0, 1))
+#define LANE_OFFSETS ((int2)(0, 1))
 #elif VEC == 4
-#define LANE_OFFSETS ((short4)(0, 1, 2, 3))
+#define LANE_OFFSETS ((int4)(0, 1, 2, 3))
 #else
-#define LANE_OFFSETS ((short8)(0, 1, 2, 3, 4, 5, 6, 7))
+#define LANE_OFFSETS ((int8)(0, 1, 2, 3, 4, 5, 6, 7))
 #endif
 #if VEC == 2
 #define wordV uint
@@ -317,7 +319,7 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
 
 __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *voxels,
                       __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
-                      int4 r_lo, int4 r_hi, int seeded, int cap, int plane)
+                      int4 r_lo, int4 r_hi, int seeded, int cap, int plane, int4 world_lo, int4 world_hi)
 {
     __local wordV scan[4 * LOCAL_X * LOCAL_Y];
     const int seg = get_local_id(1);
@@ -383,10 +385,10 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
             const ushortV v = convert_ushortV(*(__global const ucharV *)(voxels + i));
             if (any(v != (ushortV)(0))) {
                 const int y = AXIS == 1 ? w_lo.y + t : w_lo.y + ly, z = AXIS == 1 ? w_lo.z + lz : w_lo.z + t;
-                const int face_yz = min(min(y + 1, dims.y - y), min(z + 1, dims.z - z));
-                const shortV x = (shortV)(w_lo.x + lx) + LANE_OFFSETS;
-                const shortV face = min(min(x + (shortV)(1), (shortV)(dims.x) - x), (shortV)(min(face_yz, cap)));
-                const ushortV inside = min(as_ushortV(out), as_ushortV(face));
+                const int face_yz = min(min(y + 1 - world_lo.y, world_hi.y - y), min(z + 1 - world_lo.z, world_hi.z - z));
+                const intV x = (intV)(w_lo.x + lx) + LANE_OFFSETS;
+                const intV face = min(min(x + (intV)(1 - world_lo.x), (intV)(world_hi.x) - x), (intV)(min(face_yz, cap)));
+                const ushortV inside = min(as_ushortV(out), convert_ushortV(face));
                 const ushortV old = *(__global const ushortV *)(field + i);
                 *(__global ushortV *)(field + i) = select(old, (inside << (ushort)8) | v, v != (ushortV)(0));
             }

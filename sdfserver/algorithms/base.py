@@ -93,6 +93,13 @@ class RegionJob:
     # A signed world's second run: the distance from each solid to the nearest air voxel, written
     # over R's solids (only algorithm exact runs it: WorldConfig allows signed worlds no other).
     invert: bool = False
+    # The world's box in the buffers' coordinates (None: the buffers are the world), whose faces
+    # bound a signed world's inside distances: a sparse world computes in a scratch box.
+    world: Box | None = None
+
+    @property
+    def world_box(self) -> Box:
+        return Box.of_size(self.buffers.dims) if self.world is None else self.world
 
     @classmethod
     def seeded_region(cls, buffers: WorldBuffers, region: Box, cap: int) -> "RegionJob":

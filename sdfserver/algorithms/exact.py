@@ -176,6 +176,7 @@ class Exact:
 def pass_args(job: RegionJob) -> tuple:
     """The arguments of every pass over ``job`` (kernels/exact.cl)."""
     b, work_box = job.buffers, job.work_box
+    world = job.world_box
     return (b.work, b.voxels, b.field, int4(b.dims), int4(work_box.lo), int4(work_box.shape_xyz),
             int4(job.region.lo), int4(job.region.hi),
-            np.int32(job.seeded), np.int32(job.cap), np.int32(work_plane(job)))
+            np.int32(job.seeded), np.int32(job.cap), np.int32(work_plane(job)), int4(world.lo), int4(world.hi))

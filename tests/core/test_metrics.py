@@ -140,3 +140,22 @@ def test_patch_switches_metric_and_sign(gpu, rng):
 def test_bad_field_options_are_refused_by_name(changes, named):
     with pytest.raises(InvalidInput, match=named):
         WorldConfig(size=(16, 16, 16), chunk_size=8, **changes).validated()
+
+
+@pytest.mark.parametrize("storage", ["dense", "sparse"])
+@pytest.mark.parametrize("metric", ["manhattan", "euclidean"])
+def test_signed_edit_deep_inside_a_solid(gpu, storage, metric):
+    """An edit deep inside a solid rewrites a region whose every voxel is solid: their distances
+    to air reach the cap, bounded by the world's faces only (a sparse world computes the region in
+    a scratch box, whose faces are not the world's)."""
+    cap = 5
+    world = make_world(gpu, WorldConfig(size=(64, 48, 64), chunk_size=8, max_distance=cap, metric=metric,
+                                        signed=True, storage=storage))
+    try:
+        world.apply_edits([BoxEdit(min=(0, 0, 0), max=(64, 40, 64), colour=3)])
+        world.recompute()
+        world.apply_edits([VoxelsEdit(np.array([[32, 20, 32, 9], [33, 20, 32, 0]]))])
+        world.recompute()
+        assert np.array_equal(world.read_field().astype(np.int64), reference(world.read_voxels(), cap, metric, True))
+    finally:
+        world.release()

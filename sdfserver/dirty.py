@@ -41,6 +41,8 @@ class DirtySet:
         all: geometry.merge_regions)."""
         if self.all:
             return [Box.of_size(config.size)]
+        if not self.boxes:  # a batch of edits clipped to nothing (a box past the world) dirties nothing
+            return []
         cap, cs, (sx, sy, sz) = config.max_distance, config.chunk_size, config.size
         if config.borders == "padded":
             cap = 0  # each chunk is computed alone: an edit changes only the chunks it touches

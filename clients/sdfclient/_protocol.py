@@ -114,7 +114,8 @@ def _block(fmt: str) -> Callable[[httpx.Response], Block]:
         if "shape" in body and tuple(data.shape) != tuple(body["shape"]):
             data = data.reshape(tuple(body["shape"]))
         return Block(origin=tuple(map(int, body.get("origin", (0, 0, 0)))),
-                     version=int(body.get("version", 0)), data=data, format=fmt)
+                     version=int(body.get("version", 0)), data=data, format=fmt,
+                     content=str(body.get("content", "")))
     return parse
 
 

@@ -77,8 +77,11 @@ class Block:
 
     origin: Vec3  # (x, y, z) of data[0, 0, 0]
     version: int  # the edit version this block reflects
-    data: np.ndarray
+    data: np.ndarray  # in the dtype the answer named
     format: str = "distance"  # distance | packed | voxels
+    # What the values are, as the answer says: "distance", or for packed blocks "distance_colour"
+    # (Manhattan worlds) or "squared_distance" (Euclidean ones); "" where the server did not say.
+    content: str = ""
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -86,16 +89,25 @@ class Block:
 
     @property
     def distance(self) -> np.ndarray:
-        """Distances (uint8); for a packed field, the high byte."""
-        if self.format == "packed":
-            return (self.data >> 8).astype(np.uint8)
-        return self.data
+        """Distances in voxels. A distance block as read: uint8, int16 (a signed Manhattan world)
+        or float32 (a Euclidean world). A packed block's magnitudes: the high byte (uint8) of a
+        Manhattan world's values, the square root (float32) of a Euclidean world's; the sign of a
+        signed world's solids is not in them (read format='distance')."""
+        if self.format != "packed":
+            return self.data
+        if self.content == "squared_distance":
+            return np.sqrt(self.data, dtype=np.float32)
+        return (self.data >> 8).astype(np.uint8)
 
     @property
     def colour(self) -> np.ndarray:
-        """The low byte of a packed field (RGB332)."""
+        """The low byte of a Manhattan world's packed field: the voxel's value, an index into the
+        world's palette (RGB332 unless the world has its own)."""
         if self.format != "packed":
             raise ValueError(f"a {self.format} block has no colour; read with format='packed'")
+        if self.content == "squared_distance":
+            raise ValueError("a Euclidean world's packed field holds squared distances, no colour; "
+                             "read the voxels (read_voxels)")
         return (self.data & 0xFF).astype(np.uint8)
 
 

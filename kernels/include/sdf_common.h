@@ -1,8 +1,9 @@
 /* Shared definitions for every sdfserver kernel.
  *
  * World arrays are C-ordered (z, y, x): index = (z * sy + y) * sx + x.
- * Voxel: uchar, 0 is air, 1..255 a solid voxel whose value is its RGB332 colour.
- * Field: ushort, (distance << 8) | colour, distance the Manhattan distance to the
+ * Voxel: uchar, 0 is air, 1..255 a solid voxel whose value is a palette index (RGB332 by default).
+ * Field of a Manhattan world (field_source.h: every metric and sign): ushort,
+ * (distance << 8) | colour, distance the Manhattan distance to the
  * nearest solid voxel capped at the world's cap (1..255).
  *
  * Region kernels work on a "work box" W (origin w_lo, extent w_n) holding one

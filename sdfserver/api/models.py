@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, StrictInt, StrictStr
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, StrictBool, StrictFloat, StrictInt, StrictStr
 
 from sdfserver.world_config import MAX_SIDE_VOX, MAX_SPARSE_SIDE_XZ_VOX
 
@@ -44,10 +44,12 @@ class GenerateBody(Strict):
 
 Metric = Annotated[StrictStr, Field(description="manhattan (default): the capped L1 distance, packed with the colour; "
                                     "euclidean: the exact distance between voxel centres (docs/algorithms.md)")]
-Signed = Annotated[bool, Field(description="true: solids carry minus their distance to the nearest air voxel")]
-VoxelSize = Annotated[float, Field(description="World units per voxel (queries answer in world units); finite, > 0")]
-Origin = Annotated[list[float], Field(min_length=3, max_length=3,
-                                      description="World-unit position of voxel (0, 0, 0)'s low corner")]
+# Strict: "true", 1 or "1.5" are refused naming the field, not coerced into a bool or a number.
+Signed = Annotated[StrictBool, Field(description="true: solids carry minus their distance to the nearest air voxel")]
+VoxelSize = Annotated[StrictFloat, Field(description="World units per voxel (queries answer in world units); "
+                                                     "finite, > 0")]
+Origin = Annotated[list[StrictFloat], Field(min_length=3, max_length=3,
+                                            description="World-unit position of voxel (0, 0, 0)'s low corner")]
 Palette = Annotated[list[list[StrictInt]], Field(
     description="255 [r, g, b] colours (0..255): voxel value v is drawn as palette[v - 1]; default RGB332")]
 
@@ -99,7 +101,8 @@ class EditOp(BaseModel):
     max: list[int] | None = Field(None, description="Box corner, exclusive.")
     center: list[float] | None = None
     radius: float | None = None
-    colour: int | None = Field(None, description="0 erases; 1..255 RGB332 colour.")
+    colour: int | None = Field(None, description="0 erases; 1..255 is an index into the world's palette "
+                                                 "(RGB332 unless the world has its own).")
 
 
 class EditsBody(BaseModel):

@@ -295,6 +295,8 @@ def query_rows(body: Any, limit: int) -> tuple[str, np.ndarray]:
         rows = wire.unpack_array(raw, kind)
     else:
         listed = getattr(QueryBody.model_validate(body), kind)
+        if listed is None:  # {"points": null}: the models allow null for the kinds not asked
+            raise InvalidInput(f"{kind} must be a list of rows or an array blob, got null")
         rows = np.array(listed, dtype=np.float64).reshape(-1, QUERY_COLUMNS[kind])
     if rows.ndim != 2 or rows.shape[1] != QUERY_COLUMNS[kind] or rows.dtype.kind not in "iuf":
         raise InvalidInput(f"{kind} must be an (N, {QUERY_COLUMNS[kind]}) numeric array, "

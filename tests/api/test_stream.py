@@ -34,7 +34,8 @@ def test_edits_are_acked_and_only_changed_chunks_stream(server, ref):
         ws.send(wire.encode({"type": "subscribe", "id": "s", "min": [0, 0, 0], "max": [30, 32, 17]}))
         subscribed = recv(ws)
         assert subscribed == {"type": "subscribed", "id": "s", "min": [0, 0, 0], "max": [32, 32, 24],
-                              "chunk_size": cs, "format": "distance", "dtype": "uint8"}
+                              "chunk_size": cs, "format": "distance", "dtype": "uint8", "content": "distance",
+                              "metric": "manhattan", "signed": False}
         local = np.zeros((24, 32, 32), dtype=np.uint8)
         first = recv(ws)
         assert first["type"] == "chunks" and first["version"] == 0

@@ -207,6 +207,7 @@ BAD_BODIES = [  # body, status, what the message names
     ({"points": [[11, 2]]}, 422, "points"),
     ({"points": [[11, 2, "x"]]}, 422, "points"),
     ({"points": []}, 422, "points"),
+    ({"spheres": None}, 422, "spheres"),
     ({"points": np.zeros((0, 3), F32)}, 422, "points"),
     ({"points": np.array([[11, 2, 3, 4]], F32)}, 422, "points"),
     ({"points": np.array([[11, np.nan, 3]], F32)}, 422, "points"),

@@ -34,7 +34,7 @@
  * Build options: SEG (elements per work-item), AXIS (pass_yz: 1 = y, 2 = z),
  * VEC (pass_yz: x-columns per work-item, 2, 4 or 8), LOCAL_X, LOCAL_Y (the
  * work-group: pass_x (segments, line pairs); pass_yz (x-lanes, segments)),
- * FIRST, LAST, SDF_PTX_16X2, INVERT, WORLD_OUT.
+ * FIRST, LAST, SDF_PTX_16X2, INVERT, SIGNED_WORLD, WORLD_OUT.
  *
  * WORLD_OUT 1 (pass_x with FIRST and not LAST): the Euclidean transform's x stage
  * (kernels/edt.cl) — the 1-D distances written into `work` in the world's layout, over R only
@@ -57,6 +57,11 @@
 #define BIG2 (BIG * ONES)
 #ifndef INVERT
 #define INVERT 0
+#endif
+/* A signed world's runs: on the seed shell a seed keeps 0 (its field holds the other transform's
+ * distance); an unsigned world's solids hold 0 there already. */
+#ifndef SIGNED_WORLD
+#define SIGNED_WORLD INVERT
 #endif
 
 #if SDF_PTX_16X2
@@ -161,7 +166,7 @@ inline void init8(uint *out, XLine l, int t, int wx, __global const uchar *voxel
     if (seeded && (!l.in_r || wx < r_lo.x || wx + 8 > r_hi.x)) {
         _Pragma("unroll") for (int k = 0; k < 8; ++k) {
             const int x = wx + k;
-            if ((!l.in_r || x < r_lo.x || x >= r_hi.x) && out[k] != 0)  /* a seed stays 0 */
+            if ((!l.in_r || x < r_lo.x || x >= r_hi.x) && (!SIGNED_WORLD || out[k] != 0))
                 out[k] = min((uint)(field[l.world_row + t + k] >> 8), (uint)cap);
         }
     }
@@ -358,9 +363,10 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
             const size_t i = WORLD_AT(t);
             const ushortV v = convert_ushortV(*(__global const ucharV *)(voxels + i));
             ushortV init = select((ushortV)(INVERT ? 0 : cap), (ushortV)(INVERT ? cap : 0), v != (ushortV)(0));
-            if (seeded && !(lane_x_in_r && IN_R(t)))  /* the seed shell; a seed stays 0 */
-                init = select(min(*(__global const ushortV *)(field + i) >> (ushort)8, (ushortV)(cap)), init,
-                              init == (ushortV)(0));
+            if (seeded && !(lane_x_in_r && IN_R(t))) {  /* the seed shell */
+                const ushortV shell = min(*(__global const ushortV *)(field + i) >> (ushort)8, (ushortV)(cap));
+                init = SIGNED_WORLD ? select(shell, init, init == (ushortV)(0)) : shell;
+            }
             d[k] = as_wordV(init);
 #else
             d[k] = as_wordV(convert_ushortV(*(__global const ucharV *)(work + base + (size_t)t * stride)));

@@ -343,9 +343,13 @@ class World:
             seeded = lambda r: RegionJob.seeded_region(b, r, cap)  # noqa: E731
             halo = lambda r: RegionJob.halo_region(b, r, cap)  # noqa: E731
         if focus is None:
-            yield algorithm.name, algorithm.run(self.gpu, seeded(region))
-            if cfg.signed:  # inside the solids: distances to air, after the plain run wrote R
-                yield algorithm.name, algorithm.run(self.gpu, replace(seeded(region), invert=True))
+            if not cfg.signed:
+                yield algorithm.name, algorithm.run(self.gpu, seeded(region))
+                return
+            job = replace(seeded(region), signed=True)
+            yield algorithm.name, algorithm.run(self.gpu, job)
+            # inside the solids: distances to air, after the plain run wrote R
+            yield algorithm.name, algorithm.run(self.gpu, replace(job, invert=True))
             return
         # Level of detail (the dissertation's Algorithm 7): the cheap algorithm everywhere,
         # then the world's algorithm inside the focus, from voxels alone so that the

@@ -14,6 +14,7 @@ import numpy as np
 
 from sdfserver.algorithms.base import int4
 from sdfserver.algorithms.euclidean import STAGE_AXES, _grid
+from sdfserver.bench import populate
 from sdfserver.gpu import GpuContext
 from sdfserver.world import World, WorldConfig
 from edt_timing import scene
@@ -26,11 +27,16 @@ def main() -> None:
     p.add_argument("--groups", default="32,64,128,256")
     p.add_argument("--signed", action="store_true")
     p.add_argument("--reps", type=int, default=5)
+    p.add_argument("--scene", choices=("spheres", "bench"), default="spheres",
+                   help="spheres: tools/edt_timing.py's few large ones; bench: sdfserver bench's world")
     args = p.parse_args()
     gpu = GpuContext.create()
     n = args.size
     world = World(gpu, WorldConfig(size=(n, n, n), chunk_size=32, metric="euclidean", signed=args.signed))
-    scene(world)
+    if args.scene == "bench":
+        populate(world, np.random.default_rng(0))
+    else:
+        scene(world)
     world.mark_all_dirty()
     world.recompute()
     b, cap = world.buffers, world.config.max_distance

@@ -93,6 +93,7 @@ class RegionJob:
     # A signed world's second run: the distance from each solid to the nearest air voxel, written
     # over R's solids (only algorithm exact runs it: WorldConfig allows signed worlds no other).
     invert: bool = False
+    signed: bool = False  # either run of a signed world
     # The world's box in the buffers' coordinates (None: the buffers are the world), whose faces
     # bound a signed world's inside distances: a sparse world computes in a scratch box.
     world: Box | None = None

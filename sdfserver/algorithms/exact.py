@@ -101,7 +101,7 @@ class Exact:
     def launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int,
                      seg: int | None = None, lanes: int | None = None, vec: int | None = None,
                      x_threads: int = X_PASS_THREADS, first: bool = False, last: bool = False,
-                     invert: bool = False, world_out: bool = False):
+                     invert: bool = False, world_out: bool = False, signed_world: bool = False):
         """The kernel, segments per line, and global/local sizes for one pass.
 
         Each pass is compiled for its work-group shape (reqd_work_group_size),
@@ -118,7 +118,8 @@ class Exact:
             global_ = (nseg, -(-pairs // per_group) * per_group)
             kernel = gpu.programs.kernel("exact.cl", "pass_x", SEG=seg, LOCAL_X=local[0], LOCAL_Y=local[1],
                                          FIRST=int(first), LAST=int(last), **({"INVERT": 1} if invert else {}),
-                                         **({"WORLD_OUT": 1} if world_out else {}))
+                                         **({"WORLD_OUT": 1} if world_out else {}),
+                                         **({"SIGNED_WORLD": 1} if signed_world else {}))
         else:
             lanes, vec = lanes or shape.lanes, vec or shape.vec
             local = (lanes, nseg)
@@ -126,7 +127,8 @@ class Exact:
             global_ = (-(-columns // lanes) * lanes, nseg * (nz if axis == 1 else ny))
             kernel = gpu.programs.kernel("exact.cl", "pass_yz", SEG=seg, AXIS=axis, VEC=vec,
                                          LOCAL_X=local[0], LOCAL_Y=local[1],
-                                         FIRST=int(first), LAST=int(last), **({"INVERT": 1} if invert else {}))
+                                         FIRST=int(first), LAST=int(last), **({"INVERT": 1} if invert else {}),
+                                         **({"SIGNED_WORLD": 1} if signed_world else {}))
         return kernel, nseg, global_, local
 
     @staticmethod
@@ -150,25 +152,28 @@ class Exact:
             line *= 2
         return len(programs)
 
-    def passes(self, gpu: GpuContext, n: tuple[int, int, int], invert: bool = False) -> list:
+    def passes(self, gpu: GpuContext, n: tuple[int, int, int], invert: bool = False,
+               signed_world: bool = False) -> list:
         """The three passes' (kernel, segments, global, local) for a work box of shape ``n``,
         memoized per device: working them out costs more host time than launching them.
-        ``invert``: a signed world's distances inside solids (kernels/exact.cl, INVERT)."""
+        ``invert``: a signed world's distances inside solids (kernels/exact.cl, INVERT);
+        ``signed_world``: either run of a signed world (SIGNED_WORLD)."""
         memo = self._passes.setdefault(gpu.programs, {})
-        found = memo.get((n, invert))
+        found = memo.get((n, invert, signed_world))
         if found is None:
             if len(memo) >= PASSES_MEMO_SIZE:
                 memo.clear()
-            found = memo[n, invert] = [self.launch_shape(gpu, axis, n[axis], *n, first=position == 0,
-                                                         last=position == 2, invert=invert)
-                                       for position, axis in enumerate(PASS_ORDER)]
+            found = memo[n, invert, signed_world] = [
+                self.launch_shape(gpu, axis, n[axis], *n, first=position == 0, last=position == 2, invert=invert,
+                                  signed_world=signed_world)
+                for position, axis in enumerate(PASS_ORDER)]
         return found
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         run = AlgorithmRun(bytes_moved=bytes_moved(job))
         args = pass_args(job)  # the three passes take the same arguments
         queue = gpu.queue
-        for kernel, _, global_, local in self.passes(gpu, job.work_box.shape_xyz, job.invert):
+        for kernel, _, global_, local in self.passes(gpu, job.work_box.shape_xyz, job.invert, job.signed):
             run.events.append(kernel(queue, global_, local, *args))
         return run
 

@@ -359,7 +359,7 @@ class SparseWorld:
             run = EUCLIDEAN_EXACT.run_stages(self.gpu, view, s.field, StageBoxes.of_world(box.shape_xyz), cap,
                                              self.config.signed)
         else:
-            job = replace(RegionJob.seeded_region(view, local, cap),
+            job = replace(RegionJob.seeded_region(view, local, cap), signed=self.config.signed,
                           world=Box(tuple(-v for v in box.lo), tuple(s - v for s, v in zip(self.config.size, box.lo))))
             run = algorithm.run(self.gpu, job)
             if self.config.signed:

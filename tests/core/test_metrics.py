@@ -159,3 +159,24 @@ def test_signed_edit_deep_inside_a_solid(gpu, storage, metric):
         assert np.array_equal(world.read_field().astype(np.int64), reference(world.read_voxels(), cap, metric, True))
     finally:
         world.release()
+
+
+@pytest.mark.parametrize("storage", ["dense", "sparse"])
+@pytest.mark.parametrize("metric", ["manhattan", "euclidean"])
+def test_signed_edit_above_a_floor(gpu, storage, metric):
+    """A small edit above a solid floor: the region's seed shell crosses the floor's surface,
+    where the field holds the solids' inside distances and the air's outside ones."""
+    cap = 3
+    world = make_world(gpu, WorldConfig(size=(64, 32, 64), chunk_size=8, max_distance=cap, metric=metric,
+                                        signed=True, storage=storage))
+    try:
+        world.apply_edits([BoxEdit(min=(0, 0, 0), max=(64, 16, 64), colour=3)])
+        world.recompute()
+        for voxel in ([32, 20, 32, 9], [32, 20, 32, 0], [30, 15, 33, 0], [30, 15, 33, 4]):
+            world.apply_edits([VoxelsEdit(np.array([voxel]))])
+            world.recompute()
+            assert world.last_recompute.regions != [world.world_box]
+            assert np.array_equal(world.read_field().astype(np.int64),
+                                  reference(world.read_voxels(), cap, metric, True)), voxel
+    finally:
+        world.release()

@@ -27,6 +27,8 @@ def main() -> None:
     p.add_argument("--groups", default="32,64,128,256")
     p.add_argument("--signed", action="store_true")
     p.add_argument("--reps", type=int, default=5)
+    p.add_argument("--axes", default=",".join(map(str, STAGE_AXES)),
+                   help="the second and the last stage's axes (1 = y, 2 = z): 2,1 or 1,2")
     p.add_argument("--scene", choices=("spheres", "bench"), default="spheres",
                    help="spheres: tools/edt_timing.py's few large ones; bench: sdfserver bench's world")
     args = p.parse_args()
@@ -42,7 +44,7 @@ def main() -> None:
     b, cap = world.buffers, world.config.max_distance
     reference = world.read_field()
     print(f"device: {gpu.device.name}  {n}^3 signed={args.signed}")
-    second, last = STAGE_AXES
+    second, last = (int(v) for v in args.axes.split(","))
     for batch in [int(v) for v in args.batches.split(",")]:
         for width in [int(v) for v in args.groups.split(",")]:
             row = []

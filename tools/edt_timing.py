@@ -18,6 +18,15 @@ from sdfserver.gpu import GpuContext
 from sdfserver.world import World, WorldConfig
 
 
+def fill(world: World, which: str) -> None:
+    if which == "bench":
+        from sdfserver.bench import populate
+        populate(world, np.random.default_rng(0))
+        world.recompute()
+    else:
+        scene(world)
+
+
 def scene(world: World, seed: int = 1) -> None:
     """Random spheres, about 2% of the world solid."""
     n = world.config.size[0]
@@ -44,6 +53,8 @@ def main() -> None:
     p.add_argument("--sizes", default="256,512")
     p.add_argument("--brush-size", type=int, default=1024)
     p.add_argument("--reps", type=int, default=7)
+    p.add_argument("--scene", choices=("spheres", "bench"), default="spheres",
+                   help="spheres: a few large ones; bench: sdfserver bench's world (many small brushes)")
     p.add_argument("--kinds", default="manhattan,euclidean,manhattan-signed,euclidean-signed",
                    help="which fields; 'manhattan' alone runs on builds from before metrics existed")
     args = p.parse_args()
@@ -54,7 +65,7 @@ def main() -> None:
         for metric, signed in kinds:
             world = World(gpu, config((n, n, n), metric, signed))
             try:
-                scene(world)
+                fill(world, args.scene)
                 times = []
                 for _ in range(args.reps + 1):
                     world.mark_all_dirty()
@@ -68,7 +79,7 @@ def main() -> None:
     for metric, signed in kinds:
         world = World(gpu, config((n, n, n), metric, signed))
         try:
-            scene(world)
+            fill(world, args.scene)
             centre, times, walls = (n / 2, n / 2, n / 2), [], []
             for k in range(args.reps * 2 + 1):
                 world.apply_edits([SphereEdit(center=centre, radius=8.0, colour=0xE0 if k % 2 == 0 else 0)])

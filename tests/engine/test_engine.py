@@ -123,7 +123,9 @@ def test_journal_records_before_acknowledging(gpu):
     assert journal.calls == [("create", world_id, {"size": [16, 16, 16], "chunk_size": 8, "max_distance": 5,
                                                    "algorithm": "exact", "focus": None, "lod_algorithm": "jfa",
                                                    "borders": "exact", "storage": "dense",
-                                                   "generate": None})]
+                                                   "generate": None, "metric": "manhattan", "signed": False,
+                                                   "voxel_size": 1.0, "origin": [0.0, 0.0, 0.0],
+                                                   "palette": None})]
     raw = [{"op": "box", "min": [0, 0, 0], "max": [2, 2, 2], "colour": 3}]
     raw2 = [{"op": "sphere", "center": [8, 8, 8], "radius": 2, "colour": 4}]
     first, bad, second = (edits(engine, world_id, raw), edits(engine, world_id, [

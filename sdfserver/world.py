@@ -114,6 +114,23 @@ def optional_sizes(config: WorldConfig) -> dict[str, int]:
     return sizes
 
 
+@dataclass
+class PendingRecompute:
+    """A recompute enqueued on the device (``World.begin_recompute``), finished by ``finish``:
+    after the device is done, the field's version moves and the figures are summed."""
+
+    world: "World"
+    regions: list[Box]
+    runs: list
+    started: float
+    version: int  # the version the field will reflect
+
+    def finish(self, device_done: bool = False) -> RecomputeResult:
+        """``device_done``: the caller has waited for the device already (one wait for a step's
+        worlds)."""
+        return self.world._finish_recompute(self, device_done)
+
+
 def field_defines(config: WorldConfig) -> dict[str, int]:
     """The build defines that tell field_source.h what a world's field values mean."""
     return {"FIELD_EUCLID": int(config.euclidean), "FIELD_SIGNED": int(config.signed)}
@@ -304,6 +321,13 @@ class World:
 
     def recompute(self) -> RecomputeResult:
         """Bring the field up to date with the voxels; returns the chunks rewritten."""
+        return self.begin_recompute().finish()
+
+    def begin_recompute(self) -> "PendingRecompute":
+        """Enqueue the recompute of everything dirty and return without waiting for the device
+        (algorithms that decide on the host as they go, such as fim's convergence, wait inside):
+        the engine starts every touched world's recompute, then waits for the device once.
+        Nothing else may touch the world until ``finish``; the field's version moves there."""
         start = time.perf_counter()
         regions = self.dirty_regions() if self.dirty else []
         runs: list[tuple[str, AlgorithmRun]] = []
@@ -312,13 +336,17 @@ class World:
         else:
             for region in regions:
                 runs.extend(self._compute_region(region))
-        self.gpu.queue.finish()
         self.dirty.clear()
-        self.field_version = self.version
-        each, by_algorithm = summarize(runs)
-        self.last_recompute = RecomputeResult(regions, self.config.chunk_size, sum(each),
-                                              (time.perf_counter() - start) * 1e3,
-                                              sum(run.iterations for _, run in runs), each, by_algorithm)
+        return PendingRecompute(self, regions, runs, start, self.version)
+
+    def _finish_recompute(self, pending: "PendingRecompute", device_done: bool) -> RecomputeResult:
+        if not device_done:
+            self.gpu.queue.finish()
+        self.field_version = pending.version
+        each, by_algorithm = summarize(pending.runs)
+        self.last_recompute = RecomputeResult(pending.regions, self.config.chunk_size, sum(each),
+                                              (time.perf_counter() - pending.started) * 1e3,
+                                              sum(run.iterations for _, run in pending.runs), each, by_algorithm)
         return self.last_recompute
 
     def _compute_euclidean(self, regions: list[Box]) -> AlgorithmRun:

@@ -74,6 +74,16 @@ LONE_ACKNOWLEDGEMENT_SLICE_S = 0.00025
 __all__ = ["Engine", "EngineParts", "new_world_id", "world_config_dict"]
 
 
+class _WorldsOf:
+    """The world ids of a step's commands, found only when asked (only a busy step is asked)."""
+
+    def __init__(self, commands: list[Pending]):
+        self.commands = commands
+
+    def __iter__(self):
+        return (w for c, _ in self.commands if isinstance(w := getattr(c, "world_id", None), str))
+
+
 @dataclass(frozen=True)
 class EngineParts:
     """The engine's collaborators: what it sequences in a step."""
@@ -116,6 +126,8 @@ class Engine(EngineLifetime, CommandCalls):
         self.last_recompute_ms = self.table.last_recompute_ms
         self._dirty_gauge_at = -DIRTY_GAUGE_EVERY_S
         self.metrics.queue_depth.set_function(self._commands.qsize)
+        self.running: StepClock | None = None  # the step under way, if any
+        self.metrics.busy_seconds.set_function(self._busy_seconds)
         # a step's answers are completed inside this: the engine process's transport sends them
         # together (EngineTransport.holding)
         self.answering: Callable[[], ContextManager[Any]] = contextlib.nullcontext
@@ -182,18 +194,24 @@ class Engine(EngineLifetime, CommandCalls):
         serve = self._waiting + [c for c in commands if not isinstance(c[0], APPLY)]
         self._waiting, self.batches.acknowledging = [], []
         report = StepReport()
-        clock = StepClock(report)
+        self.running = clock = StepClock(report)
         answers: list[tuple[Future, Any]] = []
         try:
-            touched = self._apply([c for c in commands if isinstance(c[0], APPLY)], report)
+            changing = [c for c in commands if isinstance(c[0], APPLY)]
+            clock.doing("apply", _WorldsOf(changing))
+            touched = self._apply(changing, report)
             clock.lap("apply")
             if self.batches.acknowledging and self.journal is not None:
+                clock.doing("durable")
                 self._wait_for_acknowledgements()
                 clock.lap("durable")
+            clock.doing("recompute", touched)
             report.recomputed = self._recompute(touched)
             clock.lap("recompute")
+            clock.doing("publish", report.recomputed)
             self.subscriptions.publish(report.recomputed)
             clock.lap("publish")
+            clock.doing("serve", _WorldsOf(serve))
             answers = self.reads.serve(serve, report, self._waiting)
             clock.lap("serve")
         except cl.Error as exc:
@@ -207,7 +225,18 @@ class Engine(EngineLifetime, CommandCalls):
                 future.set_result(result)
         self.subscriptions.count_pending()
         clock.stop(self.metrics, self.limits.slow_step_ms)
+        self.running = None
         return report
+
+    def busy(self) -> dict[str, Any] | None:
+        """The running step's phase, worlds and time, when it has run ``limits.busy_step_ms`` or
+        longer; else None (any thread: /readyz and /metrics ask while the step runs)."""
+        clock = self.running
+        return None if clock is None else clock.busy(self.limits.busy_step_ms)
+
+    def _busy_seconds(self) -> float:
+        busy = self.busy()
+        return 0.0 if busy is None else busy["busy_ms"] / 1e3
 
     def _wait_for_acknowledgements(self) -> None:
         """While no other command is queued, wait for this step's batches to be acknowledged."""
@@ -282,8 +311,13 @@ class Engine(EngineLifetime, CommandCalls):
         if now - self._dirty_gauge_at >= DIRTY_GAUGE_EVERY_S:  # counting costs more than the gauge is worth each step
             self._dirty_gauge_at = now
             self.metrics.dirty_chunks.set(sum(w.dirty_chunk_count for w in worlds.values()))
+        # Every world's work goes to the device before the step waits, once, for all of it: a
+        # wait per world would leave the device idle while the next world's launches are made.
+        pending = {world_id: world.begin_recompute() for world_id, world in worlds.items()}
+        if len(pending) > 1:
+            self.gpu.queue.finish()
         for world_id, world in worlds.items():
-            result = world.recompute()
+            result = pending[world_id].finish(device_done=len(pending) > 1)
             self.metrics.observe_recompute(world.config.algorithm, result)
             self.last_recompute_ms[world_id] = result.wall_ms
             results[world_id] = result

@@ -25,7 +25,7 @@ except a pool growth, which copies the stored bricks once (``pool.py``).
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pyopencl as cl
@@ -53,6 +53,16 @@ SHELL_X_VOX = 8  # the shell's width along x: RegionJob widens work boxes to mul
 # A dense world puts more than 32 regions of a step into one box around them all; in a sparse
 # world edits far apart would make that box larger than the world's memory, so it keeps more.
 MAX_REGIONS = 512
+
+
+@dataclass(frozen=True)
+class DoneRecompute:
+    """``World.begin_recompute``'s answer for a recompute already finished."""
+
+    result: RecomputeResult
+
+    def finish(self, device_done: bool = False) -> RecomputeResult:
+        return self.result
 
 
 class SparseWorld:
@@ -325,6 +335,11 @@ class SparseWorld:
         enqueue_brushes(self.gpu, s.voxels, dims, brushes, origin)
 
     # -- recompute -----------------------------------------------------------------------------
+
+    def begin_recompute(self) -> "DoneRecompute":
+        """A sparse world's recompute waits for the device as it goes (each region's bricks are
+        classified on the host), so it is done when this returns."""
+        return DoneRecompute(self.recompute())
 
     def recompute(self) -> RecomputeResult:
         start = time.perf_counter()

@@ -282,8 +282,8 @@ def test_a_step_that_raises_fails_its_commands_and_the_engine_goes_on(engine, mo
     """Not a command's error: the step's (a bug, a kernel that fails to build on first use)."""
     world_id = create(engine)
     world = engine.worlds[world_id]
-    recompute = world.recompute
-    monkeypatch.setattr(world, "recompute", lambda: (_ for _ in ()).throw(RuntimeError("a bug\nin detail")))
+    begin_recompute = world.begin_recompute
+    monkeypatch.setattr(world, "begin_recompute", lambda: (_ for _ in ()).throw(RuntimeError("a bug\nin detail")))
     batch = edits(engine, world_id, [{"op": "box", "min": [0, 0, 0], "max": [2, 2, 2], "colour": 1}])
     read, describe = engine.submit(Read(world_id, "distance")), engine.submit(Describe(world_id))
     engine.step()
@@ -293,7 +293,7 @@ def test_a_step_that_raises_fails_its_commands_and_the_engine_goes_on(engine, mo
             future.result(timeout=10)
         assert type(caught.value) is SdfServerError and caught.value.code == "internal_error"  # a 500
     assert caplog.text.count("Traceback") == 1
-    monkeypatch.setattr(world, "recompute", recompute)
+    monkeypatch.setattr(world, "begin_recompute", begin_recompute)
     later = edits(engine, world_id, [{"op": "voxels", "voxels": [[9, 9, 9, 3]]}])
     read = engine.submit(Read(world_id, "distance"))
     engine.step()

@@ -1,0 +1,74 @@
+#!/usr/bin/env bash
+# 64 clients on one world against 64 clients spread over 16 and over 64 worlds, one engine, for
+# two builds in one lease, alternating (issue 31, "many worlds cost what one does"): K load
+# generators at once, each with its own 128^3 world and C clients, edits only; batches/s summed.
+#
+# On the GPU machine, from this checkout's root, the old build unpacked inside the tree:
+#   mkdir -p ab/before-metrics && git archive 8963431 sdfserver kernels pyproject.toml | tar -x -C ab/before-metrics
+#   source .whl/activate.sh; bash tools/many_worlds.sh ab/before-metrics [rounds]
+# DEVICE, SIZE, DUR override the device (nvidia), the worlds' side (128) and each run's seconds (12);
+# a CPU smoke run: DEVICE= SIZE=32 DUR=3 bash tools/many_worlds.sh OLD 1
+# Results: $OUT/many-worlds.tgz and a table on stdout.
+set -uo pipefail
+old=$(cd "${1:?old checkout}" && pwd); rounds=${2:-1}
+new=$PWD
+export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD:${PYTHONPATH:-}
+FINAL=${OUT:-/tmp/sdfserver-out}; OUT=$(mktemp -d); mkdir -p "$FINAL"
+trap 'tar czf "$FINAL/many-worlds.tgz" -C "$OUT" . ; rm -rf "$OUT"' EXIT
+port=8767
+device=${DEVICE-nvidia}; size=${SIZE:-128}; dur=${DUR:-12}
+load="python3 $new/clients/loadtest --url http://127.0.0.1:$port --size $size $size $size --quiet --read-every 0"
+
+spread() {  # spread NAME K C [PROCESSES]: K generators of C clients at once
+  local name=$1 k=$2 c=$3 procs=${4:-1} pids=()
+  for i in $(seq "$k"); do
+    timeout $((dur + 60)) $load --clients "$c" --processes "$procs" --duration "$dur" \
+      --json "$OUT/$name-load$i.json" > /dev/null 2>&1 &
+    pids+=($!)
+  done
+  wait "${pids[@]}"
+}
+
+measure() {  # measure NAME ROOT
+  local name=$1 root=$2
+  rm -rf /tmp/sdfserver-many-data
+  (cd "$root" && PYTHONPATH=$root:${PYTHONPATH:-} exec python3 -m sdfserver serve ${device:+--device "$device"} \
+    --port $port --data-dir /tmp/sdfserver-many-data) > "$OUT/$name-server.log" 2>&1 &
+  local server=$!
+  for _ in $(seq 480); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
+  spread "$name-w1" 1 64 8
+  spread "$name-w16" 16 4
+  spread "$name-w64" 64 1
+  kill $server; wait $server 2>/dev/null
+}
+
+for round in $(seq "$rounds"); do
+  measure "r$round-old" "$old"
+  measure "r$round-new" "$new"
+done
+
+python3 - "$OUT" <<'PY'
+import glob, json, os, sys
+out = sys.argv[1]
+runs = sorted({os.path.basename(p).rsplit("-load", 1)[0] for p in glob.glob(f"{out}/*-load*.json")})
+print("| run | worlds | batches/s (sum) | worst p99 (ms) | errors | against 1 world |")
+print("| --- | --- | --- | --- | --- | --- |")
+one = {}
+for run in runs:
+    loads = []
+    for p in sorted(glob.glob(f"{out}/{run}-load*.json")):
+        try:
+            loads.append(json.load(open(p)))
+        except ValueError:
+            pass
+    if not loads:
+        continue
+    total = sum(r["throughput_rps"] for r in loads)
+    p99 = max(r["edits"]["latency_ms"]["p99"] for r in loads)
+    errors = sum(r["errors"]["count"] for r in loads)
+    build, worlds = run.rsplit("-w", 1)
+    if worlds == "1":
+        one[build] = total
+    ratio = f"{total / one[build]:.2f}x" if build in one and worlds != "1" else ""
+    print(f"| {build} | {worlds} | {total:,.0f} | {p99:.1f} | {errors} | {ratio} |")
+PY

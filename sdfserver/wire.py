@@ -51,12 +51,18 @@ DEFAULT_LIMITS = WireLimits()
 
 def pack_array(array: np.ndarray) -> dict[str, Any]:
     """A NumPy array as a blob map (little-endian, C order)."""
+    return _blob(array, copy=True)
+
+
+def _blob(array: np.ndarray, copy: bool) -> dict[str, Any]:
+    """``copy=False``: the data is a view of the array's bytes, for a blob packed at once."""
     array = np.asarray(array)
     dtype = array.dtype.newbyteorder("<") if array.dtype.byteorder == ">" else array.dtype
     if dtype.name not in DTYPES:
         raise WireError(f"dtype {array.dtype} cannot travel as a blob; use one of {DTYPES}")
     data = np.ascontiguousarray(array, dtype=dtype.newbyteorder("<"))
-    return {"dtype": dtype.name, "shape": list(array.shape), "data": data.tobytes()}
+    return {"dtype": dtype.name, "shape": list(array.shape),
+            "data": data.tobytes() if copy else memoryview(data.reshape(-1).view(np.uint8))}
 
 
 def is_blob(value: Any) -> bool:
@@ -84,7 +90,7 @@ def unpack_array(blob: Any, where: str = "array") -> np.ndarray:
 
 def _default(value: Any) -> Any:
     if isinstance(value, np.ndarray):
-        return pack_array(value)
+        return _blob(value, copy=False)  # packed before encode returns
     if isinstance(value, np.generic):
         return value.item()
     raise TypeError(f"cannot encode {type(value).__name__}")

@@ -38,8 +38,10 @@ def wrap(owner, name, before=None, after=None) -> None:
 
 def record_sends(owner, records: list, clock) -> None:
     """Append (API process, request id, time) to ``records`` for each answer the output thread
-    encodes (``owner.encoded``; the API process is the output thread's loop variable)."""
-    original = owner.encoded
+    encodes (``owner.framed``, or ``encoded`` in older builds; the API process is the output
+    thread's loop variable)."""
+    name = "framed" if hasattr(owner, "framed") else "encoded"  # older builds: encoded()
+    original = getattr(owner, name)
 
     def encoded(items):
         now = clock()
@@ -47,7 +49,7 @@ def record_sends(owner, records: list, clock) -> None:
         records.extend((client, item.id, now) for item in items if hasattr(item, "id"))
         return original(items)
 
-    owner.encoded = encoded
+    setattr(owner, name, encoded)
 
 
 def install(path: str) -> None:

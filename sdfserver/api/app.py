@@ -24,6 +24,7 @@ from sdfserver.api import auth, bodies, errors, health, models, render_routes, r
 from sdfserver.api.engine_client import BaseClient, LocalEngineClient
 from sdfserver.api.engines import Engines, LocalPlacement
 from sdfserver.gcpauses import GcPauses, freeze_startup_objects
+from sdfserver.heap import keep_freed_memory
 from sdfserver.settings import Settings
 
 log = logging.getLogger("sdfserver")
@@ -121,7 +122,7 @@ def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[Base
     """``clients``: the engine processes' clients (started with the app); ``engine``: an Engine
     in this process instead (started if it is not running, stopped at shutdown).
     ``freeze_gc``: exempt start-up objects from garbage collection and count collections on
-    /metrics (``gcpauses.py``), for a server process."""
+    /metrics (``gcpauses.py``), and keep freed heap memory (``heap.py``), for a server process."""
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -151,6 +152,7 @@ def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[Base
         if freeze_gc:  # here, once uvicorn has imported all it serves with
             log.info("%d start-up objects exempted from garbage collection", freeze_startup_objects())
             GcPauses(app.state.metrics.registry)
+            keep_freed_memory()
         try:
             yield
         finally:

@@ -28,6 +28,7 @@ from sdfserver.errors import InvalidInput, NotReady
 
 log = logging.getLogger("sdfserver")
 ENCODE = msg.REQUEST_ENCODER.encode
+ENCODE_INTO = msg.REQUEST_ENCODER.encode_into
 DECODE_OUTPUTS = msg.OUTPUTS_DECODER.decode
 HELLO_TIMEOUT_S = 30.0  # how long an API process starting waits for its engine
 WELCOME_TIMEOUT_S = 5.0
@@ -200,7 +201,7 @@ class EngineClient(BaseClient):
         with, and waiting for the turn's end would only delay it."""
         if self._requests is None:
             raise NotReady(f"the engine at {self.input_address} is not connected (restarting?); retry the request")
-        data = frames.frame(ENCODE(request))
+        data = frames.encode_frame(ENCODE_INTO, request)
         if self._outbox is None and len(self._pending) <= 1:
             self._requests.write(data)
         elif self._outbox is None:
@@ -256,7 +257,9 @@ class _Requests(asyncio.Protocol):
 async def _open_connection(loop: asyncio.AbstractEventLoop, address: str, protocol: Callable[[], asyncio.Protocol]):
     family, target = frames.family_and_target(address)
     if family == socket.AF_UNIX:
-        return await loop.create_unix_connection(protocol, target)
+        transport, made = await loop.create_unix_connection(protocol, target)
+        frames.prepare(transport.get_extra_info("socket"))
+        return transport, made
     return await loop.create_connection(protocol, *target)  # TCP_NODELAY: asyncio's and uvloop's default
 
 

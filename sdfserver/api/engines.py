@@ -279,7 +279,7 @@ class Engines:
 
     async def query(self, world_id: str, rows: np.ndarray, min_version: int = 0,
                     access: msg.Access | None = None, kind: str = "points") -> QueryResult:
-        blob = msg.Array.of(np.asarray(rows))
+        blob = msg.Array.view(np.asarray(rows))  # encoded as it is sent, in this call
         raw = await self._call(world_id, lambda i: msg.Query(i, world_id, blob, min_version, access, kind))
         r = msg.decode_result(raw, msg.QueryResult)
         return QueryResult(r.version, {name: a.numpy() for name, a in r.arrays.items()})

@@ -1,7 +1,9 @@
-"""The two routes every game client calls, answered without FastAPI's middleware, routing and
-dependency solving: ``POST /v1/worlds/{id}/edits`` and a well-formed ``GET /v1/worlds/{id}/field``.
+"""The routes every game client or robot calls, answered without FastAPI's middleware, routing and
+dependency solving: ``POST /v1/worlds/{id}/edits``, a well-formed ``GET /v1/worlds/{id}/field``
+and ``POST /v1/worlds/{id}/query`` with at most ``min_version`` in its query string.
 
-Each runs the route's own handler (``routes.post_edits``, ``routes.field_response``) after the
+Each runs the route's own handler (``routes.post_edits``, ``routes.field_response``,
+``routes.query_response``) after the
 same key check (``auth.guard``), and a failure is answered by the same translation
 (``errors.error_response``), so the answers are those of the full app; only the way there is
 shorter. Anything else — other routes and methods, a field read whose query the full app would
@@ -24,6 +26,7 @@ from sdfserver.api.errors import error_response
 
 EDITS_PATH = re.compile(r"/v1/worlds/([^/]+)/edits")
 FIELD_PATH = re.compile(r"/v1/worlds/([^/]+)/field")
+QUERY_PATH = re.compile(r"/v1/worlds/([^/]+)/query")
 FIELD_PARAMETERS = {"min", "max", "format", "min_version"}
 FORMATS = ("distance", "packed")
 MAX_VERSION_DIGITS = 18  # a version fits 63 bits; longer ones the full app judges
@@ -42,6 +45,10 @@ class HotRoutes:
                 query = _field_query(scope["query_string"])
                 if query is not None:
                     return await self._answer(scope, receive, send, _read_field, match[1], query)
+            if method == "POST" and (match := QUERY_PATH.fullmatch(path)):
+                min_version = _min_version_only(scope["query_string"])
+                if min_version is not None:
+                    return await self._answer(scope, receive, send, routes.query_response, match[1], min_version)
         await self.app(scope, receive, send)
 
     async def _answer(self, scope: dict[str, Any], receive: Any, send: Any, handler: Any, *args: Any) -> None:
@@ -74,6 +81,20 @@ def _field_query(query_string: bytes) -> dict[str, str] | None:
     if not (min_version.isascii() and min_version.isdigit() and len(min_version) <= MAX_VERSION_DIGITS):
         return None
     return query
+
+
+def _min_version_only(query_string: bytes) -> int | None:
+    """A query route's ``min_version`` (0 when there is no query string); None when the query
+    string holds anything else, which the full app judges."""
+    if not query_string:
+        return 0
+    pairs = query_pairs(query_string.decode("latin-1"))
+    if len(pairs) != 1 or pairs[0][0] != "min_version":
+        return None
+    value = pairs[0][1]
+    if not (value.isascii() and value.isdigit() and len(value) <= MAX_VERSION_DIGITS):
+        return None
+    return int(value)
 
 
 def query_pairs(query: str) -> list[tuple[str, str]]:

@@ -7,6 +7,7 @@ only through ``request.app.state.engine`` and never touch the device.
 from __future__ import annotations
 
 import base64
+import time
 from typing import Any
 
 import numpy as np
@@ -272,13 +273,15 @@ QUERY_COLUMNS = {"points": 3, "spheres": 4, "rays": 7}
 
 async def query_response(request: Request, world_id: str, min_version: int) -> Response:
     """A points, spheres or rays query once min_version is checked; the engine checks the rows'
-    values (engine/query.py) and answers in world units."""
+    values (engine/query.py) and answers in world units. ``Server-Timing: app;dur=<ms>`` says
+    how long this took, from here (before the body is read) to the response made."""
+    started = time.perf_counter()
     kind, rows = query_rows(await decode_body(request), request.app.state.settings.max_query_points)
     result = await engine_of(request).query(world_id, rows, min_version, access_of(request), kind)
     answer = {"version": result.version, **result.arrays}
     if "hits" in answer and wants_msgpack(request):
         answer["hits"] = answer["hits"].astype(np.uint8)  # blobs carry no booleans
-    return respond(request, answer)
+    return respond(request, answer, timed_from=started)
 
 
 def query_rows(body: Any, limit: int) -> tuple[str, np.ndarray]:

@@ -32,6 +32,13 @@ class Array(msgspec.Struct, array_like=True):
         array = np.ascontiguousarray(array)
         return cls(array.dtype.str, tuple(array.shape), array.tobytes())
 
+    @classmethod
+    def view(cls, array: np.ndarray) -> "Array":
+        """As ``of``, with ``data`` a view of the array's bytes rather than a copy: for an array
+        nothing writes to before the message is encoded (a query's rows and its answer)."""
+        array = np.ascontiguousarray(array)
+        return cls(array.dtype.str, tuple(array.shape), memoryview(array.reshape(-1).view(np.uint8)))
+
     def numpy(self) -> np.ndarray:
         return np.frombuffer(self.data, dtype=np.dtype(self.dtype)).reshape(self.shape)
 

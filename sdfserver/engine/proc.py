@@ -98,6 +98,7 @@ def serve_engine(settings: Settings, address: EngineAddress, engines: int, conn:
     from sdfserver.engine.restore import restore_worlds
     from sdfserver.gcpauses import GcPauses, freeze_startup_objects
     from sdfserver.gpu import GpuContext
+    from sdfserver.heap import keep_freed_memory
     from sdfserver.storage.lock import lock_data_dir
 
     # the engine process's threads share one GIL, and every socket read or write, log sync and
@@ -131,6 +132,7 @@ def serve_engine(settings: Settings, address: EngineAddress, engines: int, conn:
             return 1
         log.info("engine %d: %d start-up objects exempted from garbage collection", address.index,
                  freeze_startup_objects())
+        keep_freed_memory()
         GcPauses(engine.metrics.registry, prefix="sdfserver_engine_gc")
         limiter = RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst)
         doorkeeper = Doorkeeper(limiter, engine.owner_of, lambda: list(engine.owners.values()))

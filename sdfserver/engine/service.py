@@ -218,7 +218,7 @@ class EngineService:
         self.doorkeeper.admit(m.access, m.world_id)
         command = cmd.Query(m.world_id, m.rows.numpy(), m.min_version, self._deadline(), m.kind)
         self._submit(client, m.id, command, lambda r: msg.QueryResult(
-            r.version, {name: msg.Array.of(a) for name, a in r.arrays.items()}))
+            r.version, {name: msg.Array.view(a) for name, a in r.arrays.items()}))  # a new buffer each query
 
     def _render(self, client: bytes, m: msg.Render) -> None:
         self.doorkeeper.admit(m.access, m.world_id)

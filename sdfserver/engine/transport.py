@@ -227,7 +227,7 @@ class EngineTransport:
             else:
                 batches[client].append(out)
         for client, items in batches.items():
-            self._deliver(self._selector, client, frames.frame(encoded(items)))
+            self._deliver(self._selector, client, framed(items))
 
     def _accept(self, selector: selectors.BaseSelector) -> None:
         try:
@@ -335,6 +335,14 @@ def small(outputs: list[tuple[bytes, Any]]) -> bool:
         elif isinstance(result, (bytes, str)):
             carried += len(result)
     return carried <= DIRECT_SEND_BYTES
+
+
+def framed(items: list[Any]) -> bytes | bytearray:
+    """One API process's batch of outputs as one frame (``encoded`` where one cannot be encoded)."""
+    try:
+        return frames.encode_frame(msg.REQUEST_ENCODER.encode_into, msg.Outputs(items))
+    except (TypeError, ValueError, OverflowError, msgspec.EncodeError):
+        return frames.frame(encoded(items))
 
 
 def encoded(items: list[Any]) -> bytes:

@@ -1,4 +1,4 @@
-"""The short way for the two hot routes (``sdfserver/api/hot.py``) answers exactly as the full
+"""The short way for the hot routes (``sdfserver/api/hot.py``) answers exactly as the full
 app does, and leaves to the full app every request it should not judge."""
 
 from __future__ import annotations
@@ -73,6 +73,18 @@ def test_hot_routes_answer_as_the_full_app(gpu):
                 ("GET", f"/v1/worlds/{world}/field", {"params": {"min": "0,0,0"}}),
                 ("GET", f"/v1/worlds/{world}/field", {"params": {"min": "0,0,0", "max": "99,99,99"}}),
                 ("GET", "/v1/worlds/nowhere/field", {}),
+                ("POST", f"/v1/worlds/{world}/query", {"json": {"points": [[1, 1, 1], [2.5, 3, 4.25]]}}),
+                ("POST", f"/v1/worlds/{world}/query", {"json": {"spheres": [[8, 8, 8, 2]]},
+                                                       "params": {"min_version": "1"}}),
+                ("POST", f"/v1/worlds/{world}/query",
+                 {"content": wire.encode({"rays": np.array([[0.5, 0.5, 0.5, 1, 0, 0, 20]], np.float32)}),
+                  "headers": MSGPACK}),
+                ("POST", f"/v1/worlds/{world}/query", {"json": {"points": [[99, 0, 0]]}}),
+                ("POST", f"/v1/worlds/{world}/query", {"json": {"points": []}}),
+                ("POST", f"/v1/worlds/{world}/query", {"content": b"{not json"}),
+                ("POST", "/v1/worlds/nowhere/query", {"json": {"points": [[1, 1, 1]]}}),
+                ("POST", f"/v1/worlds/{world}/query", {"json": {"points": [[1, 1, 1]]},
+                                                       "headers": {"authorization": "Bearer x"}}),
             ]
             for method, path, kwargs in same:
                 a = await full.request(method, path, **kwargs)
@@ -88,6 +100,10 @@ def test_hot_routes_answer_as_the_full_app(gpu):
                 ("GET", f"/v1/worlds/{world}/field", {"params": {"colour": "1"}}),
                 ("GET", f"/v1/worlds/{world}/field", {"params": [("format", "packed"), ("format", "distance")]}),
                 ("PUT", f"/v1/worlds/{world}/edits", {}),
+                ("POST", f"/v1/worlds/{world}/query", {"json": {"points": [[1, 1, 1]]},
+                                                       "params": {"min_version": "-1"}}),
+                ("POST", f"/v1/worlds/{world}/query", {"json": {"points": [[1, 1, 1]]}, "params": {"x": "1"}}),
+                ("GET", f"/v1/worlds/{world}/query", {}),
                 ("POST", f"/v1/worlds/{world}/edits", {"json": {"edits": []}, "headers": {"upgrade": "websocket"}}),
                 ("GET", f"/v1/worlds/{world}", {}),
             ]

@@ -5,9 +5,11 @@ examples of docs/api.md's query section, run as written."""
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -245,6 +247,24 @@ def test_nan_and_non_objects_in_json(server, placed):
     for content in (b'{"rays": [[11, 1, 1, 1, 0, NaN, 5]]}', b'[[11, 1, 1]]', b'{"points": [[11, 1, Infinity]]}'):
         r = server.http.post(f"/v1/worlds/{placed}/query", content=content, headers=JS)
         assert r.status_code == 422, r.text
+
+
+def test_the_answer_says_how_long_the_server_took(server, placed):
+    """Server-Timing: app;dur=<ms>, the server's own measure (from the route's start to the
+    response made), on the short way (hot.py) and through the full app (an unknown parameter,
+    which FastAPI ignores); never more than the client's round trip."""
+    rows = np.column_stack([np.random.default_rng().uniform(10, 18, 500), np.full((500, 2), 1.0)]).astype(F32)
+    for path in (f"/v1/worlds/{placed}/query", f"/v1/worlds/{placed}/query?min_version=1",
+                 f"/v1/worlds/{placed}/query?unknown=1"):
+        for body, headers in ((wire.encode({"points": rows}), {"content-type": wire.CONTENT_TYPE}),
+                              (json.dumps({"spheres": [[11, 1, 1, 0.25]]}).encode(), JS)):
+            started = time.perf_counter()
+            r = server.http.post(path, content=body, headers=headers)
+            round_trip_ms = (time.perf_counter() - started) * 1e3
+            assert r.status_code == 200, r.text
+            timing = re.fullmatch(r"app;dur=(\d+\.\d{3})", r.headers["server-timing"])
+            assert timing, r.headers["server-timing"]
+            assert 0 < float(timing[1]) <= round_trip_ms, (timing[1], round_trip_ms)
 
 
 # -- docs/api.md's examples -------------------------------------------------------------------------

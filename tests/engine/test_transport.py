@@ -155,13 +155,13 @@ def test_answers_held_by_a_thread_leave_from_it_while_the_output_thread_idles_an
     answer reaches its request, the held ones in the order they were completed. A large held
     answer leaves from the output thread."""
     senders: list[str] = []
-    encode = transport_module.encoded
+    encode = transport_module.framed
 
     def recorded(items):
         senders.append(threading.current_thread().name)
         return encode(items)
 
-    monkeypatch.setattr(transport_module, "encoded", recorded)
+    monkeypatch.setattr(transport_module, "framed", recorded)
     engine = _serve(address)
 
     async def main():

@@ -2,7 +2,8 @@
 
     SdfServerError
     ├── InvalidInput            bad request data; nothing was changed        (HTTP 422)
-    │   └── InvalidEdit         an edit batch that cannot be applied
+    │   ├── InvalidEdit         an edit batch that cannot be applied
+    │   └── RecomputeCostExceeded  a world whose full recompute would pass the work limit
     ├── Unauthorized            a missing or unknown API key                  (HTTP 401)
     ├── Forbidden               a key that may not do this (an admin's task)  (HTTP 403)
     ├── Conflict                the request contradicts the state it finds    (HTTP 409)
@@ -39,6 +40,13 @@ class InvalidInput(SdfServerError):
 
 class InvalidEdit(InvalidInput):
     code = "invalid_edit"
+
+
+class RecomputeCostExceeded(InvalidInput):
+    """A create, import or reconfiguration whose full recompute would do more work than the
+    server allows (``sdfserver/recompute_cost.py``); nothing was changed."""
+
+    code = "recompute_cost_exceeded"
 
 
 class NotFound(SdfServerError):

@@ -20,6 +20,7 @@ from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from sdfserver.edits import EditLimits
+from sdfserver.recompute_cost import DEFAULT_MAX_VISITS
 from sdfserver.wire import WireLimits
 from sdfserver.world_config import MAX_WORLD_VOXELS
 
@@ -80,6 +81,18 @@ class Settings(BaseSettings):
                     "free memory budget or its largest single buffer is refused with 507 before anything is "
                     "allocated. Sparse worlds (storage sparse) are bounded by their sides and by the memory their "
                     "stored bricks take, not by this.")
+    max_recompute_voxel_visits: int = Field(
+        DEFAULT_MAX_VISITS, ge=0,
+        description="Most work one full recompute of a world may take, in voxel visits (one voxel reading one "
+                    "other's value; sdfserver/recompute_cost.py estimates it from the world's size, cap, "
+                    "algorithm, borders and focus): a create, import or PATCH past it gets 422 "
+                    "recompute_cost_exceeded and changes nothing. The default, 3e10, is about 50 ms of an H100 "
+                    "and admits a 2048^3 world with 'exact'; it refuses brute force at 128^3 with cap 255 "
+                    "(4.4e12) and fim at 1024^3. 0: no limit.")
+    busy_step_ms: float = Field(
+        20.0, gt=0, description="An engine step running longer than this, in milliseconds, shows in /readyz "
+                                "(still 200, with the engine, world and time) and in /metrics "
+                                "(sdfserver_engine_busy_seconds).")
     max_worlds: int = Field(64, ge=1, description="Most worlds that may live in the server at once (413 above it).")
     max_read_voxels: int = Field(
         1 << 27, ge=1, description="Largest box one field or voxel read may cover, in voxels (413 above it).")

@@ -31,7 +31,9 @@ async def readyz(request: Request) -> JSONResponse:
         if status.writes_disabled is not None:
             return error_response(WritesDisabled(status.writes_disabled))
     devices = [s.device for s in statuses]
-    return JSONResponse({"status": "ready", "device": devices[0], "devices": devices})
+    # an engine held by one step past busy_step_ms still serves (200), but says what holds it
+    busy = [{"engine": i, "device": s.device, **s.busy} for i, s in enumerate(statuses) if s.busy]
+    return JSONResponse({"status": "ready", "device": devices[0], "devices": devices, "busy": busy})
 
 
 @router.get("/metrics", summary="Prometheus metrics", response_class=PlainTextResponse)

@@ -36,6 +36,10 @@ class EngineLimits:
     max_subscriptions_per_key: int = 64  # held by one API key (or one client address on an open server)
     max_wait_s: float = 5.0
     slow_step_ms: float = 20.0  # a step this long is logged with its phases
+    # a create, import or reconfiguration whose full recompute would pass this many voxel visits
+    # is refused (recompute_cost.py); None: no limit
+    max_recompute_voxel_visits: int | None = None
+    busy_step_ms: float = 20.0  # /readyz and /metrics show a step running longer than this
 
 
 @dataclass(frozen=True)

@@ -239,6 +239,7 @@ class EngineStatus(msgspec.Struct, array_like=True):
     worlds: list[str] = []  # the ids of the worlds it holds
     epoch: int = 0  # how many times this engine's data directory was opened to serve
     budget_bytes: int = 0  # the device memory the engine may use in all
+    busy: dict[str, Any] | None = None  # a step running past busy_step_ms: Engine.busy()
 
 
 class Failure(msgspec.Struct, array_like=True):

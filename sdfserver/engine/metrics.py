@@ -51,6 +51,9 @@ class EngineMetrics:
                                       registry=registry)
         self.dirty_chunks = Gauge("sdfserver_dirty_chunks", "Dirty chunks over all worlds before a step's "
                                   "recompute, counted at most ten times a second.", registry=registry)
+        self.busy_seconds = Gauge(
+            "sdfserver_engine_busy_seconds", "How long the engine's running step has taken, once past busy_step_ms "
+            "(0 otherwise): an engine held by one world's work (/readyz says which).", registry=registry)
         self.queue_depth = Gauge("sdfserver_queue_depth", "Commands waiting for the engine.", registry=registry)
         self.worlds = Gauge("sdfserver_worlds", "Worlds in the server.", registry=registry)
         self.device_bytes = Gauge("sdfserver_device_bytes", "Device memory held by worlds.", registry=registry)

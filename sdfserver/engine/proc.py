@@ -53,7 +53,9 @@ def engine_limits(settings: Settings) -> EngineLimits:
                         max_subscription_voxels=settings.max_subscription_voxels,
                         max_subscriptions=settings.max_subscriptions,
                         max_subscriptions_per_key=settings.max_subscriptions_per_key,
-                        max_wait_s=settings.max_wait_ms / 1e3)
+                        max_wait_s=settings.max_wait_ms / 1e3,
+                        max_recompute_voxel_visits=settings.max_recompute_voxel_visits or None,
+                        busy_step_ms=settings.busy_step_ms)
 
 
 def data_dir_of(settings: Settings, index: int, engines: int) -> Path:

@@ -317,7 +317,8 @@ class EngineService:
         free = max(0, gpu.memory_budget_bytes - sum(w.device_bytes for w in list(engine.worlds.values())))
         self._reply(client, m.id, msg.EngineStatus(engine.ready, None if engine.ready else engine.not_ready_reason(),
                                                    gpu.device_name, free, self.writes_failure(), os.getpid(),
-                                                   list(engine.worlds), self.epoch, gpu.memory_budget_bytes))
+                                                   list(engine.worlds), self.epoch, gpu.memory_budget_bytes,
+                                                   engine.busy()))
 
     def _metrics(self, client: bytes, m: msg.MetricsText) -> None:
         self._reply(client, m.id, generate_latest(self.engine.metrics.registry).decode())

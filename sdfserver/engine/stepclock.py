@@ -10,7 +10,7 @@ import math
 import resource
 import threading
 import time
-from typing import Callable
+from typing import Callable, Iterable
 
 from sdfserver.engine.commands import StepReport
 from sdfserver.engine.metrics import EngineMetrics
@@ -53,6 +53,21 @@ class StepClock:
         self.started = self._last = time.perf_counter()
         self._cpu = time.thread_time()
         self._usage = resource.getrusage(resource.RUSAGE_THREAD)
+        # what the step does now, read by other threads (/readyz, /metrics): the phase and the
+        # worlds it works on, as one tuple so that a reader sees both of one moment
+        self.current: tuple[str, Iterable[str]] = ("", ())
+
+    def doing(self, phase: str, worlds: Iterable[str] = ()) -> None:
+        """The step starts ``phase`` on ``worlds`` (a collection the step no longer changes)."""
+        self.current = (phase, worlds)
+
+    def busy(self, budget_ms: float) -> dict | None:
+        """What the step does, when it has run ``budget_ms`` or longer (any thread); else None."""
+        elapsed_ms = (time.perf_counter() - self.started) * 1e3
+        if elapsed_ms < budget_ms:
+            return None
+        phase, worlds = self.current
+        return {"busy_ms": round(elapsed_ms, 1), "phase": phase, "worlds": sorted(set(worlds))}
 
     def lap(self, phase: str) -> None:
         now = time.perf_counter()

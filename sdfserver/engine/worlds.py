@@ -5,9 +5,10 @@ dict read is atomic)."""
 from __future__ import annotations
 
 import secrets
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from typing import Any
 
+from sdfserver import recompute_cost
 from sdfserver.engine.commands import CreateWorld, EngineLimits
 from sdfserver.engine.describe import describe_recompute
 from sdfserver.engine.journal import Journal, reconfigure_durably
@@ -77,6 +78,7 @@ class WorldTable:
         if config.storage == "dense" and sx * sy * sz > self.limits.max_world_voxels:
             raise TooLarge(f"a {sx}x{sy}x{sz} world has {sx * sy * sz} voxels; the limit is "
                            f"{self.limits.max_world_voxels}")
+        recompute_cost.check(config, self.limits.max_recompute_voxel_visits)
         if len(self.worlds) >= self.limits.max_worlds:
             raise TooLarge(f"the server already holds {len(self.worlds)} worlds, its limit")
         world_id = command.world_id or new_world_id()
@@ -129,7 +131,15 @@ class WorldTable:
         self.count()
 
     def reconfigure(self, world_id: str, changes: dict[str, Any]) -> None:
-        """Written to the journal before it takes effect: a request changes all it asked or nothing."""
+        """Written to the journal before it takes effect: a request changes all it asked or nothing.
+        A change that recomputes the field is refused first when that recompute would cost more
+        than the limit."""
+        world = self.get(world_id)
+        field_changes = {k: v for k, v in changes.items() if k in World.FIELD_CHANGES and v != "keep"}
+        if field_changes:
+            config = replace(world.config, **field_changes).validated()
+            if any(getattr(config, k) != getattr(world.config, k) for k in field_changes):
+                recompute_cost.check(config, self.limits.max_recompute_voxel_visits)
         reconfigure_durably(self.journal, world_id, self.get(world_id), changes, world_config_dict)
 
     def describe(self, world_id: str | None) -> Any:

@@ -197,6 +197,23 @@ def test_bad_patch_changes_nothing(server, world, body):
     assert server.http.get(f"/v1/worlds/{world}").json() == before
 
 
+def test_work_over_the_recompute_limit_is_refused_at_the_door(server):
+    before = server.http.get("/v1/worlds").json()["worlds"]
+    r = server.http.post("/v1/worlds", json={"size": [128, 128, 128], "algorithm": "brute"})
+    assert_error(r, 422, "recompute_cost_exceeded")
+    assert "brute at 128³, cap 255 would scan 4.4e12 voxel pairs" in r.json()["error"]["message"]
+    assert "this server allows 3e10" in r.json()["error"]["message"]
+    assert server.http.get("/v1/worlds").json()["worlds"] == before
+    world = server.create_world(size=[128, 128, 128])["id"]
+    try:
+        described = server.http.get(f"/v1/worlds/{world}").json()
+        assert_error(server.http.patch(f"/v1/worlds/{world}", json={"algorithm": "brute"}), 422,
+                     "recompute_cost_exceeded")
+        assert server.http.get(f"/v1/worlds/{world}").json() == described
+    finally:
+        server.http.delete(f"/v1/worlds/{world}")
+
+
 @pytest.mark.parametrize("method,path", [
     ("GET", "/v1/worlds/nope"), ("DELETE", "/v1/worlds/nope"), ("GET", "/v1/worlds/nope/field"),
     ("GET", "/v1/worlds/nope/voxels"), ("PATCH", "/v1/worlds/nope"), ("POST", "/v1/worlds/nope/edits"),

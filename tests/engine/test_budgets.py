@@ -1,0 +1,86 @@
+"""Work refused at the door: a recompute over the server's limit, and how a step busy past its
+budget shows."""
+
+from __future__ import annotations
+
+import pytest
+
+from sdfserver import recompute_cost
+from sdfserver.engine import Engine, EngineLimits
+from sdfserver.engine.commands import CreateWorld, Describe, Reconfigure
+from sdfserver.errors import InvalidInput, RecomputeCostExceeded
+from sdfserver.settings import Settings
+from sdfserver.world import WorldConfig
+from sdfserver.world_config import Focus
+
+
+def config(side, **kw) -> WorldConfig:
+    return WorldConfig(size=(side,) * 3, **kw).validated()
+
+
+def test_the_cost_model_admits_the_defaults_and_refuses_what_stalled_an_engine():
+    limit = Settings().max_recompute_voxel_visits
+    assert recompute_cost.estimate(config(2048, chunk_size=32)).visits <= limit  # the largest dense world
+    assert recompute_cost.estimate(config(128)).visits <= limit
+    brute = recompute_cost.estimate(config(128, algorithm="brute"))
+    assert brute.visits == 128 ** 6 and brute.visits > limit  # every voxel scans the whole world
+    assert recompute_cost.estimate(config(1024, algorithm="fim")).visits > limit
+    assert recompute_cost.estimate(config(1024, algorithm="jfa")).visits > limit
+    assert recompute_cost.estimate(config(256, algorithm="brute", borders="padded")).visits > limit
+    # a small cap shrinks brute force's window, padded borders shrink it to the chunk
+    assert recompute_cost.visits_per_voxel("brute", config(128, algorithm="brute", max_distance=2)) == 5 ** 3
+    assert recompute_cost.visits_per_voxel("brute", config(128, algorithm="brute", borders="padded")) == 16 ** 3
+    # outside a focus, the level-of-detail algorithm
+    focused = config(256, focus=Focus((2, 2, 2), (4, 4, 4)), lod_algorithm="jfa")
+    inside = 64 ** 3
+    assert recompute_cost.estimate(focused).visits == inside * 3 + (256 ** 3 - inside) * 27 * 8
+
+
+def test_the_message_names_the_estimate_and_the_limit():
+    with pytest.raises(RecomputeCostExceeded) as info:
+        recompute_cost.check(config(128, algorithm="brute"), 30_000_000_000)
+    message = str(info.value)
+    assert "brute at 128³, cap 255 would scan 4.4e12 voxel pairs" in message
+    assert "this server allows 3e10" in message
+    assert info.value.code == "recompute_cost_exceeded" and isinstance(info.value, InvalidInput)
+    recompute_cost.check(config(128, algorithm="brute"), None)  # no limit
+
+
+@pytest.fixture
+def engine(gpu):
+    engine = Engine(gpu, EngineLimits(max_recompute_voxel_visits=10 ** 8))
+    yield engine
+    engine.stop()
+
+
+def run(engine, command):
+    future = engine.submit(command)
+    engine.step()
+    return future
+
+
+def test_a_create_over_the_limit_is_refused_and_nothing_is_made(engine):
+    refused = run(engine, CreateWorld(WorldConfig(size=(64, 64, 64), algorithm="brute")))
+    with pytest.raises(RecomputeCostExceeded, match="brute at 64³, cap 255 would scan 6.9e10"):
+        refused.result()
+    assert engine.worlds == {}
+    world_id = run(engine, CreateWorld(WorldConfig(size=(64, 64, 64), algorithm="brute", max_distance=2))).result()["id"]
+    assert engine.worlds[world_id].config.max_distance == 2
+
+
+def test_a_reconfiguration_over_the_limit_changes_nothing(engine):
+    world_id = run(engine, CreateWorld(WorldConfig(size=(64, 64, 64), chunk_size=16))).result()["id"]
+    before = engine.worlds[world_id].config
+    version = run(engine, Describe(world_id)).result()["field_version"]
+    with pytest.raises(RecomputeCostExceeded, match="brute at 64³"):
+        run(engine, Reconfigure(world_id, {"algorithm": "brute"})).result()
+    assert engine.worlds[world_id].config == before
+    assert not engine.worlds[world_id].dirty
+    assert run(engine, Describe(world_id)).result()["field_version"] == version
+    # a small enough cap makes it affordable; and what does not recompute is never refused
+    run(engine, Reconfigure(world_id, {"algorithm": "brute", "max_distance": 2})).result()
+    assert engine.worlds[world_id].config.algorithm == "brute"
+    tight = EngineLimits(max_recompute_voxel_visits=1)
+    engine.table.limits = tight
+    run(engine, Reconfigure(world_id, {"voxel_size": 2.0})).result()
+    assert engine.worlds[world_id].config.voxel_size == 2.0

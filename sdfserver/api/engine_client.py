@@ -33,6 +33,7 @@ DECODE_OUTPUTS = msg.OUTPUTS_DECODER.decode
 HELLO_TIMEOUT_S = 30.0  # how long an API process starting waits for its engine
 WELCOME_TIMEOUT_S = 5.0
 RECONNECT_S = 0.1
+ANSWER_READ_BYTES = 1 << 18  # what one read of the answers socket takes, outside a large answer
 
 
 class BaseClient:
@@ -227,15 +228,25 @@ class EngineClient(BaseClient):
             log.exception("delivering engine outputs failed")
 
 
-class _Answers(asyncio.Protocol):
-    """The engine's answers, frame by frame; the first (an empty batch) is its welcome."""
+class _Answers(asyncio.BufferedProtocol):
+    """The engine's answers, frame by frame; the first (an empty batch) is its welcome. The
+    event loop reads into this protocol's buffer, or straight into a large answer's own
+    (``FrameReader.space``): a megabyte answer in a read or two, copied once."""
 
     def __init__(self, client: EngineClient, generation: int, welcomed: asyncio.Future):
         self.client, self.generation, self.welcomed = client, generation, welcomed
         self.reader = frames.FrameReader()
+        self.buffer = memoryview(bytearray(ANSWER_READ_BYTES))
+        self.into_frame = False  # the last buffer given was a large frame's
 
-    def data_received(self, data: bytes) -> None:
-        for payload in self.reader.feed(data):
+    def get_buffer(self, sizehint: int) -> memoryview:
+        space = self.reader.space()
+        self.into_frame = space is not None
+        return self.buffer if space is None else space
+
+    def buffer_updated(self, nbytes: int) -> None:
+        payloads = self.reader.filled(nbytes) if self.into_frame else self.reader.feed(self.buffer[:nbytes])
+        for payload in payloads:
             if not self.welcomed.done():
                 self.welcomed.set_result(None)
             self.client._arrived(payload)

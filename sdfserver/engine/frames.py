@@ -77,7 +77,9 @@ def prepare(sock: socket.socket) -> None:
 
 class FrameReader:
     """Bytes in, whole frames out, in order; a large frame is gathered in one buffer of its
-    size rather than by growing and cutting one."""
+    size rather than by growing and cutting one. While one is, ``space()`` is the rest of that
+    buffer, for a socket to read into directly (``filled`` then says how much it read): the
+    frame's bytes are not copied again and come in reads of any size, not the caller's buffer's."""
 
     __slots__ = ("_buffer", "_large", "_filled")
 
@@ -85,6 +87,18 @@ class FrameReader:
         self._buffer = bytearray()
         self._large: bytearray | None = None  # a frame larger than what has come, being filled
         self._filled = 0
+
+    def space(self) -> memoryview | None:
+        """Where the rest of a large frame goes; None when no large frame is being gathered."""
+        return None if self._large is None else memoryview(self._large)[self._filled:]
+
+    def filled(self, size: int) -> list[bytes | bytearray]:
+        """``size`` bytes were read into ``space()``: the frame, once it is whole."""
+        self._filled += size
+        if self._filled < len(self._large):
+            return []
+        frame, self._large = self._large, None
+        return [frame]
 
     def feed(self, data: bytes) -> list[bytes | bytearray]:
         frames: list[bytes | bytearray] = []

@@ -146,15 +146,17 @@ class EngineTransport:
                         frames.prepare(sock)
                         selector.register(sock, selectors.EVENT_READ, Peer(sock))
                         continue
+                    space = peer.reader.space()  # the rest of a large request goes straight to its buffer
                     try:
-                        size = peer.sock.recv_into(buffer)
+                        size = peer.sock.recv_into(buffer if space is None else space)
                     except OSError:
                         size = 0
                     if not size:  # the API process closed it (or went away)
                         selector.unregister(peer.sock)
                         peer.sock.close()
                         continue
-                    for payload in peer.reader.feed(view[:size]):
+                    payloads = peer.reader.feed(view[:size]) if space is None else peer.reader.filled(size)
+                    for payload in payloads:
                         if peer.identity is None:
                             peer.identity = payload
                             continue

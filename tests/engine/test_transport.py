@@ -33,6 +33,27 @@ def test_frames_cut_anywhere_come_back_whole():
     assert out == payloads
 
 
+def test_frames_read_into_their_own_buffers_come_back_whole():
+    """As a socket reads them: into ``space()`` while a large frame is being gathered (at most
+    what it has room for), else into a buffer of its own that is fed."""
+    rng = random.Random()
+    payloads = [rng.randbytes(rng.choice([0, 1, 7, 300, 70_000, 400_000, 2_000_000])) for _ in range(40)]
+    stream = memoryview(b"".join(frames.frame(p) for p in payloads))
+    reader, out, at = frames.FrameReader(), [], 0
+    while at < len(stream):
+        step = rng.choice([1, 3, 4, 5, 1000, 65_536, 300_000, 1 << 22])
+        space = reader.space()
+        if space is None:
+            out += reader.feed(stream[at:at + step])
+            at += step
+        else:
+            size = min(step, len(space), len(stream) - at)
+            space[:size] = stream[at:at + size]
+            out += reader.filled(size)
+            at += size
+    assert out == payloads
+
+
 class Service:
     """Answers Status with the size of answer asked for (in its id), or holds it unanswered."""
 

@@ -4,6 +4,7 @@ device state; the kernel hands each new connection to one of them."""
 
 from __future__ import annotations
 
+import asyncio
 import socket
 from typing import Any, Sequence
 
@@ -14,7 +15,34 @@ from sdfserver.api.connections import uvicorn_options
 from sdfserver.api.engine_client import EngineClient
 from sdfserver.api.hot import HotRoutes
 from sdfserver.engine.proc import EngineAddress, die_with_parent
+from sdfserver.errors import NotReady
 from sdfserver.settings import Settings, worker_count
+
+GRACEFUL_STOP_S = 5.0  # how long a stopping API process lets requests in flight finish
+# Requests still waiting for an engine this long before the graceful stop ends are answered 503:
+# uvicorn then cancels what is left, and a cancelled request gets no answer at all.
+ANSWER_BEFORE_STOP_S = 0.5
+
+
+class ApiServer(uvicorn.Server):
+    """uvicorn's server, whose graceful stop answers the requests still waiting for an engine
+    (one held by a long step) with 503 ``not_ready`` before it gives up on them."""
+
+    def __init__(self, config: uvicorn.Config, clients: Sequence[EngineClient]):
+        super().__init__(config)
+        self.clients = clients
+
+    async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
+        grace = self.config.timeout_graceful_shutdown or GRACEFUL_STOP_S
+        timer = asyncio.get_running_loop().call_later(max(0.0, grace - ANSWER_BEFORE_STOP_S), self.cut_off)
+        try:
+            await super().shutdown(sockets)
+        finally:
+            timer.cancel()
+
+    def cut_off(self) -> None:
+        for client in self.clients:
+            client.fail_all(NotReady("the server is stopping; retry the request"))
 
 
 def worker_main(settings: Settings, sock: socket.socket, engines: Sequence[EngineAddress], log_config: Any,
@@ -25,8 +53,8 @@ def worker_main(settings: Settings, sock: socket.socket, engines: Sequence[Engin
     clients = [EngineClient(e.input, e.output) for e in engines]
     app = create_app(settings, clients=clients, freeze_gc=True, addresses_file=addresses_file)
     config = uvicorn.Config(HotRoutes(app), log_config=log_config, log_level=settings.log_level,
-                            access_log=settings.access_log, timeout_graceful_shutdown=5, lifespan="on",
+                            access_log=settings.access_log, timeout_graceful_shutdown=GRACEFUL_STOP_S, lifespan="on",
                             **uvicorn_options(settings, worker_count(settings)))
-    server = uvicorn.Server(config)
+    server = ApiServer(config, clients)
     server.run(sockets=[sock])
     return 0 if server.started else 3  # uvicorn's start-up failure status, as uvicorn.run exits with

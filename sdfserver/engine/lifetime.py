@@ -145,7 +145,9 @@ class EngineLifetime:
             if self._on_death is not None:
                 self._on_death(self.failure)
             return
-        self._fail_all(NotReady("the server is shutting down"), self._drain())
+        # reads still waiting for a version are cut off by the stop too: 503, as the queued ones
+        self._fail_all(NotReady("the server is shutting down"), self._drain() + self._waiting)
+        self._waiting = []
         self._release_all()
 
     def _warm_up_once(self, wanted: bool) -> None:

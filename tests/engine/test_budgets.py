@@ -1,14 +1,17 @@
-"""Work refused at the door: a recompute over the server's limit, and how a step busy past its
-budget shows."""
+"""Work refused at the door (a recompute over the server's limit), how a step busy past its
+budget shows, and what a stop does to the requests it cuts off."""
 
 from __future__ import annotations
 
+import time
+
 import pytest
+from prometheus_client import generate_latest
 
 from sdfserver import recompute_cost
 from sdfserver.engine import Engine, EngineLimits
-from sdfserver.engine.commands import CreateWorld, Describe, Reconfigure
-from sdfserver.errors import InvalidInput, RecomputeCostExceeded
+from sdfserver.engine.commands import CreateWorld, Describe, OnDevice, Read, Reconfigure
+from sdfserver.errors import InvalidInput, NotReady, RecomputeCostExceeded
 from sdfserver.settings import Settings
 from sdfserver.world import WorldConfig
 from sdfserver.world_config import Focus
@@ -84,3 +87,42 @@ def test_a_reconfiguration_over_the_limit_changes_nothing(engine):
     engine.table.limits = tight
     run(engine, Reconfigure(world_id, {"voxel_size": 2.0})).result()
     assert engine.worlds[world_id].config.voxel_size == 2.0
+
+
+def busy_gauge(engine) -> float:
+    for line in generate_latest(engine.metrics.registry).decode().splitlines():
+        if line.startswith("sdfserver_engine_busy_seconds "):
+            return float(line.split()[1])
+    raise KeyError("sdfserver_engine_busy_seconds")
+
+
+def test_a_step_past_its_budget_says_what_it_does(gpu):
+    engine = Engine(gpu, EngineLimits(busy_step_ms=50.0))
+    world_id = run(engine, CreateWorld(WorldConfig(size=(16, 16, 16), chunk_size=8))).result()["id"]
+    seen = {}
+
+    def slow():
+        seen["early"] = engine.busy()
+        time.sleep(0.1)
+        seen["late"] = engine.busy()
+        seen["gauge"] = busy_gauge(engine)
+
+    engine.submit(OnDevice(slow))
+    engine.submit(Read(world_id, "voxels"))
+    engine.step()
+    assert seen["early"] is None  # under the budget
+    assert seen["late"]["phase"] == "serve" and seen["late"]["worlds"] == [world_id]
+    assert seen["late"]["busy_ms"] >= 100 and seen["gauge"] >= 0.1
+    assert engine.busy() is None and busy_gauge(engine) == 0.0  # the step is over
+
+
+def test_a_stop_fails_the_reads_still_waiting_with_503(gpu):
+    engine = Engine(gpu)
+    world_id = run(engine, CreateWorld(WorldConfig(size=(16, 16, 16), chunk_size=8))).result()["id"]
+    engine.start(warm_up=False)
+    waiting = engine.submit(Read(world_id, "distance", min_version=5, deadline=time.monotonic() + 60))
+    time.sleep(0.2)
+    assert not waiting.done()
+    engine.stop()
+    with pytest.raises(NotReady, match="shutting down"):
+        waiting.result(timeout=5)

@@ -38,12 +38,16 @@ class EditLimits:
     max_voxels_per_batch: int = 1 << 20
     max_brush_radius_vox: float = 256.0
     max_coordinate_vox: float = MAX_COORDINATE_VOX  # |box corner|, |sphere centre|
+    # the voxels a batch's boxes and spheres cover (clipped to the world), summed over its edits;
+    # a batch may always cover the world once, however small this is
+    max_brush_voxels_per_batch: float = 1 << 30
 
 
 # What replay admits: every batch that parses. Limits guard what comes in, not what was
 # already accepted and logged.
 REPLAY_LIMITS = EditLimits(max_ops_per_batch=1 << 62, max_voxels_per_batch=1 << 62,
-                           max_brush_radius_vox=math.inf, max_coordinate_vox=math.inf)
+                           max_brush_radius_vox=math.inf, max_coordinate_vox=math.inf,
+                           max_brush_voxels_per_batch=math.inf)
 
 
 @dataclass(frozen=True)
@@ -206,6 +210,26 @@ def validate_batch(edits: list[Edit], dims: Vec3, limits: EditLimits) -> None:
                 raise InvalidEdit(f"{where}: colours must be 0..255")
         else:
             raise InvalidEdit(f"edits[{i}]: not an edit: {e!r}")
+    _check_brush_voxels(edits, dims, limits)
+
+
+def _check_brush_voxels(edits: list[Edit], dims: Vec3, limits: EditLimits) -> None:
+    """TooLarge when the batch's boxes and spheres cover more voxels, summed, than the limit (or
+    the world, if it is larger): each of those voxels costs the device a visit, and a batch of
+    many large brushes would hold the engine for as long as they take."""
+    world = dims[0] * dims[1] * dims[2]
+    allowed = max(limits.max_brush_voxels_per_batch, world)
+    brushes = [e for e in edits if type(e) is not VoxelsEdit]
+    if len(brushes) * world <= allowed:  # however large each is: most batches stop here
+        return
+    total = 0
+    for e in brushes:
+        for box in edit_bounds(e, dims, 1):
+            total += box.volume
+    if total > allowed:
+        raise TooLarge(f"the batch's {len(brushes)} boxes and spheres cover {total:,} voxels together (clipped "
+                       f"to the world); the limit is {int(allowed):,} (max_brush_voxels_per_batch, or the "
+                       f"world's voxels if more)")
 
 
 def _check_coordinates(values: tuple, limits: EditLimits, index: int, field: str) -> None:

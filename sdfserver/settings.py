@@ -72,6 +72,11 @@ class Settings(BaseSettings):
     max_ops_per_batch: int = Field(1024, ge=1, description="Most operations in one edit batch (413 above it).")
     max_voxels_per_batch: int = Field(
         1 << 20, ge=1, description="Most explicit voxels in one edit batch (413 above it).")
+    max_brush_voxels_per_batch: int = Field(
+        1 << 30, ge=1, description="Most voxels one edit batch's boxes and spheres may cover, clipped to the world "
+                                   "and summed over its edits (413 above it); a batch may always cover its world "
+                                   "once, whatever this is. Each such voxel costs the device a visit while the "
+                                   "engine waits: 1,024 boxes over a whole 128^3 world are 2.1e9.")
     max_brush_radius_vox: float = Field(
         256.0, gt=0, description="Largest sphere radius an edit may use, in voxels (422 above it).")
     max_world_voxels: int = Field(
@@ -185,7 +190,8 @@ class Settings(BaseSettings):
     def edit_limits(self) -> EditLimits:
         return EditLimits(max_ops_per_batch=self.max_ops_per_batch,
                           max_voxels_per_batch=self.max_voxels_per_batch,
-                          max_brush_radius_vox=self.max_brush_radius_vox)
+                          max_brush_radius_vox=self.max_brush_radius_vox,
+                          max_brush_voxels_per_batch=self.max_brush_voxels_per_batch)
 
     @functools.cached_property
     def wire_limits(self) -> WireLimits:

@@ -5,16 +5,20 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 import pytest
 from prometheus_client import generate_latest
 
-from sdfserver import recompute_cost
+from sdfserver import brushes, recompute_cost
+from sdfserver.edits import REPLAY_LIMITS, EditLimits, edit_bounds, parse_edits, validate_batch
 from sdfserver.engine import Engine, EngineLimits
 from sdfserver.engine.commands import CreateWorld, Describe, OnDevice, Read, Reconfigure
-from sdfserver.errors import InvalidInput, NotReady, RecomputeCostExceeded
+from sdfserver.errors import InvalidInput, NotReady, RecomputeCostExceeded, TooLarge
 from sdfserver.settings import Settings
-from sdfserver.world import WorldConfig
+from sdfserver.world import World, WorldConfig
 from sdfserver.world_config import Focus
+
+from references import apply_edits as apply_reference
 
 
 def config(side, **kw) -> WorldConfig:
@@ -126,3 +130,70 @@ def test_a_stop_fails_the_reads_still_waiting_with_503(gpu):
     engine.stop()
     with pytest.raises(NotReady, match="shutting down"):
         waiting.result(timeout=5)
+
+
+def whole_world_boxes(n: int, side: int) -> list[dict]:
+    return [{"op": "box", "min": [0, 0, 0], "max": [side] * 3, "colour": 1 + i % 255} for i in range(n)]
+
+
+def test_a_batch_whose_brushes_cover_too_much_is_refused():
+    dims = (128, 128, 128)
+    heavy = parse_edits(whole_world_boxes(1024, 128))  # 2.1e9 voxels together
+    with pytest.raises(TooLarge, match="1024 boxes and spheres cover 2,147,483,648 voxels together"):
+        validate_batch(heavy, dims, EditLimits())
+    validate_batch(heavy[:512], dims, EditLimits())  # 1.07e9: the limit itself
+    validate_batch(heavy, dims, REPLAY_LIMITS)  # what was logged is replayed whatever the limit
+    # the world once is always allowed; a brush clipped to the world counts what it covers there
+    small = EditLimits(max_brush_voxels_per_batch=1000)
+    validate_batch(heavy[:1], dims, small)
+    validate_batch(parse_edits([{"op": "box", "min": [-10 ** 6] * 3, "max": [10 ** 6] * 3, "colour": 1}]), dims, small)
+    with pytest.raises(TooLarge):
+        validate_batch(heavy[:2], dims, small)
+    spheres = parse_edits([{"op": "sphere", "center": [64, 64, 64], "radius": 4, "colour": 1}] * 2)
+    validate_batch(spheres, dims, small)  # 2 x 9^3 = 1,458 voxels: over 1,000, but less than the world
+    centred = parse_edits([{"op": "sphere", "center": [4, 4, 4], "radius": 4, "colour": 1}] * 2)
+    with pytest.raises(TooLarge, match="cover 1,024 voxels"):  # each clipped to the 8^3 world
+        validate_batch(centred, (8, 8, 8), small)
+
+
+def test_brushes_a_later_box_covers_are_not_launched_and_the_voxels_are_the_same(gpu, monkeypatch):
+    raw = [{"op": "sphere", "center": [8, 8, 8], "radius": 5, "colour": 3},  # hidden by the next box
+           {"op": "box", "min": [0, 0, 0], "max": [16, 16, 16], "colour": 4},
+           {"op": "box", "min": [2, 2, 2], "max": [9, 9, 9], "colour": 5},  # hidden by the box after it
+           {"op": "box", "min": [1, 1, 1], "max": [12, 12, 12], "colour": 6},
+           {"op": "sphere", "center": [4, 4, 4], "radius": 3, "colour": 7},  # a later sphere hides nothing
+           {"op": "box", "min": [3, 3, 3], "max": [30, 30, 30], "colour": 0},
+           {"op": "sphere", "center": [3, 3, 3], "radius": 2, "colour": 8}]
+    edits = parse_edits(raw)
+    boxed = [(e, edit_bounds(e, (32, 32, 32), 1)[0]) for e in edits]
+    assert [e.colour for e, _ in brushes.visible(boxed)] == [4, 6, 7, 0, 8]
+    launched = []
+    real = brushes.enqueue_brush
+
+    monkeypatch.setattr(brushes, "CULL_ABOVE_VOXELS", 0)
+    world = World(gpu, WorldConfig(size=(32, 32, 32), chunk_size=8, max_distance=8))
+    try:
+        world.apply_edits(edits)
+        expected = np.zeros((32, 32, 32), np.uint8)
+        apply_reference(expected, raw)
+        assert np.array_equal(world.read_voxels(), expected)
+        rng = np.random.default_rng(31)
+        for _ in range(5):  # random nests of boxes and spheres
+            batch = []
+            for _ in range(40):
+                lo = rng.integers(-4, 28, 3)
+                hi = lo + rng.integers(1, 36, 3)
+                batch.append({"op": "box", "min": lo.tolist(), "max": hi.tolist(), "colour": int(rng.integers(0, 256))}
+                             if rng.random() < 0.7 else
+                             {"op": "sphere", "center": lo.tolist(), "radius": float(rng.integers(0, 12)),
+                              "colour": int(rng.integers(0, 256))})
+            world.apply_edits(parse_edits(batch))
+            apply_reference(expected, batch)
+            assert np.array_equal(world.read_voxels(), expected)
+        # 1,024 whole-world boxes: one launch of the last box for each launch's worth
+        monkeypatch.setattr(brushes, "enqueue_brush", lambda *a, **k: launched.append(a[4]) or real(*a, **k))
+        world.apply_edits(parse_edits(whole_world_boxes(1024, 32)))
+        assert len(launched) == 1024 // 256 and all(b.volume == 32 ** 3 for b in launched)
+        assert (world.read_voxels() == 1 + 1023 % 255).all()
+    finally:
+        world.release()

@@ -17,10 +17,11 @@ from sdfserver.edits import BoxEdit, Edit, SphereEdit, VoxelsEdit
 from sdfserver.geometry import Box, Vec3
 
 WORLD_ORIGIN = bytes(16)  # int4(0, 0, 0): a dense world's buffer starts at the world's corner
-# Brushes of a launch covering more voxels than this, summed, are first checked for brushes a
-# later box hides whole (``visible``): the check costs the host well under a millisecond, a
-# launch this large costs the device more.
-CULL_ABOVE_VOXELS = 1 << 22
+# The n brushes of a launch are first checked for brushes a later box hides whole (``visible``)
+# when they cover more than this many voxels per pair of brushes, summed: the check's host time
+# grows with the pairs, the launch's device time with the voxels, and past this the launch costs
+# a GPU about what the check costs the host (a CPU device far more).
+CULL_PER_PAIR_VOXELS = 4096
 from sdfserver.gpu import GpuContext
 
 
@@ -41,7 +42,7 @@ def enqueue_brushes(gpu: GpuContext, voxels: cl.Buffer, dims: bytes, brushes: li
                     origin: bytes = WORLD_ORIGIN) -> None:
     """Box and sphere edits, each with its clipped box: one alone with its own kernel, several
     with fill_brushes (their records in one small buffer)."""
-    if len(brushes) > 1 and sum(box.volume for _, box in brushes) > CULL_ABOVE_VOXELS:
+    if len(brushes) > 1 and sum(box.volume for _, box in brushes) > CULL_PER_PAIR_VOXELS * len(brushes) ** 2:
         brushes = visible(brushes)
     if len(brushes) == 1:
         enqueue_brush(gpu, voxels, dims, *brushes[0], origin)
@@ -72,13 +73,16 @@ def visible(brushes: list[tuple[Edit, Box]]) -> list[tuple[Edit, Box]]:
     """``brushes`` less those a later box covers whole: a later brush wins where they overlap, so
     those would write nothing (fill_brushes would still visit each of their voxels). Vectorised:
     a launch holds at most a few hundred brushes."""
-    lo = np.array([box.lo for _, box in brushes])
-    hi = np.array([box.hi for _, box in brushes])
-    is_box = np.array([type(edit) is BoxEdit for edit, _ in brushes])
+    lo = np.array([box.lo for _, box in brushes]).T  # (3, n)
+    hi = np.array([box.hi for _, box in brushes]).T
     # covers[i, j]: brush j is a box holding brush i's whole box
-    covers = (lo[None, :, :] <= lo[:, None, :]).all(axis=2) & (hi[:, None, :] <= hi[None, :, :]).all(axis=2)
-    covers &= is_box[None, :]
-    hidden = np.triu(covers, k=1).any(axis=1)  # by a later one (j > i)
+    n = len(brushes)
+    is_box = np.array([type(edit) is BoxEdit for edit, _ in brushes])
+    covers = np.triu(np.broadcast_to(is_box, (n, n)), k=1)  # j > i: a later box
+    for axis in range(3):
+        covers &= lo[axis][None, :] <= lo[axis][:, None]
+        covers &= hi[axis][:, None] <= hi[axis][None, :]
+    hidden = covers.any(axis=1)
     return [b for b, h in zip(brushes, hidden.tolist()) if not h]
 
 

@@ -170,7 +170,7 @@ def test_brushes_a_later_box_covers_are_not_launched_and_the_voxels_are_the_same
     launched = []
     real = brushes.enqueue_brush
 
-    monkeypatch.setattr(brushes, "CULL_ABOVE_VOXELS", 0)
+    monkeypatch.setattr(brushes, "CULL_PER_PAIR_VOXELS", 0)
     world = World(gpu, WorldConfig(size=(32, 32, 32), chunk_size=8, max_distance=8))
     try:
         world.apply_edits(edits)

@@ -6,7 +6,7 @@ random spheres, seeded per size), chunk 32, cap 255:
             median wall ms); a size over the device's memory budget is skipped, saying so
   brush     a radius-8 sphere added, then erased, alternately, at random places and at the centre
             of the largest size: median device and wall ms of the incremental recompute
-  queries   sdfserver.engine.query's query_points / query_spheres (where present) on the
+  queries   sdfserver.engine.query's run_query for points and spheres on the
             --query-size (or largest) world: wall ms, median over --reps
   accuracy  against scipy (distance_transform_cdt taxicab / distance_transform_edt, capped; signed:
             solids get minus the transform of the inverted mask padded with air) up to
@@ -120,23 +120,21 @@ def measure_brush(world: World, args, row: dict, results: Results, rng: np.rando
 
 
 def measure_queries(world: World, args, row: dict, results: Results, rng: np.random.Generator) -> None:
-    from sdfserver.engine import query
+    """The engine thread's path of a points and a spheres query (engine/query.py run_query: checks,
+    upload, one launch, download), wall ms; an HTTP request adds the transport
+    (tools/query_timeline.py)."""
+    from sdfserver.engine.query import run_query
 
     n = row["world_size"]
     points = rng.uniform(0, n, (args.points, 3)).astype(np.float32)
     spheres = np.column_stack([rng.uniform(0, n, (args.spheres, 3)),
                                rng.uniform(1, 16, args.spheres)]).astype(np.float32)
-    for kind, name, rows in (("points", "query_points", points), ("spheres", "query_spheres", spheres)):
-        call = getattr(query, name, None)
-        if call is None:
-            results.add("queries", {**row, "kind": kind, "skipped": f"sdfserver.engine.query has no {name}"},
-                        f"{row['label']} {kind}: skipped: sdfserver.engine.query has no {name}")
-            continue
-        call(world, rows)  # warm-up: builds the program
+    for kind, rows in (("points", points), ("spheres", spheres)):
+        run_query(world, kind, rows)  # warm-up: builds the program
         wall = []
         for _ in range(args.reps):
             start = time.perf_counter()
-            call(world, rows)
+            run_query(world, kind, rows)
             wall.append((time.perf_counter() - start) * 1e3)
         q = {**row, "kind": kind, "count": len(rows), **stats(wall)}
         results.add("queries", q, f"{row['label']} {n}^3 {len(rows)} {kind}: median {q['median_ms']:.3f} ms over {len(wall)}")

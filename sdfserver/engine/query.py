@@ -20,6 +20,7 @@ One upload, one kernel launch and one download a query (``kernels/query.cl``).
 from __future__ import annotations
 
 import struct
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,10 +72,12 @@ def device_rows(kind: str, rows: np.ndarray, config: WorldConfig) -> np.ndarray:
     out = np.ascontiguousarray(rows, dtype=np.float32)  # no copy for a float32 blob
     lo = np.asarray(config.origin)
     hi = lo + np.asarray(config.size) * config.voxel_size
-    # A column's min and max are one fast pass each (NaN fails the comparison); an elementwise
-    # comparison of rows of 3 costs three times as much in NumPy.
+    # A column's min and max are one fast pass each over a transposed copy (NaN fails the
+    # comparison); strided columns or an elementwise comparison of rows of 3 cost several times
+    # as much in NumPy.
     lo32, hi32 = lo.astype(np.float32), hi.astype(np.float32)
-    if not all(out[:, k].min() >= lo32[k] and out[:, k].max() < hi32[k] for k in range(3)):
+    columns = np.ascontiguousarray(out[:, :3].T)
+    if not all(columns[k].min() >= lo32[k] and columns[k].max() < hi32[k] for k in range(3)):
         if not np.isfinite(out).all():
             raise first_row(kind, rows, ~np.isfinite(out), "holds NaN or an infinity")
         raise first_row(kind, rows, (out[:, :3] < lo32) | (out[:, :3] >= hi32),
@@ -103,24 +106,48 @@ def ray_rows(rows: np.ndarray, config: WorldConfig) -> np.ndarray:
     return out
 
 
+class KeptBuffers:
+    """A device's query input and output buffers, kept and grown as queries need: a buffer made
+    for each query cost more host time than the query (NVIDIA's driver allocates it inside the
+    launch that first uses it). At most max_query_points rows of the widest kind: a few MiB."""
+
+    def __init__(self, gpu) -> None:
+        self.gpu = gpu
+        self.buffers: dict[str, cl.Buffer] = {}
+        self.sizes: dict[str, int] = {}
+
+    def get(self, name: str, flags, nbytes: int) -> cl.Buffer:
+        if self.sizes.get(name, 0) < nbytes:
+            old = self.buffers.pop(name, None)
+            if old is not None:
+                old.release()  # OpenCL frees it once the queued work using it is done
+            size = max(nbytes, 2 * self.sizes.get(name, 0))
+            self.buffers[name] = cl.Buffer(self.gpu.context, flags, size=size)
+            self.sizes[name] = size
+        return self.buffers[name]
+
+
+KEPT: "weakref.WeakKeyDictionary[object, KeptBuffers]" = weakref.WeakKeyDictionary()
+
+
 def run_query(world: World, kind: str, rows: np.ndarray) -> QueryResult:
     """Run on the thread that owns the world's GpuContext."""
     gpu, config = world.gpu, world.config
     inputs = device_rows(kind, rows, config)
     n = len(inputs)
     out_bytes = {"points": 17 * n, "spheres": 16 * n, "rays": 29 * n}[kind]
-    in_buf = gpu.upload(inputs)
-    out_buf = cl.Buffer(gpu.context, cl.mem_flags.WRITE_ONLY, size=out_bytes)
-    try:
-        defines, field = world.field_source()
-        gpu.programs.kernel("query.cl", f"query_{kind}", **defines)(
-            gpu.queue, (-(-n // LOCAL) * LOCAL,), (LOCAL,), *field, int4(config.size),
-            PLACE.pack(*config.origin, config.voxel_size), in_buf, np.int32(n), out_buf)
-        raw = np.empty(out_bytes, dtype=np.uint8)
-        cl.enqueue_copy(gpu.queue, raw, out_buf, is_blocking=True)
-    finally:
-        in_buf.release()
-        out_buf.release()
+    kept = KEPT.get(gpu)
+    if kept is None:
+        kept = KEPT[gpu] = KeptBuffers(gpu)
+    in_buf = kept.get("in", cl.mem_flags.READ_ONLY, inputs.nbytes)
+    out_buf = kept.get("out", cl.mem_flags.WRITE_ONLY, out_bytes)
+    cl.enqueue_copy(gpu.queue, in_buf, inputs, is_blocking=False)  # done before the download below
+    defines, field = world.field_source()
+    gpu.programs.kernel("query.cl", f"query_{kind}", **defines)(
+        gpu.queue, (-(-n // LOCAL) * LOCAL,), (LOCAL,), *field, int4(config.size),
+        PLACE.pack(*config.origin, config.voxel_size), in_buf, np.int32(n), out_buf)
+    raw = np.empty(out_bytes, dtype=np.uint8)  # its own: the answer's arrays are views of it
+    cl.enqueue_copy(gpu.queue, raw, out_buf, is_blocking=True)
     return QueryResult(world.field_version, answers(kind, raw, n))
 
 

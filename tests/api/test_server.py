@@ -26,15 +26,15 @@ import pyopencl as cl
 from sdfserver.engine.core import Engine
 from sdfserver.world import World
 
-_recompute, _wait_timeout = World.recompute, Engine._wait_timeout
+_begin_recompute, _wait_timeout = World.begin_recompute, Engine._wait_timeout
 
 
-def recompute(self, *args, **kwargs):
+def begin_recompute(self, *args, **kwargs):
     if self.config.max_distance == 66:
         raise RuntimeError("a simulated bug in a step")
     if self.config.max_distance == 77:
         raise cl.RuntimeError("simulated device loss")
-    return _recompute(self, *args, **kwargs)
+    return _begin_recompute(self, *args, **kwargs)
 
 
 def wait_timeout(self):
@@ -43,7 +43,7 @@ def wait_timeout(self):
     return _wait_timeout(self)
 
 
-World.recompute, Engine._wait_timeout = recompute, wait_timeout
+World.begin_recompute, Engine._wait_timeout = begin_recompute, wait_timeout
 '''
 FAILING_WARM_UP = '''
 from sdfserver.engine import lifetime

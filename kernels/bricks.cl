@@ -13,26 +13,9 @@
  * Codes for a box of bricks are laid out (z, y, x) with extent codes_n, brick coordinates
  * codes_lo at index 0; `brick` is the brick side in voxels (the world's chunk size). */
 #include "sdf_common.h"
+#include "field_values.h"
 
 #define BRICK_AIR (-1)
-#ifndef FIELD_EUCLID
-#define FIELD_EUCLID 0
-#endif
-#ifndef FIELD_SIGNED
-#define FIELD_SIGNED 0
-#endif
-
-/* The stored value of an implicit air brick's voxels, and of an implicit solid brick's. */
-inline ushort implicit_air(int cap)
-{
-    return FIELD_EUCLID ? (ushort)(cap * cap) : pack_field((uint)cap, 0);
-}
-
-inline ushort implicit_solid(int cap, uchar colour)
-{
-    const uint inside = FIELD_SIGNED ? (uint)cap : 0u;
-    return FIELD_EUCLID ? (ushort)(inside * inside) : pack_field(inside, colour);
-}
 #define POOL_ARGS __global uchar *pv0, __global uchar *pv1, __global uchar *pv2, __global uchar *pv3, \
                   __global ushort *pf0, __global ushort *pf1, __global ushort *pf2, __global ushort *pf3, int seg
 

@@ -15,6 +15,7 @@
  * t = 0 with no face; a ray outside the world is clipped to its box first. */
 #include "sdf_common.h"
 #include "field_source.h"
+#include "ray_box.h"
 
 #define JUMP_MIN_STEPS 8  /* from this many clear face-steps on, a ray jumps instead of stepping */
 
@@ -90,29 +91,6 @@ __kernel void query_spheres(FIELD_ARGS, int4 dims, float4 place, __global const 
     vstore3(len > 0.0f ? g / len : (float3)(0.0f), i, out + n);
 }
 
-inline int inside(int3 v, int4 dims)
-{
-    return v.x >= 0 && v.y >= 0 && v.z >= 0 && v.x < dims.x && v.y < dims.y && v.z < dims.z;
-}
-
-/* Narrows [t0, t1] to where the ray lies in the world along one axis; *entry: the axis whose face
- * the ray enters last (stays -1 when the origin lies inside). */
-inline void clip(float o, float d, int n, int axis, float *t0, float *t1, int *entry)
-{
-    if (d == 0.0f) {
-        if (o < 0.0f || o >= (float)n)
-            *t1 = -1.0f;
-        return;
-    }
-    const float a = (0.0f - o) / d, b = ((float)n - o) / d;
-    const float lo = fmin(a, b), hi = fmax(a, b);
-    if (lo > *t0) {
-        *t0 = lo;
-        *entry = axis;
-    }
-    *t1 = fmin(*t1, hi);
-}
-
 inline float3 next_faces(int3 v, int3 step, float3 o, float3 d)
 {
     const float3 up = convert_float3(v) + (float3)(step.x > 0, step.y > 0, step.z > 0);
@@ -128,9 +106,9 @@ inline int first_hit(FIELD_ARGS, int4 dims, float3 o, float3 d, float t_end, int
     const int3 step = (int3)(d.x > 0.0f ? 1 : -1, d.y > 0.0f ? 1 : -1, d.z > 0.0f ? 1 : -1);
     float t0 = 0.0f, t1 = INFINITY;
     int entry = -1;
-    clip(o.x, d.x, dims.x, 0, &t0, &t1, &entry);
-    clip(o.y, d.y, dims.y, 1, &t0, &t1, &entry);
-    clip(o.z, d.z, dims.z, 2, &t0, &t1, &entry);
+    clip_axis(o.x, d.x, dims.x, 0, &t0, &t1, &entry);
+    clip_axis(o.y, d.y, dims.y, 1, &t0, &t1, &entry);
+    clip_axis(o.z, d.z, dims.z, 2, &t0, &t1, &entry);
     if (!(t1 > t0) || t0 > t_end)
         return 0;
     int3 v = clamp(convert_int3_rtn(o + d * t0), (int3)(0), dims.xyz - 1);
@@ -159,7 +137,7 @@ inline int first_hit(FIELD_ARGS, int4 dims, float3 o, float3 d, float t_end, int
              * for rounding where the ray lands, so every voxel passed is clear. */
             t += (float)(steps - 5) / l1;
             v = convert_int3_rtn(o + d * t);
-            if (t > t_end || !inside(v, dims))
+            if (t > t_end || !in_world(v, dims))
                 return 0;
             t_max = next_faces(v, step, o, d);
             continue;
@@ -170,7 +148,7 @@ inline int first_hit(FIELD_ARGS, int4 dims, float3 o, float3 d, float t_end, int
             else if (axis == 1) { v.y += step.y; t = t_max.y; t_max.y += t_delta.y; }
             else { v.z += step.z; t = t_max.z; t_max.z += t_delta.z; }
             *face = axis;
-            if (t > t_end || !inside(v, dims))
+            if (t > t_end || !in_world(v, dims))
                 return 0;
         }
     }

@@ -36,6 +36,7 @@
 #include "sdf_common.h"
 
 #include "field_source.h"
+#include "ray_box.h"
 
 #define RENDER_AO 1
 #define RENDER_SHADOW 2
@@ -51,35 +52,6 @@ typedef struct {
     uint reads;    /* field reads */
     float shade;   /* min over reads of clearance / t (soft shadows) */
 } march_result;
-
-inline int argmin3(float3 t)
-{
-    if (t.x <= t.y && t.x <= t.z)
-        return 0;
-    return t.y <= t.z ? 1 : 2;
-}
-
-inline int in_world(int3 v, int4 dims)
-{
-    return v.x >= 0 && v.y >= 0 && v.z >= 0 && v.x < dims.x && v.y < dims.y && v.z < dims.z;
-}
-
-/* Slab test of one axis: narrows [t0, t1] and records the axis giving t0. */
-inline void clip_axis(float o, float d, int n, int axis, float *t0, float *t1, int *entry)
-{
-    if (d == 0.0f) {
-        if (o < 0.0f || o >= (float)n)
-            *t1 = -1.0f;
-        return;
-    }
-    float a = (0.0f - o) / d, b = ((float)n - o) / d;
-    float lo = fmin(a, b), hi = fmax(a, b);
-    if (lo > *t0) {
-        *t0 = lo;
-        *entry = axis;
-    }
-    *t1 = fmin(*t1, hi);
-}
 
 inline march_result march(FIELD_ARGS, int4 dims, float3 o, float3 d, int long_steps)
 {

@@ -35,37 +35,11 @@
 #ifndef FIELD_SOURCE_H
 #define FIELD_SOURCE_H
 #include "sdf_common.h"
+#include "field_values.h"
 
 #ifndef SPARSE_FIELD
 #define SPARSE_FIELD 0
 #endif
-#ifndef FIELD_EUCLID
-#define FIELD_EUCLID 0
-#endif
-#ifndef FIELD_SIGNED
-#define FIELD_SIGNED 0
-#endif
-
-/* Face-steps that a stored value allows, on air. */
-inline uint air_steps(ushort f)
-{
-#if FIELD_EUCLID
-    const uint r = (uint)ceil(sqrt((float)f));
-    return r * r < (uint)f ? r + 1u : (r > 0u && (r - 1u) * (r - 1u) >= (uint)f ? r - 1u : r);
-#else
-    return (uint)(f >> 8);
-#endif
-}
-
-/* The magnitude a stored value holds, in voxels. */
-inline float stored_distance(ushort f)
-{
-#if FIELD_EUCLID
-    return sqrt((float)f);
-#else
-    return (float)(f >> 8);
-#endif
-}
 #define TABLE_BLOCK 16
 
 #if SPARSE_FIELD

@@ -15,6 +15,7 @@ import pyopencl as cl
 from sdfserver.algorithms.base import float4, grid, int4
 from sdfserver.edits import BoxEdit, Edit, SphereEdit, VoxelsEdit
 from sdfserver.geometry import Box, Vec3
+from sdfserver.gpu import GpuContext
 
 WORLD_ORIGIN = bytes(16)  # int4(0, 0, 0): a dense world's buffer starts at the world's corner
 # The n brushes of a launch are first checked for brushes a later box hides whole (``visible``)
@@ -22,7 +23,6 @@ WORLD_ORIGIN = bytes(16)  # int4(0, 0, 0): a dense world's buffer starts at the 
 # grows with the pairs, the launch's device time with the voxels, and past this the launch costs
 # a GPU about what the check costs the host (a CPU device far more).
 CULL_PER_PAIR_VOXELS = 4096
-from sdfserver.gpu import GpuContext
 
 
 def enqueue_voxels(gpu: GpuContext, voxels: cl.Buffer, dims: bytes, size: Vec3, e: VoxelsEdit,

@@ -19,8 +19,6 @@
 
 #define JUMP_MIN_STEPS 8  /* from this many clear face-steps on, a ray jumps instead of stepping */
 
-/* The interpolated distance (voxels) at q in centre coordinates (voxel v's centre at v), and in
- * *grad its gradient. */
 /* A corner's distance. Corners pass as three ints and become an int3 here: Intel's CPU runtime
  * miscompiled a sparse world's reads (wrong distances in some work-items) when handed int3s built
  * in place from the lanes of two vectors. */
@@ -29,6 +27,8 @@ inline float at(FIELD_ARGS, int x, int y, int z, int4 dims)
     return field_distance(FIELD_PASS, (int3)(x, y, z), dims);
 }
 
+/* The interpolated distance (voxels) at q in centre coordinates (voxel v's centre at v), and in
+ * *grad its gradient. */
 inline float trilinear(FIELD_ARGS, float3 q, int4 dims, float3 *grad)
 {
     const int3 hi = dims.xyz - 1;

@@ -236,12 +236,36 @@ def _focus(focus: Any) -> dict | None:
     raise TypeError(f"focus must be a Focus, a dict or None, got {type(focus).__name__}")
 
 
+# What a world's creation may set besides its size, chunk, cap, algorithm and focus (docs/api.md):
+# left out (None), the server's default.
+CREATE_OPTIONS = ("lod_algorithm", "borders", "storage", "generate", "metric", "signed", "voxel_size", "origin",
+                  "palette")
+# What a PATCH may change besides algorithm, focus and cap.
+UPDATE_OPTIONS = ("lod_algorithm", "borders", "metric", "signed", "voxel_size", "origin", "palette")
+
+
+def _option(name: str, value: Any) -> Any:
+    """A creation or PATCH option in wire form (numbers as plain floats, sequences as lists)."""
+    if name == "voxel_size":
+        return float(value)
+    if name == "origin":
+        return [float(v) for v in value]
+    if name == "palette":
+        return [[int(c) for c in colour] for colour in value]
+    return value
+
+
 def create_world(size: Sequence[int], chunk_size: int, max_distance: int, algorithm: str,
-                 focus: Any) -> Call:
+                 focus: Any, options: dict[str, Any] | None = None) -> Call:
     body = {"size": [int(v) for v in size], "chunk_size": int(chunk_size),
             "max_distance": int(max_distance), "algorithm": algorithm}
     if focus is not None:
         body["focus"] = _focus(focus)
+    for name, value in (options or {}).items():
+        if name not in CREATE_OPTIONS:
+            raise ValueError(f"create_world has no option {name!r}; the options are {', '.join(CREATE_OPTIONS)}")
+        if value is not None:
+            body[name] = _option(name, value)
     return Call("POST", "/v1/worlds", _world, body=body)
 
 
@@ -253,7 +277,8 @@ def get_world(world_id: str) -> Call:
     return Call("GET", _world_path(world_id), _world)
 
 
-def update_world(world_id: str, algorithm: Any, focus: Any, max_distance: Any) -> Call:
+def update_world(world_id: str, algorithm: Any, focus: Any, max_distance: Any,
+                 options: dict[str, Any] | None = None) -> Call:
     body: dict[str, Any] = {}
     if algorithm is not _KEEP:
         body["algorithm"] = algorithm
@@ -261,8 +286,13 @@ def update_world(world_id: str, algorithm: Any, focus: Any, max_distance: Any) -
         body["focus"] = _focus(focus)
     if max_distance is not _KEEP:
         body["max_distance"] = int(max_distance)
+    for name, value in (options or {}).items():
+        if name not in UPDATE_OPTIONS:
+            raise ValueError(f"update_world has no option {name!r}; the options are {', '.join(UPDATE_OPTIONS)}")
+        if value is not _KEEP:
+            body[name] = _option(name, value)
     if not body:
-        raise ValueError("update_world needs at least one of algorithm, focus, max_distance")
+        raise ValueError("update_world needs at least one setting to change")
     return Call("PATCH", _world_path(world_id), _world, body=body)
 
 

@@ -77,8 +77,11 @@ class Client:
     # -- worlds ---------------------------------------------------------------------------------
 
     def create_world(self, size: Sequence[int], *, chunk_size: int = 16, max_distance: int = 255,
-                     algorithm: str = "exact", focus: Any = None) -> WorldInfo:
-        return self._send(p.create_world(size, chunk_size, max_distance, algorithm, focus))
+                     algorithm: str = "exact", focus: Any = None, **options: Any) -> WorldInfo:
+        """``options``: any of ``lod_algorithm``, ``borders``, ``storage``, ``generate``, ``metric``,
+        ``signed``, ``voxel_size``, ``origin``, ``palette`` (docs/api.md); left out, the server's
+        default."""
+        return self._send(p.create_world(size, chunk_size, max_distance, algorithm, focus, options))
 
     def list_worlds(self) -> list[WorldInfo]:
         return self._send(p.list_worlds())
@@ -87,9 +90,11 @@ class Client:
         return self._send(p.get_world(world_id))
 
     def update_world(self, world_id: str, *, algorithm: Any = p.KEEP, focus: Any = p.KEEP,
-                     max_distance: Any = p.KEEP) -> WorldInfo:
-        """PATCH the named settings; ``focus=None`` removes the focus."""
-        return self._send(p.update_world(world_id, algorithm, focus, max_distance))
+                     max_distance: Any = p.KEEP, **options: Any) -> WorldInfo:
+        """PATCH the named settings; ``focus=None`` removes the focus. ``options``: any of
+        ``lod_algorithm``, ``borders``, ``metric``, ``signed``, ``voxel_size``, ``origin``,
+        ``palette``."""
+        return self._send(p.update_world(world_id, algorithm, focus, max_distance, options))
 
     def delete_world(self, world_id: str) -> None:
         self._send(p.delete_world(world_id))
@@ -195,8 +200,8 @@ class AsyncClient:
         return call.parse(response)
 
     async def create_world(self, size: Sequence[int], *, chunk_size: int = 16, max_distance: int = 255,
-                           algorithm: str = "exact", focus: Any = None) -> WorldInfo:
-        return await self._send(p.create_world(size, chunk_size, max_distance, algorithm, focus))
+                           algorithm: str = "exact", focus: Any = None, **options: Any) -> WorldInfo:
+        return await self._send(p.create_world(size, chunk_size, max_distance, algorithm, focus, options))
 
     async def list_worlds(self) -> list[WorldInfo]:
         return await self._send(p.list_worlds())
@@ -205,8 +210,8 @@ class AsyncClient:
         return await self._send(p.get_world(world_id))
 
     async def update_world(self, world_id: str, *, algorithm: Any = p.KEEP, focus: Any = p.KEEP,
-                           max_distance: Any = p.KEEP) -> WorldInfo:
-        return await self._send(p.update_world(world_id, algorithm, focus, max_distance))
+                           max_distance: Any = p.KEEP, **options: Any) -> WorldInfo:
+        return await self._send(p.update_world(world_id, algorithm, focus, max_distance, options))
 
     async def delete_world(self, world_id: str) -> None:
         await self._send(p.delete_world(world_id))

@@ -51,6 +51,10 @@ class WorldInfo:
     focus: Focus | None = None
     dirty_chunks: int = 0
     last_recompute_ms: float | None = None
+    metric: str = "manhattan"
+    signed: bool = False
+    voxel_size: float = 1.0
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
     raw: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
@@ -67,6 +71,10 @@ class WorldInfo:
             focus=Focus.from_wire(raw.get("focus")),
             dirty_chunks=int(raw.get("dirty_chunks", raw.get("dirty_chunk_count", 0)) or 0),
             last_recompute_ms=None if last is None else float(last),
+            metric=str(raw.get("metric", "manhattan")),
+            signed=bool(raw.get("signed", False)),
+            voxel_size=float(raw.get("voxel_size", 1.0)),
+            origin=tuple(float(v) for v in raw.get("origin", (0.0, 0.0, 0.0))),
             raw=dict(raw),
         )
 

@@ -129,3 +129,26 @@ def test_async_client_concurrent_batches_get_distinct_versions(server_url):
     assert sorted(versions) == list(range(1, 9))
     np.testing.assert_array_equal(distance, oracle_distance(voxels, CAP))
     assert set(np.unique(voxels)) == set(range(9))
+
+
+def test_field_options_through_the_client(client):
+    """Every creation option the server takes reaches it from create_world, and update_world
+    PATCHes metric, sign and placement; an option the server does not take is refused here."""
+    world = client.create_world((32, 16, 16), chunk_size=8, max_distance=9, metric="euclidean", signed=True,
+                                voxel_size=0.5, origin=(1, 2, 3), palette=[(i, 255 - i, 7) for i in range(255)])
+    try:
+        assert (world.metric, world.signed, world.voxel_size, world.origin) == ("euclidean", True, 0.5,
+                                                                               (1.0, 2.0, 3.0))
+        assert world.raw["palette"][3] == [3, 252, 7]
+        version = client.edit(world.id, [edits.box((4, 4, 4), (8, 8, 8), 9)])
+        field = client.read_field(world.id, min_version=version)
+        assert field.data.dtype == np.float32 and field.data[6, 6, 6] < 0  # inside the box
+        changed = client.update_world(world.id, metric="manhattan", origin=(0, 0, 0))
+        assert (changed.metric, changed.signed, changed.origin) == ("manhattan", True, (0.0, 0.0, 0.0))
+        assert client.read_field(world.id, min_version=version).data.dtype == np.int16
+        with pytest.raises(InvalidInput, match="metric"):
+            client.update_world(world.id, metric="chebyshev")
+        with pytest.raises(ValueError, match="no option 'colour'"):
+            client.create_world((16, 16, 16), colour=3)
+    finally:
+        client.delete_world(world.id)

@@ -1,0 +1,373 @@
+/**
+ * `Client`: the HTTP API of sdfserver, the calls of the Python client's `Client`.
+ *
+ *     const client = new Client("http://127.0.0.1:8000", { apiKey });
+ *     const world = await client.createWorld([64, 64, 64], { maxDistance: 32 });
+ *     const version = await client.edit(world.id, [sphere([32, 32, 32], 6)]);
+ *     const field = await client.readField(world.id, { minVersion: version }); // reads its own write
+ *
+ * Bodies travel as msgpack (arrays as typed-array blobs); `apiKey` is sent as
+ * `Authorization: Bearer <key>` on every request and on the stream. Requests use the global
+ * `fetch` (or the one given, for tests).
+ */
+
+import type { Edit } from "./edits.js";
+import { ProtocolError, Timeout, TransportError, retryAfter, serverError } from "./errors.js";
+import type {
+  Block, Box, Camera, Exported, FileFormat, Frame, FrameFormat, Pick, QueryResult, RayResult, RenderOptions,
+  SphereResult, Vec3, WorldInfo, WorldOptions, WorldUpdate,
+} from "./models.js";
+import * as parse from "./parse.js";
+import { Stream, type StreamOptions } from "./stream.js";
+import { CONTENT_TYPE, CONTENT_TYPES, blob, decode, encode } from "./wire.js";
+
+export const DEFAULT_TIMEOUT_MS = 30_000;
+const OCTET = "application/octet-stream";
+const FRAME_TYPES: Record<FrameFormat, string> = { png: "image/png", jpeg: "image/jpeg", rgba: OCTET };
+
+/** The options' names on the wire (`chunkSize` -> `chunk_size`, ...). */
+const WIRE_NAMES: Record<keyof WorldOptions, string> = {
+  chunkSize: "chunk_size",
+  maxDistance: "max_distance",
+  algorithm: "algorithm",
+  lodAlgorithm: "lod_algorithm",
+  focus: "focus",
+  borders: "borders",
+  storage: "storage",
+  generate: "generate",
+  metric: "metric",
+  signed: "signed",
+  voxelSize: "voxel_size",
+  origin: "origin",
+  palette: "palette",
+};
+
+export interface ClientOptions {
+  /** Sent as `Authorization: Bearer <key>`; without it the server must be an open one. */
+  apiKey?: string;
+  /** Per request, in milliseconds. */
+  timeoutMs?: number;
+  headers?: Record<string, string>;
+  /** A `fetch` to use instead of the global one. */
+  fetch?: typeof fetch;
+}
+
+export interface ReadOptions {
+  /** `[min, max]`, max exclusive; left out: the whole world. */
+  box?: Box;
+  /** Wait (bounded by the server) until the field reflects this edit version. */
+  minVersion?: number;
+}
+
+/** Rows of numbers: a flat typed array or list, or a list of rows. */
+export type Rows = Float32Array | ArrayLike<number> | readonly (readonly number[])[];
+
+interface Call {
+  method: string;
+  path: string;
+  params?: Record<string, string>;
+  body?: unknown; // encoded as msgpack
+  content?: Uint8Array; // a raw body (an uploaded file)
+  accept?: string;
+  headers?: Record<string, string>;
+}
+
+function worldPath(worldId: string): string {
+  if (typeof worldId !== "string" || worldId === "" || worldId.includes("/")) {
+    throw new TypeError(`a world id is a non-empty string without '/', got ${JSON.stringify(worldId)}`);
+  }
+  return `/v1/worlds/${encodeURIComponent(worldId)}`;
+}
+
+function readParams({ box, minVersion }: ReadOptions): Record<string, string> {
+  const params: Record<string, string> = {};
+  if (box !== undefined) {
+    const [lo, hi] = box;
+    if (lo.length !== 3 || hi.length !== 3) throw new RangeError("a box is [[x, y, z], [x, y, z]]");
+    params.min = lo.map((v) => Math.trunc(v)).join(",");
+    params.max = hi.map((v) => Math.trunc(v)).join(",");
+  }
+  if (minVersion !== undefined) params.min_version = String(Math.trunc(minVersion));
+  return params;
+}
+
+function wireOptions(options: WorldOptions): Record<string, unknown> {
+  const body: Record<string, unknown> = {};
+  for (const [key, value] of Object.entries(options)) {
+    if (value === undefined) continue;
+    const name = WIRE_NAMES[key as keyof WorldOptions];
+    if (name === undefined) throw new TypeError(`unknown world option ${JSON.stringify(key)}`);
+    body[name] = value;
+  }
+  return body;
+}
+
+/** `kind` rows of `width` finite numbers as one float32 (N, width) blob. */
+function rowsBlob(kind: string, rows: Rows, width: number) {
+  const list = rows as ArrayLike<unknown>;
+  const flat = list.length > 0 && Array.isArray(list[0])
+    ? Float32Array.from((rows as number[][]).flatMap((row) => {
+      if (row.length !== width) throw new RangeError(`${kind}: each row has ${width} numbers, got ${row.length}`);
+      return row;
+    }))
+    : rows instanceof Float32Array ? rows : Float32Array.from(rows as ArrayLike<number>);
+  if (flat.length === 0 || flat.length % width !== 0) {
+    throw new RangeError(`${kind} must be a non-empty N x ${width} array, got ${flat.length} numbers`);
+  }
+  if (!flat.every(Number.isFinite)) throw new RangeError(`query ${kind} must be finite`);
+  return blob(flat, [flat.length / width, width]);
+}
+
+function checkedKey(apiKey: string): string {
+  if (typeof apiKey !== "string" || apiKey.trim() === "" || /\s/.test(apiKey)) {
+    throw new TypeError("apiKey must be a non-empty token without spaces");
+  }
+  return apiKey;
+}
+
+export class Client {
+  readonly baseUrl: string;
+  readonly timeoutMs: number;
+  readonly apiKey: string | undefined;
+  private readonly headers: Record<string, string>;
+  private readonly fetch: typeof fetch;
+
+  constructor(baseUrl = "http://127.0.0.1:8000", options: ClientOptions = {}) {
+    this.baseUrl = baseUrl.replace(/\/+$/, "");
+    this.timeoutMs = options.timeoutMs ?? DEFAULT_TIMEOUT_MS;
+    this.apiKey = options.apiKey === undefined ? undefined : checkedKey(options.apiKey);
+    this.headers = {
+      "user-agent": "sdfclient-ts",
+      ...(this.apiKey === undefined ? {} : { authorization: `Bearer ${this.apiKey}` }),
+      ...options.headers,
+    };
+    this.fetch = options.fetch ?? globalThis.fetch;
+  }
+
+  // -- sending ----------------------------------------------------------------------------------
+
+  private async request(call: Call): Promise<Response> {
+    const url = new URL(this.baseUrl + call.path);
+    for (const [key, value] of Object.entries(call.params ?? {})) url.searchParams.set(key, value);
+    const headers: Record<string, string> = { ...this.headers, accept: call.accept ?? CONTENT_TYPE, ...call.headers };
+    let body: Uint8Array | undefined;
+    if (call.body !== undefined) {
+      headers["content-type"] = CONTENT_TYPE;
+      body = encode(call.body);
+    } else if (call.content !== undefined) {
+      headers["content-type"] = OCTET;
+      body = call.content;
+    }
+    try {
+      return await this.fetch(url, {
+        method: call.method, headers, body, signal: AbortSignal.timeout(this.timeoutMs),
+      });
+    } catch (error) {
+      const err = error as Error;
+      const cls = err.name === "TimeoutError" || err.name === "AbortError" ? Timeout : TransportError;
+      const cause = (err.cause as Error | undefined)?.message;
+      throw new cls(`${call.method} ${call.path}: ${err.name}: ${err.message}${cause ? ` (${cause})` : ""}`);
+    }
+  }
+
+  /** The decoded body of a successful answer, or the ServerError its error body describes. */
+  private async send(call: Call): Promise<unknown> {
+    const response = await this.request(call);
+    if (response.status >= 400) throw await this.failure(call, response);
+    return this.decode(call, response);
+  }
+
+  private async decode(call: Call, response: Response): Promise<unknown> {
+    const bytes = new Uint8Array(await this.body(call, response));
+    if (bytes.byteLength === 0) return null;
+    const ctype = (response.headers.get("content-type") ?? "").split(";")[0].trim().toLowerCase();
+    if (CONTENT_TYPES.has(ctype)) return decode(bytes);
+    if (ctype === "application/json" || ctype.endsWith("+json")) {
+      try {
+        return JSON.parse(new TextDecoder().decode(bytes));
+      } catch (error) {
+        throw new ProtocolError(`${call.method} ${call.path}: unreadable JSON: ${(error as Error).message}`);
+      }
+    }
+    throw new ProtocolError(`${call.method} ${call.path}: unexpected content type ${JSON.stringify(ctype)} (status ${response.status})`);
+  }
+
+  private async body(call: Call, response: Response): Promise<ArrayBuffer> {
+    try {
+      return await response.arrayBuffer();
+    } catch (error) {
+      const err = error as Error;
+      const cls = err.name === "TimeoutError" ? Timeout : TransportError;
+      throw new cls(`${call.method} ${call.path}: reading the answer: ${err.name}: ${err.message}`);
+    }
+  }
+
+  private async failure(call: Call, response: Response): Promise<Error> {
+    let body: unknown;
+    try {
+      body = await this.decode(call, response);
+    } catch (error) {
+      if (!(error instanceof ProtocolError)) return error as Error;
+      body = null;
+    }
+    return serverError(response.status, body, retryAfter(response.headers.get("retry-after")));
+  }
+
+  /** A binary answer (a frame, a file) and its headers. */
+  private async binary(call: Call, expected: string): Promise<{ data: Uint8Array; headers: Headers }> {
+    const response = await this.request(call);
+    if (response.status >= 400) throw await this.failure(call, response);
+    const ctype = (response.headers.get("content-type") ?? "").split(";")[0].trim().toLowerCase();
+    if (ctype !== expected) throw new ProtocolError(`${call.path}: expected ${expected}, got ${JSON.stringify(ctype)}`);
+    return { data: new Uint8Array(await this.body(call, response)), headers: response.headers };
+  }
+
+  // -- worlds -----------------------------------------------------------------------------------
+
+  /** A new world of `size` voxels (x, y, z); every creation option of docs/api.md, "Worlds". */
+  async createWorld(size: Vec3, options: WorldOptions = {}): Promise<WorldInfo> {
+    const body = { size: [...size], ...wireOptions(options) };
+    return parse.world(await this.send({ method: "POST", path: "/v1/worlds", body }));
+  }
+
+  async listWorlds(): Promise<WorldInfo[]> {
+    return parse.worlds(await this.send({ method: "GET", path: "/v1/worlds" }));
+  }
+
+  async getWorld(worldId: string): Promise<WorldInfo> {
+    return parse.world(await this.send({ method: "GET", path: worldPath(worldId) }));
+  }
+
+  /** PATCH the settings given; `focus: null` removes the focus. */
+  async updateWorld(worldId: string, update: WorldUpdate): Promise<WorldInfo> {
+    const body = wireOptions(update);
+    if (Object.keys(body).length === 0) throw new TypeError("updateWorld needs at least one setting");
+    return parse.world(await this.send({ method: "PATCH", path: worldPath(worldId), body }));
+  }
+
+  async deleteWorld(worldId: string): Promise<void> {
+    await this.send({ method: "DELETE", path: worldPath(worldId) });
+  }
+
+  // -- edits and reads --------------------------------------------------------------------------
+
+  /**
+   * One atomic batch (see `edits`); answers the world's new version. With `idempotencyKey`
+   * (1-128 printable ASCII characters) a retried batch is applied once and answers the first version.
+   */
+  async edit(worldId: string, edits: readonly Edit[], options: { idempotencyKey?: string } = {}): Promise<number> {
+    if (edits.length === 0) throw new RangeError("an edit batch needs at least one edit");
+    const headers = options.idempotencyKey === undefined ? undefined : { "idempotency-key": options.idempotencyKey };
+    const answer = parse.record(await this.send({
+      method: "POST", path: worldPath(worldId) + "/edits", body: { edits }, headers,
+    }), "edits");
+    if (typeof answer.version !== "number") throw new ProtocolError("edits: no version in the answer");
+    return answer.version;
+  }
+
+  /** The field of a box: `distance` (the answer's dtype: uint8, int16 or float32) or `packed` (uint16). */
+  async readField(worldId: string, options: ReadOptions & { format?: "distance" | "packed" } = {}): Promise<Block> {
+    const format = options.format ?? "distance";
+    if (format !== "distance" && format !== "packed") throw new RangeError(`format is "distance" or "packed", got ${JSON.stringify(format)}`);
+    const params = { ...readParams(options), format };
+    return parse.block(await this.send({ method: "GET", path: worldPath(worldId) + "/field", params }), format);
+  }
+
+  /** The voxel values (uint8 palette indices) of a box. */
+  async readVoxels(worldId: string, options: ReadOptions = {}): Promise<Block> {
+    const params = readParams(options);
+    return parse.block(await this.send({ method: "GET", path: worldPath(worldId) + "/voxels", params }), "voxels");
+  }
+
+  private async queryCall(worldId: string, body: Record<string, unknown>, minVersion?: number): Promise<unknown> {
+    const params = minVersion === undefined ? undefined : { min_version: String(Math.trunc(minVersion)) };
+    return this.send({ method: "POST", path: worldPath(worldId) + "/query", params, body });
+  }
+
+  /** Distances, gradients and voxel values at points (rows of x y z, world units). */
+  async query(worldId: string, points: Rows, options: { minVersion?: number } = {}): Promise<QueryResult> {
+    return parse.points(await this.queryCall(worldId, { points: rowsBlob("points", points, 3) }, options.minVersion));
+  }
+
+  /** Clearances and ways out of collision of spheres (rows of x y z r, world units). */
+  async querySpheres(worldId: string, spheres: Rows, options: { minVersion?: number } = {}): Promise<SphereResult> {
+    return parse.spheres(await this.queryCall(worldId, { spheres: rowsBlob("spheres", spheres, 4) }, options.minVersion));
+  }
+
+  /** First hits of rays (rows of ox oy oz dx dy dz maxLength, world units). */
+  async queryRays(worldId: string, rays: Rows, options: { minVersion?: number } = {}): Promise<RayResult> {
+    return parse.rays(await this.queryCall(worldId, { rays: rowsBlob("rays", rays, 7) }, options.minVersion));
+  }
+
+  // -- files ------------------------------------------------------------------------------------
+
+  /** The world as a file: `snapshot` (re-imports as the same world), `npy` (uint8 z, y, x) or `vox`. */
+  async exportWorld(worldId: string, format: FileFormat = "snapshot"): Promise<Exported> {
+    const { data, headers } = await this.binary(
+      { method: "GET", path: worldPath(worldId) + "/export", params: { format }, accept: OCTET }, OCTET);
+    const disposition = headers.get("content-disposition") ?? "";
+    const filename = /filename="([^"]*)"/.exec(disposition)?.[1] ?? "";
+    return { format, version: intHeader(headers, "x-sdf-version"), data, filename };
+  }
+
+  /** A new world (at version 1) from a file's bytes; the server tells the format by its content. */
+  async importWorld(data: Uint8Array, options: {
+    format?: FileFormat; chunkSize?: number; maxDistance?: number; algorithm?: string; model?: number;
+  } = {}): Promise<WorldInfo> {
+    const params: Record<string, string> = {};
+    if (options.format !== undefined) params.format = options.format;
+    if (options.chunkSize !== undefined) params.chunk_size = String(options.chunkSize);
+    if (options.maxDistance !== undefined) params.max_distance = String(options.maxDistance);
+    if (options.algorithm !== undefined) params.algorithm = options.algorithm;
+    if (options.model !== undefined) params.model = String(options.model);
+    return parse.world(await this.send({ method: "POST", path: "/v1/worlds/import", params, content: data }));
+  }
+
+  // -- frames -----------------------------------------------------------------------------------
+
+  /** One frame: PNG, JPEG (`quality` 1..100) or raw RGBA bytes. */
+  async render(worldId: string, camera: Camera, options: RenderOptions & { format?: FrameFormat; quality?: number } = {}): Promise<Frame> {
+    const { format = "png", quality, ...view } = options;
+    if (!Object.hasOwn(FRAME_TYPES, format)) throw new RangeError(`format is png, jpeg or rgba, got ${JSON.stringify(format)}`);
+    const body = { ...parse.cameraWire(camera), ...view, ...(quality === undefined ? {} : { quality }) };
+    const { data, headers } = await this.binary({
+      method: "POST", path: worldPath(worldId) + "/render", params: { format }, body, accept: FRAME_TYPES[format],
+    }, FRAME_TYPES[format]);
+    const renderMs = headers.get("x-render-ms");
+    return {
+      format, data, fieldVersion: intHeader(headers, "x-field-version"), width: intHeader(headers, "x-frame-width"),
+      height: intHeader(headers, "x-frame-height"), renderMs: renderMs === null ? null : Number(renderMs),
+    };
+  }
+
+  /** The voxel under pixel (x, y) (a pixel's centre is +0.5), or null for sky. */
+  async pick(worldId: string, camera: Camera, x: number, y: number): Promise<Pick | null> {
+    const body = { ...parse.cameraWire(camera), x, y };
+    return parse.pick(await this.send({ method: "POST", path: worldPath(worldId) + "/pick", body }));
+  }
+
+  // -- the stream and the service ---------------------------------------------------------------
+
+  /** The world's WebSocket stream, with this client's key. */
+  stream(worldId: string, options: StreamOptions = {}): Promise<Stream> {
+    worldPath(worldId);
+    return Stream.connect(this.baseUrl, worldId, { apiKey: this.apiKey, ...options });
+  }
+
+  /** True when `/readyz` answers 200. */
+  async ready(): Promise<boolean> {
+    try {
+      const response = await this.fetch(this.baseUrl + "/readyz", { signal: AbortSignal.timeout(this.timeoutMs) });
+      await response.arrayBuffer();
+      return response.status === 200;
+    } catch {
+      return false;
+    }
+  }
+}
+
+function intHeader(headers: Headers, name: string): number {
+  const value = Number(headers.get(name) ?? "x");
+  if (!Number.isInteger(value)) throw new ProtocolError(`missing or bad ${name} header`);
+  return value;
+}

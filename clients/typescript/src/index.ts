@@ -1,0 +1,8 @@
+/** sdfclient: the TypeScript client of sdfserver (docs/clients.md, "TypeScript"). */
+
+export { Client, DEFAULT_TIMEOUT_MS, type ClientOptions, type ReadOptions, type Rows } from "./client.js";
+export { box, eraseBox, eraseSphere, sphere, voxels, type Edit } from "./edits.js";
+export * from "./errors.js";
+export type * from "./models.js";
+export { DEFAULT_MAX_FRAME_BYTES, Stream, closedError, streamUrl, type SocketLike, type StreamOptions, type WebSocketClass } from "./stream.js";
+export { DTYPES, blob, decode, encode, toArray, type Blob, type Dtype, type TypedArray } from "./wire.js";

@@ -1,0 +1,266 @@
+/**
+ * The WebSocket stream of one world: send edits, subscribe to regions, receive changed chunks
+ * and rendered frames.
+ *
+ *     const stream = await client.stream(worldId);
+ *     await stream.subscribe([[0, 0, 0], [64, 64, 64]]);          // then: all its chunks, once
+ *     const version = await stream.edit([sphere([32, 32, 32], 5)]); // waits for the ack
+ *     for await (const message of stream) {                         // changed chunks, acks, frames
+ *       if (message.type === "chunks" && message.version! >= version) break;
+ *     }
+ *     await stream.close();
+ *
+ * The socket is the global `WebSocket` where there is one (browsers, Node 22 and later) and
+ * the `ws` package otherwise (Node 20, whose global one is behind a flag). `ws` sends the API
+ * key as `Authorization: Bearer <key>`; a browser-style `WebSocket` cannot set headers, so there
+ * the key travels as `?access_token=<key>`, which the server also takes.
+ *
+ * Frames are binary msgpack both ways. The stream is meant for one consumer: `edit`,
+ * `subscribe`, `ping` and `unsubscribe` read until their answer and keep the messages they pass
+ * for `recv` and the iterator, in order. A frame the server refuses answers an `error` message,
+ * thrown here as its ServerError; the connection stays open. A refused stream closes with
+ * 4000 + an HTTP status (4401, 4404), thrown as Unauthorized or NotFound.
+ */
+
+import type { Edit } from "./edits.js";
+import { ProtocolError, StreamClosed, Timeout, TransportError, isRecord, serverError } from "./errors.js";
+import type { Box, Camera, FrameFormat, RenderOptions, StreamMessage } from "./models.js";
+import { cameraWire, streamMessage } from "./parse.js";
+import { decode, encode } from "./wire.js";
+
+export const DEFAULT_MAX_FRAME_BYTES = 64 << 20;
+const OPEN = 1;
+
+/** What the stream needs of a WebSocket: the browser's interface, which `ws` also has. */
+export interface SocketLike {
+  binaryType: string;
+  readyState: number;
+  send(data: Uint8Array): void;
+  close(code?: number, reason?: string): void;
+  addEventListener(type: string, listener: (event: any) => void): void; // eslint-disable-line @typescript-eslint/no-explicit-any
+}
+
+/** A browser-style WebSocket constructor. */
+export type WebSocketClass = new (url: string) => SocketLike;
+
+export interface StreamOptions {
+  apiKey?: string;
+  openTimeoutMs?: number;
+  /** The largest frame `ws` accepts (a browser's own limit applies otherwise). */
+  maxFrameBytes?: number;
+  /** A browser-style WebSocket class to use instead of the global one or `ws`. */
+  WebSocket?: WebSocketClass;
+}
+
+export function streamUrl(baseUrl: string, worldId: string): string {
+  const base = baseUrl.replace(/\/+$/, "").replace(/^http(s?):\/\//, "ws$1://");
+  return `${base}/v1/worlds/${encodeURIComponent(worldId)}/stream`;
+}
+
+/** The server closes with 4000 + an HTTP status for a refused stream (4404: unknown world). */
+export function closedError(code: number | null, reason: string): Error {
+  if (code !== null && code >= 4000 && code < 5000) {
+    return serverError(code - 4000, { error: { code: "", message: reason } });
+  }
+  return new StreamClosed(code, reason);
+}
+
+async function open(url: string, options: StreamOptions): Promise<SocketLike> {
+  const Browser = options.WebSocket ?? (globalThis as { WebSocket?: WebSocketClass }).WebSocket;
+  if (Browser !== undefined) {
+    const target = new URL(url);
+    if (options.apiKey !== undefined) target.searchParams.set("access_token", options.apiKey);
+    return new Browser(target.toString());
+  }
+  const { default: WS } = await import("ws");
+  const headers: Record<string, string> = options.apiKey === undefined ? {} : { authorization: `Bearer ${options.apiKey}` };
+  const ws = new WS(url, { headers, maxPayload: options.maxFrameBytes ?? DEFAULT_MAX_FRAME_BYTES, perMessageDeflate: false });
+  // A refused handshake: read the answer's error body rather than ws's bare "Unexpected server response".
+  ws.on("unexpected-response", (request, response) => {
+    const parts: Buffer[] = [];
+    response.on("data", (part: Buffer) => parts.push(part));
+    response.on("end", () => {
+      const text = Buffer.concat(parts).toString("utf8");
+      let body: unknown = text;
+      try {
+        body = JSON.parse(text);
+      } catch {
+        // not JSON: the text itself is the message
+      }
+      ws.emit("refused", serverError(response.statusCode ?? 0, body));
+      request.destroy();
+    });
+  });
+  return ws as unknown as SocketLike;
+}
+
+type Item = StreamMessage | Error;
+
+export class Stream {
+  private readonly inbox: Item[] = []; // arrived, not yet read
+  private readonly held: Item[] = []; // read by a request while it waited for its answer
+  private wake: (() => void) | null = null;
+  private closedWith: Error | null = null;
+  private closing: Promise<void>;
+  private nextId = 1;
+
+  private constructor(private readonly socket: SocketLike) {
+    socket.binaryType = "arraybuffer";
+    socket.addEventListener("message", (event: { data: unknown }) => this.arrive(event.data));
+    this.closing = new Promise((resolve) => {
+      socket.addEventListener("close", (event: { code?: number; reason?: string }) => {
+        this.closedWith ??= closedError(event.code ?? null, event.reason ?? "");
+        this.notify();
+        resolve();
+      });
+    });
+  }
+
+  /** Open a world's stream (`Client.stream` passes the client's key). */
+  static async connect(baseUrl: string, worldId: string, options: StreamOptions = {}): Promise<Stream> {
+    const url = streamUrl(baseUrl, worldId);
+    const socket = await open(url, options);
+    const timeoutMs = options.openTimeoutMs ?? 10_000;
+    await new Promise<void>((resolve, reject) => {
+      const timer = setTimeout(() => {
+        reject(new Timeout(`connect ${url}: not open after ${timeoutMs} ms`));
+        socket.close();
+      }, timeoutMs);
+      const settle = (error?: Error) => {
+        clearTimeout(timer);
+        if (error === undefined) resolve();
+        else reject(error);
+      };
+      socket.addEventListener("open", () => settle());
+      (socket as { on?: (type: string, listener: (error: Error) => void) => void }).on?.("refused", settle);
+      socket.addEventListener("error", (event: { message?: string; error?: Error }) => {
+        const cause = event.error?.message ?? event.message ?? "error";
+        if (!/Unexpected server response/.test(cause)) settle(new TransportError(`connect ${url}: ${cause}`));
+      });
+      socket.addEventListener("close", (event: { code?: number; reason?: string }) =>
+        settle(closedError(event.code ?? null, event.reason ?? "")));
+    });
+    return new Stream(socket);
+  }
+
+  /** Close the socket and wait until it is closed. */
+  async close(): Promise<void> {
+    if (this.socket.readyState <= OPEN) this.socket.close(1000);
+    await this.closing;
+  }
+
+  // -- sending ----------------------------------------------------------------------------------
+
+  private send(message: Record<string, unknown>): void {
+    if (this.socket.readyState !== OPEN) throw this.closedWith ?? new StreamClosed(null, "the stream is not open");
+    this.socket.send(encode(message));
+  }
+
+  /**
+   * Receive the chunks of `box` (widened to whole chunks): first all of them, then the changed
+   * ones after every recompute. Replaces an earlier subscription; answers the `subscribed`
+   * message (`raw` has the widened min/max, the chunk size, dtype and content).
+   */
+  subscribe(box: Box, options: { format?: "distance" | "packed" } = {}): Promise<StreamMessage> {
+    const [min, max] = box;
+    return this.request({ type: "subscribe", min: [...min], max: [...max], format: options.format ?? "distance" }, "subscribed");
+  }
+
+  async unsubscribe(): Promise<void> {
+    await this.request({ type: "unsubscribe" }, "unsubscribed");
+  }
+
+  async ping(): Promise<void> {
+    await this.request({ type: "ping" }, "pong");
+  }
+
+  /**
+   * Ask for rendered frames of this view: `frame` messages (`raw`: data, format, width, height,
+   * version, render_ms, seq) follow whenever the view or the field changes, at most `maxFps` a second.
+   */
+  setCamera(camera: Camera, options: RenderOptions & { maxFps?: number; format?: FrameFormat; quality?: number } = {}): void {
+    const { maxFps, ...rest } = options;
+    const extra = maxFps === undefined ? {} : { max_fps: maxFps };
+    this.send({ ...cameraWire(camera), ...rest, ...extra, type: "camera", id: this.nextId++ });
+  }
+
+  /** Send a batch without waiting; its `ack` message carries the returned id. */
+  sendEdits(edits: readonly Edit[]): number {
+    const id = this.nextId++;
+    this.send({ type: "edits", id, edits });
+    return id;
+  }
+
+  /** Send a batch and wait for its acknowledgement; answers the version it became. */
+  async edit(edits: readonly Edit[]): Promise<number> {
+    const ack = await this.request({ type: "edits", edits }, "ack");
+    if (ack.version === null) throw new ProtocolError("ack without a version");
+    return ack.version;
+  }
+
+  private async request(message: Record<string, unknown>, answer: string): Promise<StreamMessage> {
+    const id = this.nextId++;
+    this.send({ ...message, id });
+    for (;;) {
+      const item = await this.next();
+      if (!(item instanceof Error) && item.id === id && (item.type === answer || item.type === "error")) {
+        return raiseIfError(item);
+      }
+      this.held.push(item);
+    }
+  }
+
+  // -- receiving --------------------------------------------------------------------------------
+
+  private arrive(data: unknown): void {
+    let item: Item;
+    try {
+      if (!(data instanceof ArrayBuffer)) throw new ProtocolError(`text frame on a binary stream: ${String(data).slice(0, 200)}`);
+      item = streamMessage(decode(new Uint8Array(data)));
+    } catch (error) {
+      item = error as Error;
+    }
+    this.inbox.push(item);
+    this.notify();
+  }
+
+  private notify(): void {
+    const wake = this.wake;
+    this.wake = null;
+    wake?.();
+  }
+
+  private async next(): Promise<Item> {
+    while (this.inbox.length === 0) {
+      if (this.closedWith !== null) throw this.closedWith;
+      await new Promise<void>((resolve) => (this.wake = resolve));
+    }
+    return this.inbox.shift()!;
+  }
+
+  /** The next message; an `error` message throws its ServerError. */
+  async recv(): Promise<StreamMessage> {
+    const item = this.held.length > 0 ? this.held.shift()! : await this.next();
+    if (item instanceof Error) throw item;
+    return raiseIfError(item);
+  }
+
+  /** Messages until the stream closes normally (1000, 1001); any other end throws. */
+  async *[Symbol.asyncIterator](): AsyncGenerator<StreamMessage> {
+    for (;;) {
+      try {
+        yield await this.recv();
+      } catch (error) {
+        if (error instanceof StreamClosed && (error.code === 1000 || error.code === 1001)) return;
+        throw error;
+      }
+    }
+  }
+}
+
+function raiseIfError(message: StreamMessage): StreamMessage {
+  if (message.type !== "error") return message;
+  const raw = message.raw;
+  const status = typeof raw.status === "number" ? raw.status : null;
+  throw serverError(status, isRecord(raw.error) ? raw.error : raw);
+}

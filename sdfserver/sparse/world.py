@@ -40,7 +40,7 @@ from sdfserver.dirty import DirtySet
 from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, validate_batch
 from sdfserver.errors import DeviceMemoryExceeded, InvalidInput, TooLarge
 from sdfserver.field_values import distances, needs_voxels
-from sdfserver.geometry import Box
+from sdfserver.geometry import Box, merge_regions
 from sdfserver.gpu import GpuContext
 from sdfserver.sparse import kernels
 from sdfserver.sparse.device_table import DeviceTable
@@ -96,6 +96,7 @@ class SparseWorld:
         self._scratch_sizes_held: list[int] = []
         self.dirty = DirtySet()
         self.pending: list[tuple[Edit, list[Box]]] = []  # applied, not yet written: recompute writes them
+        self.switched_regions: list[Box] = []  # rewritten by a metric or sign switch, not yet published
         self.reserved: list[Box] = []  # boxes of planned batches whose room is reserved
         self.version = 0
         self.field_version = 0
@@ -121,7 +122,8 @@ class SparseWorld:
     def _ensure_scratch(self, voxels: int) -> None:
         """Hold a scratch box of at least ``voxels`` voxels; raises DeviceMemoryExceeded, keeping
         the one held, when a larger one does not fit (it replaces the one held)."""
-        if self.scratch is not None and self._scratch_sizes_held[0] >= voxels:
+        if self.scratch is not None and self._scratch_sizes_held[0] >= voxels \
+                and len(self._scratch_sizes_held) == len(self._scratch_sizes(1, 1)):  # a metric switch changes them
             return
         sizes = self._scratch_sizes(voxels, MAX_SIDE_VOX)
         free = self.gpu.memory_budget_bytes - self.gpu.allocated_bytes + sum(self._scratch_sizes_held)
@@ -178,13 +180,20 @@ class SparseWorld:
         return self.device_bytes / stored if stored else None
 
     def reconfigure(self, **changes) -> None:
-        """Only where the world lies and how it is coloured change (nothing recomputed): a sparse
-        world's field is never rebuilt whole."""
-        fixed = sorted(set(changes) - {"voxel_size", "origin", "palette"})
+        """Where the world lies and how it is coloured change alone; a new metric or sign
+        recomputes every brick within the cap of a solid (``switch_field``). The algorithm, cap and
+        borders are fixed at creation."""
+        fixed = sorted(set(changes) - {"voxel_size", "origin", "palette", "metric", "signed"})
         if fixed:
-            raise InvalidInput(f"a sparse world's {', '.join(fixed)} are fixed at creation (algorithm, cap, "
-                               f"borders, metric and sign); voxel_size, origin and palette can change")
-        self.config = replace(self.config, **changes).validated()
+            raise InvalidInput(f"a sparse world's {', '.join(fixed)} cannot change (algorithm, cap and borders "
+                               f"are fixed at creation); metric, signed, voxel_size, origin and palette can")
+        config = replace(self.config, **changes).validated()
+        if (config.metric, config.signed) != (self.config.metric, self.config.signed):
+            from sdfserver.sparse.switch import switch_field  # it builds on this class
+
+            switch_field(self, config)
+        else:
+            self.config = config
 
     def load_voxels(self, content) -> int:
         """Replace the whole world with a snapshot's bricks (restore); raises InvalidInput for
@@ -249,11 +258,12 @@ class SparseWorld:
     def world_box(self) -> Box:
         return Box.of_size(self.config.size)
 
-    def scratch_box(self, region: Box) -> Box:
+    def scratch_box(self, region: Box, halo: bool = False) -> Box:
         """The dense box a region is computed in: the region and its seed shell, in the world (a
-        Euclidean field is not seeded by the field around: the region and a halo of the cap)."""
+        Euclidean field is not seeded by the field around, nor is a region computed ``halo``: the
+        region and a halo of the cap)."""
         lo, hi = region.lo, region.hi
-        if self.config.euclidean:  # x by whole 8s: the x stage loads rows as aligned 8-voxel vectors
+        if self.config.euclidean or halo:  # x by whole 8s: the x stage loads rows as aligned 8-voxel vectors
             cap = self.config.max_distance
             halo_x = -(-cap // SHELL_X_VOX) * SHELL_X_VOX
             return Box((lo[0] - halo_x, lo[1] - cap, lo[2] - cap),
@@ -344,6 +354,8 @@ class SparseWorld:
     def recompute(self) -> RecomputeResult:
         start = time.perf_counter()
         regions = self.dirty_regions() if self.dirty else []
+        # what a metric or sign switch rewrote this step (switch_field): published with this result
+        switched, self.switched_regions = self.switched_regions, []
         runs = []
         algorithm, cap = get_algorithm(self.config.algorithm), self.config.max_distance
         for region in regions:  # one loop over regions; each launches a fixed number of kernels
@@ -354,12 +366,14 @@ class SparseWorld:
         self.reserved.clear()
         self.field_version = self.version
         each, by_algorithm = summarize(runs)
-        self.last_recompute = RecomputeResult(regions, self.brick, sum(each), (time.perf_counter() - start) * 1e3,
+        self.last_recompute = RecomputeResult(merge_regions(switched + regions, MAX_REGIONS) if switched else regions, self.brick, sum(each), (time.perf_counter() - start) * 1e3,
                                               sum(run.iterations for _, run in runs), each, by_algorithm)
         return self.last_recompute
 
-    def _compute_region(self, region: Box, algorithm, cap: int):
-        box = self.scratch_box(region)
+    def _compute_region(self, region: Box, algorithm, cap: int, halo: bool = False):
+        """``halo``: from the voxels alone (a switch of metric or sign, where the field around is
+        still the old one's)."""
+        box = self.scratch_box(region, halo)
         self._ensure_scratch(box.volume)  # reserved when the batch was planned: allocates nothing
         s = self.scratch
         bricks = box.chunk_range(self.brick)
@@ -374,7 +388,8 @@ class SparseWorld:
             run = EUCLIDEAN_EXACT.run_stages(self.gpu, view, s.field, StageBoxes.of_world(box.shape_xyz), cap,
                                              self.config.signed)
         else:
-            job = replace(RegionJob.seeded_region(view, local, cap), signed=self.config.signed,
+            make_job = RegionJob.halo_region if halo else RegionJob.seeded_region
+            job = replace(make_job(view, local, cap), signed=self.config.signed,
                           world=Box(tuple(-v for v in box.lo), tuple(s - v for s, v in zip(self.config.size, box.lo))))
             run = algorithm.run(self.gpu, job)
             if self.config.signed:

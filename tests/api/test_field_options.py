@@ -120,9 +120,10 @@ def test_fields_of_every_metric_and_sign_match_scipy(server, ref, storage, metri
     server.http.delete(f"/v1/worlds/{wid}")
 
 
-def test_patch_of_metric_and_sign_recomputes_the_field(server, ref):
+@pytest.mark.parametrize("storage", ["dense", "sparse"])
+def test_patch_of_metric_and_sign_recomputes_the_field(server, ref, storage):
     rng = np.random.default_rng()
-    wid = server.create_world(size=list(SIZE), chunk_size=8, max_distance=CAP)["id"]
+    wid = server.create_world(size=list(SIZE), chunk_size=8, max_distance=CAP, storage=storage)["id"]
     voxels = np.zeros(SIZE[::-1], np.uint8)
     version = edit(server, wid, voxels, [{"op": "box", "min": [0, 0, 0], "max": [24, 2, 16], "colour": 3},
                                          *ref.batch(rng, SIZE)], ref)
@@ -207,11 +208,11 @@ def test_bad_field_options_are_refused_naming_the_field(server, body, field):
     server.http.delete(f"/v1/worlds/{wid}")
 
 
-def test_a_sparse_worlds_metric_and_sign_are_fixed(server):
+def test_a_sparse_worlds_algorithm_and_cap_are_fixed(server):
     wid = server.create_world(size=list(SIZE), chunk_size=8, storage="sparse", metric="euclidean")["id"]
     before = server.http.get(f"/v1/worlds/{wid}").json()
-    for body, field in (({"metric": "manhattan"}, "metric"), ({"signed": True}, "signed"),
-                        ({"voxel_size": 0.5, "signed": True}, "signed")):
+    for body, field in (({"max_distance": 9}, "max_distance"), ({"algorithm": "exact", "metric": "manhattan"},
+                                                                 "algorithm")):
         refused(server.http.patch(f"/v1/worlds/{wid}", json=body), field)
         assert server.http.get(f"/v1/worlds/{wid}").json() == before
     r = server.http.post("/v1/worlds", json={"size": [64, 32, 64], "storage": "sparse", "metric": "euclidean",

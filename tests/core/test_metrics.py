@@ -180,3 +180,29 @@ def test_signed_edit_above_a_floor(gpu, storage, metric):
                                   reference(world.read_voxels(), cap, metric, True)), voxel
     finally:
         world.release()
+
+
+@pytest.mark.parametrize("cap", [3, 20])
+def test_sparse_switches_metric_and_sign(gpu, rng, cap):
+    """A sparse world's PATCH of metric or sign recomputes every brick a solid can reach, with
+    the edits still pending written first; the field then equals scipy's, and so after more edits."""
+    size = (64, 32, 48)
+    world = make_world(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap, storage="sparse"))
+    try:
+        world.apply_edits([BoxEdit(min=(8, 0, 8), max=(40, 12, 40), colour=3)])
+        world.recompute()
+        for metric, signed in (("euclidean", False), ("euclidean", True), ("manhattan", True), ("manhattan", False)):
+            world.apply_edits(random_batch(rng, size, False))  # pending when the switch comes
+            world.reconfigure(metric=metric, signed=signed)
+            result = world.recompute()
+            assert result.regions and world.field_version == world.version
+            assert np.array_equal(world.read_field().astype(np.int64),
+                                  reference(world.read_voxels(), cap, metric, signed)), (metric, signed)
+            world.apply_edits(random_batch(rng, size, False))
+            world.recompute()
+            assert np.array_equal(world.read_field().astype(np.int64),
+                                  reference(world.read_voxels(), cap, metric, signed)), (metric, signed)
+        with pytest.raises(InvalidInput, match="cannot change"):
+            world.reconfigure(max_distance=5)
+    finally:
+        world.release()

@@ -151,8 +151,12 @@ export class Stream {
 
   // -- sending ----------------------------------------------------------------------------------
 
-  private send(message: Record<string, unknown>): void {
-    if (this.socket.readyState !== OPEN) throw this.closedWith ?? new StreamClosed(null, "the stream is not open");
+  /** Sends, or throws why the stream closed (a refused key or world closes it right after opening). */
+  private async send(message: Record<string, unknown>): Promise<void> {
+    if (this.socket.readyState !== OPEN) {
+      await this.closing;
+      throw this.closedWith;
+    }
     this.socket.send(encode(message));
   }
 
@@ -178,16 +182,16 @@ export class Stream {
    * Ask for rendered frames of this view: `frame` messages (`raw`: data, format, width, height,
    * version, render_ms, seq) follow whenever the view or the field changes, at most `maxFps` a second.
    */
-  setCamera(camera: Camera, options: RenderOptions & { maxFps?: number; format?: FrameFormat; quality?: number } = {}): void {
+  async setCamera(camera: Camera, options: RenderOptions & { maxFps?: number; format?: FrameFormat; quality?: number } = {}): Promise<void> {
     const { maxFps, ...rest } = options;
     const extra = maxFps === undefined ? {} : { max_fps: maxFps };
-    this.send({ ...cameraWire(camera), ...rest, ...extra, type: "camera", id: this.nextId++ });
+    await this.send({ ...cameraWire(camera), ...rest, ...extra, type: "camera", id: this.nextId++ });
   }
 
   /** Send a batch without waiting; its `ack` message carries the returned id. */
-  sendEdits(edits: readonly Edit[]): number {
+  async sendEdits(edits: readonly Edit[]): Promise<number> {
     const id = this.nextId++;
-    this.send({ type: "edits", id, edits });
+    await this.send({ type: "edits", id, edits });
     return id;
   }
 
@@ -200,7 +204,7 @@ export class Stream {
 
   private async request(message: Record<string, unknown>, answer: string): Promise<StreamMessage> {
     const id = this.nextId++;
-    this.send({ ...message, id });
+    await this.send({ ...message, id });
     for (;;) {
       const item = await this.next();
       if (!(item instanceof Error) && item.id === id && (item.type === answer || item.type === "error")) {

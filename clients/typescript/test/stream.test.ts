@@ -75,7 +75,7 @@ test("a refused frame throws its error and the stream stays open", async () => {
 test("a camera gets frames", async () => {
   const stream = await client.stream(worldId);
   try {
-    stream.setCamera({ position: [40, 20, 40], target: [16, 4, 16], width: 48, height: 32 }, { format: "png", maxFps: 30 });
+    await stream.setCamera({ position: [40, 20, 40], target: [16, 4, 16], width: 48, height: 32 }, { format: "png", maxFps: 30 });
     const frame = (await until(stream, (m) => m.type === "frame")).at(-1)!;
     assert.equal(frame.raw.width, 48);
     const data = frame.raw.data as Uint8Array;

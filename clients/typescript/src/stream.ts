@@ -37,7 +37,7 @@ export interface SocketLike {
   readyState: number;
   send(data: Uint8Array): void;
   close(code?: number, reason?: string): void;
-  addEventListener(type: string, listener: (event: any) => void): void; // eslint-disable-line @typescript-eslint/no-explicit-any
+  addEventListener(type: string, listener: (event: never) => void): void;
 }
 
 /** A browser-style WebSocket constructor. */

@@ -10,6 +10,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 
 import pytest
 from clients_support import CLIENTS, ROOT
@@ -20,6 +21,7 @@ STEPS = (  # (command, timeout in seconds)
     (["npm", "run", "build"], 180),
     (["npm", "test"], 240),
 )
+LINGER_S = 5.0  # a stopped server's engine and API processes end just after it
 
 
 def _run(command: list[str], timeout_s: float) -> tuple[int, str]:
@@ -35,10 +37,13 @@ def _run(command: list[str], timeout_s: float) -> tuple[int, str]:
         os.killpg(proc.pid, signal.SIGKILL)
         output, _ = proc.communicate()
         pytest.fail(f"{' '.join(command)} took over {timeout_s} s:\n{output[-8000:]}")
-    try:
-        os.killpg(proc.pid, 0)
-    except ProcessLookupError:
-        return proc.returncode, output
+    deadline = time.monotonic() + LINGER_S
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            return proc.returncode, output
+        time.sleep(0.1)
     os.killpg(proc.pid, signal.SIGKILL)
     pytest.fail(f"{' '.join(command)} left processes running (killed now):\n{output[-8000:]}")
 

@@ -1,5 +1,6 @@
 /** sdfclient: the TypeScript client of sdfserver (docs/clients.md, "TypeScript"). */
 
+export { colours, distances } from "./blocks.js";
 export { Client, DEFAULT_TIMEOUT_MS, type ClientOptions, type ReadOptions, type Rows } from "./client.js";
 export { box, eraseBox, eraseSphere, sphere, voxels, type Edit } from "./edits.js";
 export * from "./errors.js";

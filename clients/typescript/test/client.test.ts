@@ -5,7 +5,7 @@ import assert from "node:assert/strict";
 import { after, before, describe, test } from "node:test";
 
 import {
-  Client, InvalidEdit, InvalidInput, NotFound, ServerError, box, eraseBox, sphere, voxels, type Vec3,
+  Client, InvalidEdit, InvalidInput, NotFound, ServerError, box, colours, distances, eraseBox, sphere, voxels, type Vec3,
 } from "sdfclient";
 
 import { TestServer } from "./server.js";
@@ -162,6 +162,10 @@ describe("edits and reads", () => {
       assert.equal(part.content, "distance_colour");
       const i = (1 * 6 + 2) * 12 + 3; // (x, y, z) = (11, 6, 3)
       assert.equal(part.data[i], (field.data[at(11, 6, 3)] << 8) | solid[at(11, 6, 3)]);
+      const whole = await client.readField(world.id, { format: "packed" });
+      assert.deepEqual(distances(whole), field.data);
+      assert.deepEqual(colours(whole), solid);
+      assert.throws(() => colours(field), TypeError);
     } finally {
       await client.deleteWorld(world.id);
     }
@@ -178,6 +182,9 @@ describe("edits and reads", () => {
       const e = await client.readField(euclid.id, { box: [[5, 0, 5], [6, 16, 6]], minVersion: 1 });
       assert.ok(e.data instanceof Float32Array);
       assert.deepEqual(Array.from(e.data), [0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 8, 8, 8, 8]);
+      const packed = await client.readField(euclid.id, { box: [[5, 0, 5], [6, 16, 6]], format: "packed" });
+      assert.equal(packed.content, "squared_distance");
+      assert.deepEqual(distances(packed), e.data);
     } finally {
       await client.deleteWorld(signed.id);
       await client.deleteWorld(euclid.id);

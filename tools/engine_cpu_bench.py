@@ -1,10 +1,11 @@
 """The engine thread's host (Python) time per edit batch and per step, phase by phase.
 
     .venv/bin/python tools/engine_cpu_bench.py [--device intel] [--size 128] [--steps 300]
-        [--step-sizes 1,12] [--max-distance 255] [--profile] [--json FILE]
+        [--step-sizes 1,12] [--max-distance 255] [--worlds 1] [--profile] [--json FILE]
 
 Builds an in-process Engine with a real StorageJournal on a temporary data directory (the log
-synced, group commit), creates one world and feeds it one-sphere edit batches at random places
+synced, group commit), creates one world (``--worlds N``: N, each step's batches dealt to them
+in turn) and feeds it one-sphere edit batches at random places
 the way the engine process's input thread does: ``EngineService.handle`` with an
 ``ApplyEdits`` message whose batch is encoded as an API process encodes it
 (``storage.codec.encode_batch``). Each step takes ``k`` batches (``--step-sizes``) and is run by
@@ -71,13 +72,13 @@ PHASES = [
     ("acknowledge (engine thread)", 1, "batch"),
     ("reply (committer thread)", 0, "batch"),
     ("step (Engine.step)", 0, "step"),
-    ("recompute (World.recompute)", 1, "step"),
+    ("recompute (Engine._recompute)", 1, "step"),
     ("dirty regions", 2, "step"),
-    ("region launches", 2, "step"),
+    ("region launches (World.begin_recompute)", 2, "step"),
     ("queue.finish (device wait)", 2, "step"),
     ("summarize", 2, "step"),
     ("recompute host (less queue.finish)", 1, "step"),
-    ("observe_recompute (metrics)", 1, "step"),
+    ("metrics (observe_recompute[s])", 2, "step"),
 ]
 
 
@@ -97,8 +98,11 @@ class Clock:
                 self.cpu[phase] += cpu_s
 
     def wrap(self, owner, name: str, phase: str) -> None:
-        """Time every call of ``owner.name`` (a class's method or a module's function)."""
-        original = getattr(owner, name)
+        """Time every call of ``owner.name`` (a class's method or a module's function), where the
+        build being measured has it."""
+        original = getattr(owner, name, None)
+        if original is None:
+            return
         clock = self
 
         def timed(*args, **kwargs):
@@ -136,19 +140,13 @@ def instrument(clock: Clock) -> None:
     clock.wrap(World, "apply_plans", "apply/launch (World.apply_plans)")
     clock.wrap(EngineService, "_reply", "reply (committer thread)")
     clock.wrap(Engine, "step", "step (Engine.step)")
-    clock.wrap(World, "recompute", "recompute (World.recompute)")
+    clock.wrap(Engine, "_recompute", "recompute (Engine._recompute)")
     clock.wrap(World, "dirty_regions", "dirty regions")
     clock.wrap(world_module, "summarize", "summarize")
-    clock.wrap(EngineMetrics, "observe_recompute", "observe_recompute (metrics)")
-    original = World._compute_region
-
-    def compute_region(self, region):  # a generator: time it while it is drained
-        wall, cpu = time.perf_counter(), time.thread_time()
-        runs = list(original(self, region))
-        clock.add("region launches", time.perf_counter() - wall, time.thread_time() - cpu)
-        return runs
-
-    World._compute_region = compute_region
+    # the engine calls observe_recomputes once a step (observe_recompute once a world before)
+    clock.wrap(EngineMetrics, "observe_recomputes", "metrics (observe_recompute[s])")
+    clock.wrap(EngineMetrics, "observe_recompute", "metrics (observe_recompute[s])")
+    clock.wrap(World, "begin_recompute", "region launches (World.begin_recompute)")
 
 
 def timed_gpu(device: str | None, clock: Clock) -> GpuContext:
@@ -195,9 +193,9 @@ def run(args: argparse.Namespace, step_size: int, gpu: GpuContext, clock: Clock)
     doorkeeper = Doorkeeper(RateLimiter(0.0), engine.owner_of, lambda: list(engine.owners.values()))
     service = EngineService(engine, doorkeeper, replies.send)
     config = WorldConfig(size=(args.size,) * 3, chunk_size=args.chunk_size, max_distance=args.max_distance)
-    created = engine.submit(CreateWorld(config))
+    created = [engine.submit(CreateWorld(config)) for _ in range(args.worlds)]
     engine.step()
-    world_id = created.result()["id"]
+    world_ids = [future.result()["id"] for future in created]
     rng = random.Random(args.seed)
     request_id = 0
 
@@ -205,7 +203,8 @@ def run(args: argparse.Namespace, step_size: int, gpu: GpuContext, clock: Clock)
         nonlocal request_id
         # decoded as the input thread decodes a frame, outside the measured phases
         requests = [msg.REQUEST_DECODER.decode(msg.REQUEST_ENCODER.encode(
-            msg.ApplyEdits(request_id + i + 1, world_id, sphere_batch(rng, args.size, (1.0, 8.0)))))
+            msg.ApplyEdits(request_id + i + 1, world_ids[(request_id + i) % len(world_ids)],
+                           sphere_batch(rng, args.size, (1.0, 8.0)))))
             for i in range(step_size)]
         for request in requests:
             service.handle(b"api-1", request)
@@ -232,9 +231,9 @@ def run(args: argparse.Namespace, step_size: int, gpu: GpuContext, clock: Clock)
         clock.on = False
         if replies.failures:
             raise RuntimeError(f"{len(replies.failures)} batches failed, the first: {replies.failures[0]}")
-        version = engine.worlds[world_id].version
-        if version != request_id:
-            raise RuntimeError(f"the world is at version {version} after {request_id} batches")
+        versions = sum(engine.worlds[world_id].version for world_id in world_ids)
+        if versions != request_id:
+            raise RuntimeError(f"the worlds are at versions summing to {versions} after {request_id} batches")
     finally:
         journal.close()
         engine.table.release_all()
@@ -245,8 +244,8 @@ def run(args: argparse.Namespace, step_size: int, gpu: GpuContext, clock: Clock)
         wall = clock.wall.get(phase, 0.0)
         cpu = clock.cpu.get(phase, 0.0)
         if phase.startswith("recompute host"):
-            wall = clock.wall["recompute (World.recompute)"] - clock.wall["queue.finish (device wait)"]
-            cpu = clock.cpu["recompute (World.recompute)"] - clock.cpu["queue.finish (device wait)"]
+            wall = clock.wall["recompute (Engine._recompute)"] - clock.wall["queue.finish (device wait)"]
+            cpu = clock.cpu["recompute (Engine._recompute)"] - clock.cpu["queue.finish (device wait)"]
         n = batches if per == "batch" else args.steps
         if phase.startswith("acknowledge"):
             cpu = float("nan")  # the step's report gives its wall time only
@@ -276,6 +275,7 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=128, help="the world's side in voxels")
     ap.add_argument("--chunk-size", type=int, default=16)
     ap.add_argument("--max-distance", type=int, default=255)
+    ap.add_argument("--worlds", type=int, default=1, help="worlds, each step's batches spread over them in turn")
     ap.add_argument("--steps", type=int, default=300, help="measured steps per step size")
     ap.add_argument("--warm-up", type=int, default=30, help="steps first, not measured")
     ap.add_argument("--step-sizes", default="1,12", help="batches a step, comma-separated")
@@ -288,7 +288,7 @@ def main() -> None:
     clock = Clock()
     gpu = timed_gpu(args.device, clock)
     instrument(clock)
-    print(f"{gpu.device_name}; a {args.size}^3 world, chunk {args.chunk_size}, cap {args.max_distance}; "
+    print(f"{gpu.device_name}; {args.worlds} world(s) of {args.size}^3, chunk {args.chunk_size}, cap {args.max_distance}; "
           f"one sphere (radius 1..8) a batch; log {'not ' if args.no_sync else ''}synced")
     results = []
     for step_size in (int(s) for s in args.step_sizes.split(",")):

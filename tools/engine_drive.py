@@ -2,8 +2,9 @@
 
 Starts an engine process exactly as ``sdfserver serve`` does (``engine_main``, forked, its
 flags parsed by the same settings), connects to it as an API process would (``EngineClient``:
-typed requests over ZeroMQ), creates a world and keeps ``--clients`` requests in flight, each
-one edit batch of the load test's random brushes, for ``--duration`` seconds. Prints batches/s,
+typed requests over ZeroMQ), creates ``--worlds`` worlds (one by default; the clients spread
+evenly over them) and keeps ``--clients`` requests in flight, each one edit batch of the load
+test's random brushes, for ``--duration`` seconds. Prints batches/s,
 the latency of a batch's request and answer, the engine process's CPU per batch (all its
 threads, from /proc) and the engine's own counters (steps, batches a step, step phases).
 
@@ -67,14 +68,15 @@ def counters(text: str) -> dict[str, float]:
 async def drive(args: argparse.Namespace, address: EngineAddress, pid: int) -> dict:
     client = EngineClient(address.input, address.output)
     await client.start()
-    config = WorldConfig(size=(args.size,) * 3, chunk_size=args.chunk_size)
-    made = await client.call(msg.CreateWorld(client.next_id(), world_config_dict(config)))
-    world_id = made["id"]
+    config = WorldConfig(size=(args.size,) * 3, chunk_size=args.chunk_size, max_distance=args.max_distance)
+    world_ids = [(await client.call(msg.CreateWorld(client.next_id(), world_config_dict(config))))["id"]
+                 for _ in range(args.worlds)]
     load = LoadConfig(url="", world_size=(args.size,) * 3, ops_per_batch=args.ops_per_batch)
     latencies: list[float] = []
     stop_at = [0.0]
 
     async def one_client(seed: int) -> None:
+        world_id = world_ids[seed % len(world_ids)]  # clients spread evenly over the worlds
         brushes = Brushes(seed, load)
         while time.perf_counter() < stop_at[0]:
             batch = encode_batch(brushes.batch()[0])
@@ -101,7 +103,7 @@ async def drive(args: argparse.Namespace, address: EngineAddress, pid: int) -> d
     await client.stop()
     steps = engine.get("sdfserver_engine_steps_total", 0.0)
     return {
-        "clients": args.clients, "size": args.size, "seconds": wall, "batches": batches,
+        "clients": args.clients, "worlds": args.worlds, "size": args.size, "seconds": wall, "batches": batches,
         "batches_per_s": batches / wall, "p50_ms": float(np.percentile(latencies, 50)) * 1e3,
         "p99_ms": float(np.percentile(latencies, 99)) * 1e3, "engine_cpu_us_per_batch": cpu / batches * 1e6,
         "engine_cpu_share": cpu / wall, "driver_cpu_share": own_cpu / wall,
@@ -116,7 +118,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--size", type=int, default=64)
     parser.add_argument("--chunk-size", type=int, default=16)
+    parser.add_argument("--max-distance", type=int, default=255, help="the worlds' cap")
     parser.add_argument("--clients", type=int, default=64)
+    parser.add_argument("--worlds", type=int, default=1, help="spread the clients evenly over this many worlds")
     parser.add_argument("--ops-per-batch", type=int, default=1)
     parser.add_argument("--duration", type=float, default=5.0)
     parser.add_argument("--warm-up", type=float, default=1.0)

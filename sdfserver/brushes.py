@@ -16,6 +16,7 @@ from sdfserver.algorithms.base import float4, grid, int4
 from sdfserver.edits import BoxEdit, Edit, SphereEdit, VoxelsEdit
 from sdfserver.geometry import Box, Vec3
 from sdfserver.gpu import GpuContext
+from sdfserver.gpu.launches import KernelCopies
 
 WORLD_ORIGIN = bytes(16)  # int4(0, 0, 0): a dense world's buffer starts at the world's corner
 # The n brushes of a launch are first checked for brushes a later box hides whole (``visible``)
@@ -25,27 +26,37 @@ WORLD_ORIGIN = bytes(16)  # int4(0, 0, 0): a dense world's buffer starts at the 
 CULL_PER_PAIR_VOXELS = 4096
 
 
+def _launch(gpu: GpuContext, kernels: KernelCopies | None, name: str, global_size: tuple, local_size: tuple,
+            *args) -> None:
+    """One edits.cl kernel: the world's copy where it has them (``gpu/launches.py``)."""
+    kernel = gpu.programs.kernel("edits.cl", name)
+    if kernels is None:
+        kernel(gpu.queue, global_size, local_size, *args)
+    else:
+        kernels.enqueue(gpu.queue, kernel, global_size, local_size, args)
+
+
 def enqueue_voxels(gpu: GpuContext, voxels: cl.Buffer, dims: bytes, size: Vec3, e: VoxelsEdit,
-                   origin: bytes = WORLD_ORIGIN) -> None:
+                   origin: bytes = WORLD_ORIGIN, kernels: KernelCopies | None = None) -> None:
     # Later duplicates win: keep the last occurrence of each position.
     flat = np.ravel_multi_index(e.voxels[::-1, 2::-1].T, size[::-1])
     _, first = np.unique(flat, return_index=True)
     rows = e.voxels[::-1][first].astype(np.uint16)
     list_buf = gpu.upload(rows)
     n = len(rows)
-    gpu.programs.kernel("edits.cl", "set_voxels")(gpu.queue, (-(-n // 64) * 64,), (64,), voxels, dims, origin, list_buf,
-                                                  np.int32(n))
+    _launch(gpu, kernels, "set_voxels", (-(-n // 64) * 64,), (64,), voxels, dims, origin, list_buf, np.int32(n))
     list_buf.release()  # OpenCL frees it only once the queued kernel has finished
 
 
 def enqueue_brushes(gpu: GpuContext, voxels: cl.Buffer, dims: bytes, brushes: list[tuple[Edit, Box]],
-                    origin: bytes = WORLD_ORIGIN) -> None:
+                    origin: bytes = WORLD_ORIGIN, kernels: KernelCopies | None = None) -> None:
     """Box and sphere edits, each with its clipped box: one alone with its own kernel, several
-    with fill_brushes (their records in one small buffer)."""
+    with fill_brushes (their records in one small buffer). ``kernels``: the world's kernel
+    copies, if it has them."""
     if len(brushes) > 1 and sum(box.volume for _, box in brushes) > CULL_PER_PAIR_VOXELS * len(brushes) ** 2:
         brushes = visible(brushes)
     if len(brushes) == 1:
-        enqueue_brush(gpu, voxels, dims, *brushes[0], origin)
+        enqueue_brush(gpu, voxels, dims, *brushes[0], origin, kernels)
         return
     if not brushes:
         return
@@ -64,9 +75,8 @@ def enqueue_brushes(gpu: GpuContext, voxels: cl.Buffer, dims: bytes, brushes: li
     records[:, 8:].view(np.float32)[:] = floats
     local = 64
     with gpu.uploads.staged(records) as record_buf:
-        gpu.programs.kernel("edits.cl", "fill_brushes")(
-            gpu.queue, (-(-first // local) * local,), (local,), voxels, dims, origin,
-            record_buf, np.int32(len(brushes)), np.uint32(first))
+        _launch(gpu, kernels, "fill_brushes", (-(-first // local) * local,), (local,), voxels, dims, origin,
+                record_buf, np.int32(len(brushes)), np.uint32(first))
 
 
 def visible(brushes: list[tuple[Edit, Box]]) -> list[tuple[Edit, Box]]:
@@ -87,13 +97,11 @@ def visible(brushes: list[tuple[Edit, Box]]) -> list[tuple[Edit, Box]]:
 
 
 def enqueue_brush(gpu: GpuContext, voxels: cl.Buffer, dims: bytes, e: Edit, box: Box,
-                  origin: bytes = WORLD_ORIGIN) -> None:
-    q, kernels = gpu.queue, gpu.programs
+                  origin: bytes = WORLD_ORIGIN, kernels: KernelCopies | None = None) -> None:
     gsize, lsize = grid(box.shape_xyz)
     if isinstance(e, BoxEdit):
-        kernels.kernel("edits.cl", "fill_box")(q, gsize, lsize, voxels, dims, origin, int4(box.lo), int4(box.shape_xyz),
-                                               np.uint32(e.colour))
+        _launch(gpu, kernels, "fill_box", gsize, lsize, voxels, dims, origin, int4(box.lo), int4(box.shape_xyz),
+                np.uint32(e.colour))
     elif isinstance(e, SphereEdit):
-        center = float4(e.center)
-        kernels.kernel("edits.cl", "fill_sphere")(q, gsize, lsize, voxels, dims, origin, int4(box.lo), int4(box.shape_xyz),
-                                                  center, np.float32(e.radius * e.radius), np.uint32(e.colour))
+        _launch(gpu, kernels, "fill_sphere", gsize, lsize, voxels, dims, origin, int4(box.lo), int4(box.shape_xyz),
+                float4(e.center), np.float32(e.radius * e.radius), np.uint32(e.colour))

@@ -47,9 +47,10 @@ class DirtySet:
         if config.borders == "padded":
             cap = 0  # each chunk is computed alone: an edit changes only the chunks it touches
         # A box that grows to the whole world swallows every other region (they all touch it):
-        # under a cap near the world's side that is every box, so the first one settles it.
+        # under a cap near the world's side that is every box, so the first one settles it;
+        # under a cap of the world's side or more, without looking (the common step of a small world).
         world = Box((0, 0, 0), (sx, sy, sz))
-        if self.boxes[0].grow(cap).snap(cs).contains(world):
+        if cap >= max(sx, sy, sz) or self.boxes[0].grow(cap).snap(cs).contains(world):
             return [world]
         # In plain ints (b.grow(cap).snap(cs).intersect(world) made three Boxes an edit). Under a
         # large cap many edits grow to the same region: merge each once.

@@ -31,7 +31,7 @@ import pyopencl as cl
 from sdfserver import bulk
 from sdfserver.brushes import enqueue_brushes, enqueue_voxels
 from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, RegionJob, WorldBuffers, get_algorithm
-from sdfserver.algorithms.base import WORK_PLANE_PAD, int4
+from sdfserver.algorithms.base import WORK_PLANE_PAD, int4, prepared
 from sdfserver.algorithms.euclidean import EUCLIDEAN_EXACT, StageBoxes
 from sdfserver.algorithms.stats import AlgorithmStats, summarize
 from sdfserver.dirty import SMALL_DIRTY_CHUNKS, DirtySet  # noqa: F401  (SMALL_DIRTY_CHUNKS: read by tests)
@@ -40,10 +40,12 @@ from sdfserver.errors import InvalidInput
 from sdfserver.field_values import distances, needs_voxels
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
+from sdfserver.gpu.launches import KernelCopies
 from sdfserver.world_config import CHUNK_SIZES, MAX_SIDE_VOX, MAX_WORLD_VOXELS, Focus, WorldConfig
 
 BRUSHES_PER_LAUNCH = 256  # each work-item of fill_brushes checks the later brushes of its launch
 WORK_ITEMS_PER_LAUNCH = 1 << 30  # fill_brushes counts its work-items in 32 bits
+PREPARED_PER_WORLD = 16  # dirty-region lists whose runs a world keeps prepared (World._launches)
 
 
 
@@ -146,7 +148,7 @@ class World:
         sizes = self.buffer_bytes(config)
         gpu.check_fits(sizes, f"a {sx}x{sy}x{sz} world")
         self._sizes = sizes
-        self.buffers = WorldBuffers(config.size, *self.gpu.allocate_all(sizes[:4]))
+        self.buffers = WorldBuffers(config.size, *self.gpu.allocate_all(sizes[:4]), kernels=KernelCopies())
         self._optional_sizes = optional_sizes(config)
         for name, buf in zip(self._optional_sizes, self.gpu.allocate_all(sizes[4:]) if len(sizes) > 4 else []):
             setattr(self.buffers, name, buf)
@@ -162,6 +164,8 @@ class World:
         gpu.queue.finish()
         self._dims_int4 = int4(config.size)
         self.dirty = DirtySet()  # what edits may have changed since the last recompute
+        # dirty regions -> their runs, prepared (_launches); emptied when the configuration changes
+        self._prepared: dict[tuple[Box, ...], list[tuple[str, Callable[[], AlgorithmRun]]]] = {}
         self.version = 0  # edit batches applied
         self.field_version = 0  # the version the field reflects
         self.last_recompute: RecomputeResult | None = None  # what the last recompute did
@@ -189,6 +193,7 @@ class World:
         for name, n in self._optional_sizes.items():
             self.gpu.release(getattr(b, name), n)
         self.buffers = None
+        self._prepared.clear()  # their jobs hold the buffers, their kernel copies the arguments
 
     @property
     def device_bytes(self) -> int:
@@ -245,10 +250,11 @@ class World:
         return self.apply_plan(self.plan_edits(edits))
 
     def _enqueue_voxels(self, e: VoxelsEdit) -> None:
-        enqueue_voxels(self.gpu, self.buffers.voxels, self._dims_int4, self.config.size, e)
+        enqueue_voxels(self.gpu, self.buffers.voxels, self._dims_int4, self.config.size, e,
+                       kernels=self.buffers.kernels)
 
     def _enqueue_brushes(self, batch: list[tuple[Edit, Box]]) -> None:
-        enqueue_brushes(self.gpu, self.buffers.voxels, self._dims_int4, batch)
+        enqueue_brushes(self.gpu, self.buffers.voxels, self._dims_int4, batch, kernels=self.buffers.kernels)
 
     def load_voxels(self, voxels: np.ndarray) -> int:
         """Replace every voxel (restore, import); the whole field becomes dirty."""
@@ -277,6 +283,7 @@ class World:
         config = replace(self.config, **changes).validated()
         self._resize_optional(config)
         before, self.config = self.config, config
+        self._prepared.clear()  # planned under the old configuration
         if any(getattr(before, k) != getattr(config, k) for k in self.FIELD_CHANGES):
             self.dirty.mark_all()
 
@@ -333,11 +340,23 @@ class World:
         runs: list[tuple[str, AlgorithmRun]] = []
         if self.config.euclidean and regions:
             runs.append(("exact", self._compute_euclidean(regions)))
-        else:
-            for region in regions:
-                runs.extend(self._compute_region(region))
+        elif regions:
+            runs = [(name, launch()) for name, launch in self._launches(regions)]
         self.dirty.clear()
         return PendingRecompute(self, regions, runs, start, self.version)
+
+    def _launches(self, regions: list[Box]) -> list[tuple[str, Callable[[], AlgorithmRun]]]:
+        """The algorithm runs over ``regions``, each a call prepared once (``algorithms.base.prepared``)
+        and kept while the regions repeat: under a cap near the world's side every recompute is
+        the whole world, and planning it again each step cost more host time than launching it."""
+        key = tuple(regions)
+        found = self._prepared.get(key)
+        if found is None:
+            if len(self._prepared) >= PREPARED_PER_WORLD:
+                self._prepared.clear()
+            found = self._prepared[key] = [(algorithm.name, prepared(algorithm, self.gpu, job))
+                                           for region in regions for algorithm, job in self._region_jobs(region)]
+        return found
 
     def _finish_recompute(self, pending: "PendingRecompute", device_done: bool) -> RecomputeResult:
         if not device_done:
@@ -356,7 +375,8 @@ class World:
         return EUCLIDEAN_EXACT.run_stages(self.gpu, self.buffers, self.buffers.field, stages, cfg.max_distance,
                                           cfg.signed)
 
-    def _compute_region(self, region: Box):
+    def _region_jobs(self, region: Box):
+        """The algorithm runs that recompute ``region``, in order: (algorithm, job) pairs."""
         cfg, b = self.config, self.buffers
         focus = None
         if cfg.focus is not None:
@@ -372,22 +392,22 @@ class World:
             halo = lambda r: RegionJob.halo_region(b, r, cap)  # noqa: E731
         if focus is None:
             if not cfg.signed:
-                yield algorithm.name, algorithm.run(self.gpu, seeded(region))
+                yield algorithm, seeded(region)
                 return
             job = replace(seeded(region), signed=True)
-            yield algorithm.name, algorithm.run(self.gpu, job)
+            yield algorithm, job
             # inside the solids: distances to air, after the plain run wrote R
-            yield algorithm.name, algorithm.run(self.gpu, replace(job, invert=True))
+            yield algorithm, replace(job, invert=True)
             return
         # Level of detail (the dissertation's Algorithm 7): the cheap algorithm everywhere,
         # then the world's algorithm inside the focus, from voxels alone so that the
         # approximate field around it cannot leak in. Outside the focus the field is the
         # cheap algorithm's: with jump flooding an overestimate, which a ray can step past.
         lod = get_algorithm(cfg.lod_algorithm)
-        yield lod.name, lod.run(self.gpu, seeded(region))
+        yield lod, seeded(region)
         inner = region.intersect(focus)
         if not inner.empty:
-            yield algorithm.name, algorithm.run(self.gpu, halo(inner))
+            yield algorithm, halo(inner)
 
     # -- reads ------------------------------------------------------------------------------------
 

@@ -15,13 +15,15 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass, field
-from typing import Protocol
+from functools import partial
+from typing import Callable, Protocol
 
 import numpy as np
 import pyopencl as cl
 
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
+from sdfserver.gpu.launches import KernelCopies
 
 
 _INT4 = struct.Struct("<4i")
@@ -62,6 +64,9 @@ class WorldBuffers:
     # and its envelope stacks (uint); `work` holds its x-stage result.
     edt_plane: cl.Buffer | None = None
     edt_stack: cl.Buffer | None = None
+    # A dense world's own kernel copies, which keep their arguments between launches
+    # (gpu/launches.py); None for the short-lived views a sparse world computes in.
+    kernels: KernelCopies | None = None
 
 
 X_ALIGN_VOX = 8
@@ -134,6 +139,8 @@ class Algorithm(Protocol):
     exact: bool
     # Optional (read with getattr, default False): supports_padding — runs padded jobs
     # (RegionJob.chunk > 0); seed_scratch — needs WorldBuffers.seeds/seeds2.
+    # Optional: prepare(gpu, job) -> a call that does run(gpu, job), the host work that repeats
+    # done once (World keeps it while a world's dirty regions repeat; ``prepared`` below).
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun: ...
 
@@ -159,3 +166,9 @@ def pack_region(gpu: GpuContext, job: RegionJob, source: cl.Buffer) -> cl.Event:
         int4(job.buffers.dims), int4(job.work_box.lo), int4(job.work_box.shape_xyz),
         int4(r.lo), int4(r.shape_xyz), np.int32(job.cap),
     )
+
+
+def prepared(algorithm: Algorithm, gpu: GpuContext, job: RegionJob) -> Callable[[], AlgorithmRun]:
+    """A call that runs ``algorithm`` over ``job`` (its ``prepare``, where it has one)."""
+    prepare = getattr(algorithm, "prepare", None)
+    return prepare(gpu, job) if prepare is not None else partial(algorithm.run, gpu, job)

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass
+from functools import partial
+from typing import Callable
 
 import numpy as np
 
@@ -172,9 +174,29 @@ class Exact:
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         run = AlgorithmRun(bytes_moved=bytes_moved(job))
         args = pass_args(job)  # the three passes take the same arguments
-        queue = gpu.queue
+        queue, own = gpu.queue, job.buffers.kernels
         for kernel, _, global_, local in self.passes(gpu, job.work_box.shape_xyz, job.invert, job.signed):
-            run.events.append(kernel(queue, global_, local, *args))
+            if own is None:
+                run.events.append(kernel(queue, global_, local, *args))
+            else:  # the world's copy: only the arguments that changed since its last launch are set
+                run.events.append(own.enqueue(queue, kernel, global_, local, args))
+        return run
+
+    def prepare(self, gpu: GpuContext, job: RegionJob) -> Callable[[], AlgorithmRun]:
+        """``run(gpu, job)`` worked out once, for a world that runs the same job step after step
+        (``World`` keeps it while the dirty regions repeat): each call only enqueues the three
+        passes, on the world's kernel copies, whose arguments are still set from the last call."""
+        own = job.buffers.kernels
+        if own is None:
+            return partial(self.run, gpu, job)
+        args, moved, queue = pass_args(job), bytes_moved(job), gpu.queue
+        launches = [(kernel, global_, local) for kernel, _, global_, local in
+                    self.passes(gpu, job.work_box.shape_xyz, job.invert, job.signed)]
+
+        def run() -> AlgorithmRun:
+            events = [own.enqueue(queue, kernel, global_, local, args) for kernel, global_, local in launches]
+            return AlgorithmRun(events, bytes_moved=moved)
+
         return run
 
 

@@ -98,21 +98,33 @@ class BatchPipeline:
             self.journal.start_syncs(wait=not self.more_queued())
         logged = time.perf_counter()
         report.apply_ms["log"] += (logged - started) * 1e3
-        launch_ms = 0.0
-        for world_id, world, items, durable in journaled:
-            launch = time.perf_counter()
-            try:
-                versions = world.apply_plans([plan for _, _, plan in items])  # the step's brushes in few launches
-            except cl.Error:
-                raise
-            except Exception as exc:  # logged but not applied: not acknowledged, the other worlds go on
-                for _, future, _ in items:
-                    self.reject(future, exc, report)
-                continue
-            finally:
-                launch_ms += (time.perf_counter() - launch) * 1e3
-            self.metrics.edit_batches.inc(len(items))  # each inc takes a lock: once a world a step
-            self.metrics.edit_ops.inc(sum(len(command.edits) for command, _, _ in items))
+        launch_ms, applied = 0.0, []
+        try:
+            for world_id, world, items, durable in journaled:
+                launch = time.perf_counter()
+                try:
+                    versions = world.apply_plans([plan for _, _, plan in items])  # the step's brushes in few launches
+                except cl.Error:
+                    raise
+                except Exception as exc:  # logged but not applied: not acknowledged, the other worlds go on
+                    for _, future, _ in items:
+                        self.reject(future, exc, report)
+                    continue
+                finally:
+                    launch_ms += (time.perf_counter() - launch) * 1e3
+                applied.append((world_id, items, versions, durable))
+        finally:  # what was applied is acknowledged, even when the device failed on a later world
+            self._acknowledge(applied, touched, report)
+        report.apply_ms["launch"] += launch_ms
+        report.apply_ms["acknowledge"] += (time.perf_counter() - logged) * 1e3 - launch_ms
+
+    def _acknowledge(self, applied: list, touched: set[str], report: StepReport) -> None:
+        """Count the applied batches (before any is acknowledged; each inc takes a lock: once a
+        step, not once a world), then answer each with its version, or once durable."""
+        if applied:
+            self.metrics.edit_batches.inc(sum(len(items) for _, items, _, _ in applied))
+            self.metrics.edit_ops.inc(sum(len(command.edits) for _, items, _, _ in applied for command, _, _ in items))
+        for world_id, items, versions, durable in applied:
             report.applied_batches += len(items)
             answers = [(future, version) for (_, future, _), version in zip(items, versions)]
             self.acknowledging.append(answers)
@@ -127,8 +139,6 @@ class BatchPipeline:
                     self._remember_when_durable(world_id, ids, durable)
                 acknowledge_when_durable(answers, durable)
             touched.add(world_id)
-        report.apply_ms["launch"] += launch_ms
-        report.apply_ms["acknowledge"] += (time.perf_counter() - logged) * 1e3 - launch_ms
 
     def _remember_when_durable(self, world_id: str, ids: list[tuple[str, int]], durable: Future) -> None:
         def done(durable: Future) -> None:

@@ -316,13 +316,15 @@ class Engine(EngineLifetime, CommandCalls):
         pending = {world_id: world.begin_recompute() for world_id, world in worlds.items()}
         if len(pending) > 1:
             self.gpu.queue.finish()
+        observed = []
         for world_id, world in worlds.items():
             result = pending[world_id].finish(device_done=len(pending) > 1)
-            self.metrics.observe_recompute(world.config.algorithm, result)
+            observed.append((world.config.algorithm, result))
             self.last_recompute_ms[world_id] = result.wall_ms
             results[world_id] = result
             if self.journal is not None and self.journal.wants_snapshot(world_id):
                 self._snapshot(world_id, world)
+        self.metrics.observe_recomputes(observed)  # the step's figures counted once
         return results
 
     def _snapshot(self, world_id: str, world: World) -> None:

@@ -6,7 +6,7 @@ apps live in one process.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Iterable
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 
@@ -87,16 +87,37 @@ class EngineMetrics:
                 self._labelled(self.recompute_device_seconds, algorithm))
 
     def observe_recompute(self, algorithm: str, result: RecomputeResult) -> None:
-        """One world's recompute: its wall time under the world's algorithm; kernel time,
-        passes and bytes under each algorithm it ran (a focus runs two)."""
-        self._labelled(self.recompute_seconds, algorithm).observe(result.wall_ms / 1e3)
-        self.changed_chunks.inc(result.changed_chunk_count)
-        for name, stats in result.algorithms.items():
-            self._labelled(self.recompute_device_seconds, name).inc(stats.device_ms / 1e3)
-            self._labelled(self.recompute_iterations, name).inc(stats.iterations)
-            self._labelled(self.recompute_last_iterations, name).set(stats.iterations)
-            if stats.bytes_moved:
-                self._labelled(self.recompute_bytes, name).inc(stats.bytes_moved)
-                bandwidth = stats.bandwidth_gbps
-                if bandwidth is not None:
-                    self._labelled(self.recompute_bandwidth, name).set(bandwidth * 1e9)
+        """One world's recompute (``observe_recomputes``)."""
+        self.observe_recomputes([(algorithm, result)])
+
+    def observe_recomputes(self, recomputes: Iterable[tuple[str, RecomputeResult]]) -> None:
+        """A step's recomputes, each (the world's algorithm, its result): each one's wall time
+        under the world's algorithm; kernel time, passes and bytes under each algorithm it ran
+        (a focus runs two), summed over the step and counted once (each count takes a lock)."""
+        changed = 0
+        sums: dict[str, list] = {}  # algorithm -> [device ms, passes, bytes, last passes, last bandwidth]
+        for algorithm, result in recomputes:
+            self._labelled(self.recompute_seconds, algorithm).observe(result.wall_ms / 1e3)
+            changed += result.changed_chunk_count
+            for name, stats in result.algorithms.items():
+                found = sums.get(name)
+                if found is None:
+                    found = sums[name] = [0.0, 0, 0, 0, None]
+                found[0] += stats.device_ms
+                found[1] += stats.iterations
+                found[3] = stats.iterations
+                if stats.bytes_moved:
+                    found[2] += stats.bytes_moved
+                    bandwidth = stats.bandwidth_gbps
+                    if bandwidth is not None:
+                        found[4] = bandwidth
+        if changed:
+            self.changed_chunks.inc(changed)
+        for name, (device_ms, passes, moved, last_passes, bandwidth) in sums.items():
+            self._labelled(self.recompute_device_seconds, name).inc(device_ms / 1e3)
+            self._labelled(self.recompute_iterations, name).inc(passes)
+            self._labelled(self.recompute_last_iterations, name).set(last_passes)
+            if moved:
+                self._labelled(self.recompute_bytes, name).inc(moved)
+            if bandwidth is not None:
+                self._labelled(self.recompute_bandwidth, name).set(bandwidth * 1e9)

@@ -50,3 +50,32 @@ def test_worlds_recomputed_in_one_step_equal_each_alone(gpu):
                 alone.release()
     finally:
         engine.stop()
+
+
+def test_prepared_launches_follow_regions_and_configuration(gpu):
+    """A world keeps its recompute's launches prepared and its kernels' arguments set between
+    steps (World._launches, gpu/launches.py): whether the dirty regions repeat, move or change
+    shape, and across a reconfiguration, every field is the true one."""
+    from references import oracle_distance
+
+    from sdfserver.edits import BoxEdit, SphereEdit
+
+    world = make_world(gpu, WorldConfig(size=(32, 16, 24), chunk_size=8, max_distance=5))
+    try:
+        rng = np.random.default_rng(3)
+        places = [(2, 2, 2), (2, 2, 2), (20, 9, 14), (2, 2, 2), (27, 1, 20)]  # repeats, moves and back
+        for step in range(12):
+            if step == 6:
+                world.reconfigure(max_distance=9)
+            if step == 9:
+                world.reconfigure(max_distance=40)  # every region the whole world
+            lo = places[step % len(places)]
+            world.apply_edits([BoxEdit(lo, tuple(c + int(rng.integers(1, 4)) for c in lo), int(rng.integers(0, 3))),
+                               SphereEdit(tuple(float(c) for c in rng.uniform(0, 16, 3)), 2.5, 1)])
+            world.recompute()
+            voxels = world.read_voxels()
+            expected = oracle_distance(voxels, world.config.max_distance)
+            assert np.array_equal((world.read_field() >> 8).astype(np.uint8), expected), f"step {step}"
+        assert world.buffers.kernels is not None and len(world.buffers.kernels) > 0
+    finally:
+        world.release()

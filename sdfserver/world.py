@@ -419,7 +419,8 @@ class World:
         return bulk.read_box(self.gpu, buffer, dtype, self.config.size, box)
 
     def read_field(self, box: Box | None = None) -> np.ndarray:
-        """Packed field, uint16 ``(distance << 8) | colour``, shape (z, y, x)."""
+        """The stored field, uint16, shape (z, y, x): ``(distance << 8) | colour`` in a Manhattan
+        world, the squared distance in a Euclidean one (``sdfserver/field_values.py``)."""
         return self._read(self.buffers.field, np.uint16, box)
 
     def read_distance(self, box: Box | None = None) -> np.ndarray:

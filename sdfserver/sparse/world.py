@@ -30,7 +30,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pyopencl as cl
 
-from sdfserver import bulk
 from sdfserver.algorithms import RegionJob, WorldBuffers, get_algorithm
 from sdfserver.algorithms.base import WORK_PLANE_PAD, int4
 from sdfserver.algorithms.euclidean import EUCLIDEAN_EXACT, StageBoxes
@@ -45,6 +44,7 @@ from sdfserver.gpu import GpuContext
 from sdfserver.sparse import kernels
 from sdfserver.sparse.device_table import DeviceTable
 from sdfserver.sparse.pool import BYTES_PER_STORED_VOXEL, BrickPool
+from sdfserver.sparse.snapshots import SparseSnapshots
 from sdfserver.sparse.table import AIR, BrickTable, solid_code
 from sdfserver.world import BRUSHES_PER_LAUNCH, EditPlan, RecomputeResult, field_defines
 from sdfserver.world_config import MAX_SIDE_VOX, WorldConfig
@@ -65,7 +65,7 @@ class DoneRecompute:
         return self.result
 
 
-class SparseWorld:
+class SparseWorld(SparseSnapshots):
     def __init__(self, gpu: GpuContext, config: WorldConfig, limits: EditLimits = EditLimits(),
                  generate: bool = True, segment_bricks: int | None = None):
         """``generate``: build ``config.generate``'s terrain (not when a snapshot replaces it).
@@ -194,60 +194,6 @@ class SparseWorld:
             switch_field(self, config)
         else:
             self.config = config
-
-    def load_voxels(self, content) -> int:
-        """Replace the whole world with a snapshot's bricks (restore); raises InvalidInput for
-        anything else (imports make dense worlds)."""
-        from sdfserver.storage.sparse_snapshot import SparseContent
-
-        if not isinstance(content, SparseContent) or content.brick != self.brick:
-            raise InvalidInput("a sparse world loads only its own snapshot's bricks")
-        count = int(content.voxels.shape[0])
-        self.pool.release()
-        self.table.blocks.clear()
-        self.table.generation += 1
-        self.pool.reserve(count)
-        slots = self.pool.take(count)  # the lowest slots in order: every segment but the last is full
-        if not np.array_equal(slots, np.arange(count)):
-            raise RuntimeError("a fresh pool's slots are not numbered from 0")
-        for k, segment in enumerate(self.pool.segments):  # one loop over segments
-            rows = slice(k * self.pool.segment_bricks, min(count, k * self.pool.segment_bricks + segment.capacity))
-            if rows.stop > rows.start:
-                bulk.write(self.gpu, segment.voxels, np.ascontiguousarray(content.voxels[rows]))
-                bulk.write(self.gpu, segment.field, np.ascontiguousarray(content.field[rows]))
-        for key, block in content.blocks.items():  # one loop over kept blocks
-            self.table.blocks[key] = block if isinstance(block, int) else np.where(
-                block >= 0, slots[np.maximum(block, 0)], block).astype(np.int32)
-        self.dirty.clear()
-        self.version += 1
-        return self.version
-
-    def copy_voxels_out(self):
-        """The world as it is now, for a snapshot, without waiting for the device: a
-        SparseContent (the brick table and a copy of the pools) to read only after calling the
-        returned ``wait`` (any thread may; ``bulk.download_later``)."""
-        from sdfserver.storage.sparse_snapshot import SparseContent
-
-        n, b = self.pool.capacity, self.brick
-        voxels = np.empty((n, b, b, b), dtype=np.uint8)
-        field = np.empty((n, b, b, b), dtype=np.uint16)
-        blocks = {k: v if isinstance(v, int) else v.copy() for k, v in self.table.blocks.items()}
-        waits = []
-        try:  # every segment but the last is full, so slots index the arrays' rows
-            for k, segment in enumerate(self.pool.segments):  # one loop over segments
-                rows = slice(k * self.pool.segment_bricks, k * self.pool.segment_bricks + segment.capacity)
-                waits.append(bulk.download_later(self.gpu, segment.voxels, voxels[rows]))
-                waits.append(bulk.download_later(self.gpu, segment.field, field[rows]))
-        except BaseException:
-            for w in waits:
-                w()
-            raise
-
-        def wait() -> None:
-            for w in waits:  # each releases its staging buffer
-                w()
-
-        return SparseContent(b, blocks, voxels, field), wait
 
     def mark_all_dirty(self) -> None:
         raise InvalidInput("a sparse world recomputes the regions its edits touch, never the whole world")
@@ -432,8 +378,8 @@ class SparseWorld:
         return voxels, field
 
     def read_field(self, box: Box | None = None) -> np.ndarray:
-        """Packed field, uint16 ``(distance << 8) | colour``, shape (z, y, x); implicit bricks
-        read as their value."""
+        """The stored field, uint16, shape (z, y, x): what its values mean follows the metric and
+        sign (``sdfserver/field_values.py``); implicit bricks read as their value."""
         return self._gather_box(box)[1]
 
     def read_distance(self, box: Box | None = None) -> np.ndarray:

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pyopencl as cl
@@ -33,7 +33,8 @@ from sdfserver.brushes import enqueue_brushes, enqueue_voxels
 from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, RegionJob, WorldBuffers, get_algorithm
 from sdfserver.algorithms.base import WORK_PLANE_PAD, int4, prepared
 from sdfserver.algorithms.euclidean import EUCLIDEAN_EXACT, StageBoxes
-from sdfserver.algorithms.stats import AlgorithmStats, summarize
+from sdfserver.algorithms.stats import summarize
+from sdfserver.recompute import PendingRecompute, RecomputeResult
 from sdfserver.dirty import SMALL_DIRTY_CHUNKS, DirtySet  # noqa: F401  (SMALL_DIRTY_CHUNKS: read by tests)
 from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, validate_batch
 from sdfserver.errors import InvalidInput
@@ -62,44 +63,6 @@ class EditPlan:
     boxes: list[list[Box]]
 
 
-@dataclass
-class RecomputeResult:
-    regions: list[Box]  # rewritten: chunk-aligned, no two touching (merge_regions)
-    chunk_size: int
-    device_ms: float = 0.0  # summed kernel time from profiling events
-    wall_ms: float = 0.0
-    iterations: int = 0
-    kernel_ms: list[float] = field(default_factory=list)  # each launch, in order
-    algorithms: dict[str, AlgorithmStats] = field(default_factory=dict)  # per algorithm run
-
-    def iterations_of(self, algorithm: str) -> int:
-        stats = self.algorithms.get(algorithm)
-        return 0 if stats is None else stats.iterations
-
-    @property
-    def bandwidth_gbps(self) -> float | None:
-        """The exact transform's achieved bandwidth in this recompute (GB/s; exact.bytes_moved
-        says what is counted), or None where exact did not run."""
-        stats = self.algorithms.get("exact")
-        return None if stats is None else stats.bandwidth_gbps
-
-    @property
-    def changed_chunk_count(self) -> int:
-        return sum(r.chunk_range(self.chunk_size).volume for r in self.regions)
-
-    @property
-    def changed_chunks(self) -> np.ndarray:
-        """(N, 3) int32 chunk coordinates (x, y, z) rewritten; built only when asked for (publishing
-        reads the regions), since a 256^3 world under cap 255 rewrites all 4096 chunks a step."""
-        ranges = [r.chunk_range(self.chunk_size) for r in self.regions]
-        if not ranges:
-            return np.zeros((0, 3), dtype=np.int32)
-        # The regions do not touch, so neither do their chunk ranges: no chunk twice.
-        return np.concatenate([
-            np.stack(np.meshgrid(*(np.arange(lo, hi, dtype=np.int32) for lo, hi in zip(c.lo, c.hi)),
-                                 indexing="ij"), axis=-1).reshape(-1, 3) for c in ranges])
-
-
 OPTIONAL_BUFFERS = ("seeds", "seeds2", "edt_plane", "edt_stack")
 
 
@@ -114,23 +77,6 @@ def optional_sizes(config: WorldConfig) -> dict[str, int]:
     if config.euclidean:
         sizes.update(edt_plane=2 * n, edt_stack=4 * n)
     return sizes
-
-
-@dataclass
-class PendingRecompute:
-    """A recompute enqueued on the device (``World.begin_recompute``), finished by ``finish``:
-    after the device is done, the field's version moves and the figures are summed."""
-
-    world: "World"
-    regions: list[Box]
-    runs: list
-    started: float
-    version: int  # the version the field will reflect
-
-    def finish(self, device_done: bool = False) -> RecomputeResult:
-        """``device_done``: the caller has waited for the device already (one wait for a step's
-        worlds)."""
-        return self.world._finish_recompute(self, device_done)
 
 
 def field_defines(config: WorldConfig) -> dict[str, int]:

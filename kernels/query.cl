@@ -17,7 +17,6 @@
 #include "field_source.h"
 #include "ray_box.h"
 
-#define JUMP_MIN_STEPS 8  /* from this many clear face-steps on, a ray jumps instead of stepping */
 
 /* A corner's distance. Corners pass as three ints and become an int3 here: Intel's CPU runtime
  * miscompiled a sparse world's reads (wrong distances in some work-items) when handed int3s built
@@ -91,64 +90,34 @@ __kernel void query_spheres(FIELD_ARGS, int4 dims, float4 place, __global const 
     vstore3(len > 0.0f ? g / len : (float3)(0.0f), i, out + n);
 }
 
-inline float3 next_faces(int3 v, int3 step, float3 o, float3 d)
-{
-    const float3 up = convert_float3(v) + (float3)(step.x > 0, step.y > 0, step.z > 0);
-    return (float3)(d.x != 0.0f ? (up.x - o.x) / d.x : INFINITY, d.y != 0.0f ? (up.y - o.y) / d.y : INFINITY,
-                    d.z != 0.0f ? (up.z - o.z) / d.z : INFINITY);
-}
-
 /* The first solid voxel along o + t d (|d| = 1, voxel units) with t <= t_end: 1 and its voxel,
  * colour, entry t and entered face's axis (-1: the ray starts in it); 0 when there is none. */
 inline int first_hit(FIELD_ARGS, int4 dims, float3 o, float3 d, float t_end, int3 *voxel, uint *colour,
                      float *t_hit, int *face)
 {
-    const int3 step = (int3)(d.x > 0.0f ? 1 : -1, d.y > 0.0f ? 1 : -1, d.z > 0.0f ? 1 : -1);
-    float t0 = 0.0f, t1 = INFINITY;
-    int entry = -1;
-    clip_axis(o.x, d.x, dims.x, 0, &t0, &t1, &entry);
-    clip_axis(o.y, d.y, dims.y, 1, &t0, &t1, &entry);
-    clip_axis(o.z, d.z, dims.z, 2, &t0, &t1, &entry);
-    if (!(t1 > t0) || t0 > t_end)
+    Walk w;
+    if (!walk_start(&w, o, d, dims) || w.t > t_end)
         return 0;
-    int3 v = clamp(convert_int3_rtn(o + d * t0), (int3)(0), dims.xyz - 1);
-    if (entry == 0) v.x = step.x > 0 ? 0 : dims.x - 1;
-    if (entry == 1) v.y = step.y > 0 ? 0 : dims.y - 1;
-    if (entry == 2) v.z = step.z > 0 ? 0 : dims.z - 1;
-    *face = entry;
-    float3 t_max = next_faces(v, step, o, d);
-    const float3 t_delta = (float3)(d.x != 0.0f ? fabs(1.0f / d.x) : INFINITY,
-                                    d.y != 0.0f ? fabs(1.0f / d.y) : INFINITY,
-                                    d.z != 0.0f ? fabs(1.0f / d.z) : INFINITY);
-    float t = t0;
-    const float l1 = fabs(d.x) + fabs(d.y) + fabs(d.z);
     /* Each pass takes at least one step, and a ray crosses at most sx + sy + sz voxels. */
     const int max_passes = dims.x + dims.y + dims.z + 3;
     for (int pass = 0; pass < max_passes; ++pass) {
-        uint steps, distance_steps;
-        steps = field_step(FIELD_PASS, v, dims, colour, &distance_steps);
+        uint distance_steps;
+        const uint steps = field_step(FIELD_PASS, w.v, dims, colour, &distance_steps);
         if (*colour) {
-            *voxel = v;
-            *t_hit = t;
-            return t <= t_end;
+            *voxel = w.v;
+            *t_hit = w.t;
+            *face = w.face;
+            return w.t <= t_end;
         }
         if (steps >= JUMP_MIN_STEPS) {
-            /* As in render.cl: dt = (steps - 5) / |d|_1 crosses at most steps - 2 faces, one more
-             * for rounding where the ray lands, so every voxel passed is clear. */
-            t += (float)(steps - 5) / l1;
-            v = convert_int3_rtn(o + d * t);
-            if (t > t_end || !in_world(v, dims))
+            walk_jump(&w, steps);
+            if (w.t > t_end || !in_world(w.v, dims))
                 return 0;
-            t_max = next_faces(v, step, o, d);
             continue;
         }
         for (uint k = 0; k < steps; ++k) {
-            const int axis = t_max.x <= t_max.y && t_max.x <= t_max.z ? 0 : (t_max.y <= t_max.z ? 1 : 2);
-            if (axis == 0) { v.x += step.x; t = t_max.x; t_max.x += t_delta.x; }
-            else if (axis == 1) { v.y += step.y; t = t_max.y; t_max.y += t_delta.y; }
-            else { v.z += step.z; t = t_max.z; t_max.z += t_delta.z; }
-            *face = axis;
-            if (t > t_end || !in_world(v, dims))
+            walk_step(&w);
+            if (w.t > t_end || !in_world(w.v, dims))
                 return 0;
         }
     }

@@ -41,7 +41,6 @@
 #define RENDER_AO 1
 #define RENDER_SHADOW 2
 #define RENDER_STATS 4
-#define JUMP_MIN_STEPS 8  /* from this many clear face-steps on, a ray jumps instead of stepping */
 
 typedef struct {
     int hit;       /* 1: a solid voxel was reached */
@@ -61,80 +60,51 @@ inline march_result march(FIELD_ARGS, int4 dims, float3 o, float3 d, int long_st
     r.shade = 1e30f;
     r.colour = 0;
     r.face = -1;
-    r.step = (int3)(d.x > 0.0f ? 1 : -1, d.y > 0.0f ? 1 : -1, d.z > 0.0f ? 1 : -1);
-
-    float t0 = 0.0f, t1 = INFINITY;
-    int entry = -1;
-    clip_axis(o.x, d.x, dims.x, 0, &t0, &t1, &entry);
-    clip_axis(o.y, d.y, dims.y, 1, &t0, &t1, &entry);
-    clip_axis(o.z, d.z, dims.z, 2, &t0, &t1, &entry);
-    if (!(t1 > t0))
+    Walk w;
+    const int enters = walk_start(&w, o, d, dims);
+    r.step = w.step;
+    if (!enters)
         return r;
-
-    const float3 p = o + d * t0;
-    int3 v = clamp(convert_int3_rtn(p), (int3)(0), dims.xyz - 1);
-    if (entry == 0) v.x = r.step.x > 0 ? 0 : dims.x - 1;
-    if (entry == 1) v.y = r.step.y > 0 ? 0 : dims.y - 1;
-    if (entry == 2) v.z = r.step.z > 0 ? 0 : dims.z - 1;
-    r.face = entry;
-
-    const float3 fv = convert_float3(v);
-    const float3 next = fv + (float3)(r.step.x > 0, r.step.y > 0, r.step.z > 0);
-    float3 t_max = (float3)(d.x != 0.0f ? (next.x - o.x) / d.x : INFINITY,
-                            d.y != 0.0f ? (next.y - o.y) / d.y : INFINITY,
-                            d.z != 0.0f ? (next.z - o.z) / d.z : INFINITY);
-    const float3 t_delta = (float3)(d.x != 0.0f ? fabs(1.0f / d.x) : INFINITY,
-                                    d.y != 0.0f ? fabs(1.0f / d.y) : INFINITY,
-                                    d.z != 0.0f ? fabs(1.0f / d.z) : INFINITY);
-    float t = t0;
-    const float l1 = fabs(d.x) + fabs(d.y) + fabs(d.z);
     /* Each pass takes at least one step, and a ray crosses at most sx + sy + sz voxels. */
     const int max_passes = dims.x + dims.y + dims.z + 3;
     for (int pass = 0; pass < max_passes; ++pass) {
         uint colour, dist;  /* steps: face-steps known to be clear: the distance, or more across empty bricks */
-        uint steps = field_step(FIELD_PASS, v, dims, &colour, &dist);
+        uint steps = field_step(FIELD_PASS, w.v, dims, &colour, &dist);
         r.reads++;
         if (colour) {
             r.hit = 1;
-            r.voxel = v;
+            r.voxel = w.v;
             r.colour = colour;
+            r.face = w.face;
             return r;
         }
         /* The penumbra wants the true clearance: a Euclidean distance is below the step count
          * (ceil), and in a Manhattan world the two are the same number, read once. */
 #if FIELD_EUCLID
-        const float clearance = long_steps ? 0.0f : fmax(field_distance(FIELD_PASS, v, dims), 0.0f);
+        const float clearance = long_steps ? 0.0f : fmax(field_distance(FIELD_PASS, w.v, dims), 0.0f);
 #else
         const float clearance = (float)dist;
 #endif
-        r.shade = fmin(r.shade, clearance / fmax(t, 1e-3f));
+        r.shade = fmin(r.shade, clearance / fmax(w.t, 1e-3f));
         if (!long_steps)
             steps = dist;
         if (steps >= JUMP_MIN_STEPS) {
-            /* Over dt each axis crosses at most |d_a| dt + 1 faces, so dt = (steps - 5) / |d|_1
-             * crosses at most steps - 2 of them; one more for rounding where the ray lands: every
-             * voxel passed, and the one landed in, is nearer than `steps` and clear. */
-            t += (float)(steps - 5) / l1;
-            const float3 q = o + d * t;
-            v = convert_int3_rtn(q);
-            if (!in_world(v, dims))
+            walk_jump(&w, steps);
+            if (!in_world(w.v, dims)) {
+                r.face = w.face;
                 return r;
-            const float3 up = convert_float3(v) + (float3)(r.step.x > 0, r.step.y > 0, r.step.z > 0);
-            t_max = (float3)(d.x != 0.0f ? (up.x - o.x) / d.x : INFINITY,
-                             d.y != 0.0f ? (up.y - o.y) / d.y : INFINITY,
-                             d.z != 0.0f ? (up.z - o.z) / d.z : INFINITY);
+            }
             continue;
         }
         for (uint k = 0; k < steps; ++k) {
-            const int axis = argmin3(t_max);
-            if (axis == 0) { v.x += r.step.x; t = t_max.x; t_max.x += t_delta.x; }
-            else if (axis == 1) { v.y += r.step.y; t = t_max.y; t_max.y += t_delta.y; }
-            else { v.z += r.step.z; t = t_max.z; t_max.z += t_delta.z; }
-            r.face = axis;
-            if (!in_world(v, dims))
+            walk_step(&w);
+            if (!in_world(w.v, dims)) {
+                r.face = w.face;
                 return r;
+            }
         }
     }
+    r.face = w.face;
     return r;
 }
 

@@ -1,10 +1,10 @@
-"""The tests' one distance oracle and one reference for applying edits, in NumPy and SciPy,
+"""The tests' distance oracles and one reference for applying edits, in NumPy and SciPy,
 independent of the server's kernels."""
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import distance_transform_cdt
+from scipy.ndimage import distance_transform_cdt, distance_transform_edt
 
 
 def oracle_distance(voxels: np.ndarray, cap: int) -> np.ndarray:
@@ -13,6 +13,25 @@ def oracle_distance(voxels: np.ndarray, cap: int) -> np.ndarray:
     if not voxels.any():
         return np.full(voxels.shape, cap, dtype=np.uint8)
     return np.minimum(distance_transform_cdt(voxels == 0, metric="taxicab"), cap).astype(np.uint8)
+
+
+def field_distances(voxels: np.ndarray, metric: str, signed: bool, cap: int) -> np.ndarray:
+    """(z, y, x) float distances in voxels between voxel centres, by scipy: to the nearest solid,
+    capped; on solids 0, or in a signed world minus the distance to the nearest air voxel, the
+    outside of the world counting as air (the transform of the inverted mask padded with air)."""
+    def transform(mask: np.ndarray) -> np.ndarray:  # each True voxel's distance to the nearest False one
+        if not (~mask).any():
+            return np.full(mask.shape, float(cap))
+        if metric == "euclidean":
+            return distance_transform_edt(mask)
+        return distance_transform_cdt(mask, metric="taxicab").astype(np.float64)
+
+    solid = voxels != 0
+    d = np.minimum(transform(~solid), cap)
+    if not signed:
+        return np.where(solid, 0.0, d)
+    inside = transform(np.pad(solid, 1, constant_values=False))[1:-1, 1:-1, 1:-1]
+    return np.where(solid, -np.minimum(inside, cap), d)
 
 
 def apply_edits(voxels: np.ndarray, batch: list[dict]) -> None:

@@ -11,7 +11,7 @@ import base64
 import numpy as np
 import pytest
 import websockets.sync.client
-from scipy import ndimage
+from references import field_distances
 
 from sdfserver import wire
 
@@ -21,25 +21,6 @@ OPTIONS = [("manhattan", False), ("manhattan", True), ("euclidean", False), ("eu
 DISTANCE_DTYPES = {("manhattan", False): "uint8", ("manhattan", True): "int16",
                    ("euclidean", False): "float32", ("euclidean", True): "float32"}
 PACKED_CONTENT = {"manhattan": "distance_colour", "euclidean": "squared_distance"}
-
-
-def reference(voxels: np.ndarray, metric: str, signed: bool, cap: int) -> np.ndarray:
-    """(z, y, x) distances in voxels from SciPy: to the nearest solid, capped; on solids 0, or in a
-    signed world minus the distance to the nearest air voxel, outside the world counting as air
-    (the transform of the inverted mask padded with air)."""
-    def transform(mask: np.ndarray) -> np.ndarray:  # each True voxel's distance to the nearest False one
-        if not (~mask).any():
-            return np.full(mask.shape, float(cap))
-        if metric == "euclidean":
-            return ndimage.distance_transform_edt(mask)
-        return ndimage.distance_transform_cdt(mask, metric="taxicab").astype(np.float64)
-
-    solid = voxels != 0
-    d = np.minimum(transform(~solid), cap)
-    if not signed:
-        return np.where(solid, 0.0, d)
-    inside = transform(np.pad(solid, 1, constant_values=False))[1:-1, 1:-1, 1:-1]
-    return np.where(solid, -np.minimum(inside, cap), d)
 
 
 def expected_packed(voxels: np.ndarray, d: np.ndarray, metric: str) -> np.ndarray:
@@ -75,7 +56,7 @@ def read_three_ways(server, world_id: str, fmt: str, version: int, **box) -> tup
 
 def check_field(server, world_id: str, voxels: np.ndarray, version: int, metric: str, signed: bool) -> None:
     """Both formats of the whole world, and a box across chunk borders, against SciPy."""
-    d = reference(voxels, metric, signed, CAP)
+    d = field_distances(voxels, metric, signed, CAP)
     distances, dtype, content = read_three_ways(server, world_id, "distance", version)
     assert (dtype, content) == (DISTANCE_DTYPES[metric, signed], "distance")
     if metric == "euclidean":
@@ -259,7 +240,7 @@ def test_a_euclidean_world_streams_float32_chunks(server, ref):
                 local[z:z + 8, y:y + 8, x:x + 8] = data
             if message["version"] == 1:
                 break
-        np.testing.assert_allclose(local, reference(voxels, "euclidean", False, CAP), rtol=0, atol=1e-5)
+        np.testing.assert_allclose(local, field_distances(voxels, "euclidean", False, CAP), rtol=0, atol=1e-5)
 
         ws.send(wire.encode({"type": "subscribe", "id": "p", "min": [0, 0, 0], "max": [8, 8, 8],
                              "format": "packed"}))

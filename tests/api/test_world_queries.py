@@ -13,31 +13,12 @@ import time
 
 import numpy as np
 import pytest
-from scipy import ndimage
+from references import field_distances
 
 from sdfserver import wire
 from server_process import ROOT, checkout_env
 
 JS = {"content-type": "application/json"}
-
-
-def centre_distances(voxels: np.ndarray, metric: str, signed: bool, cap: int) -> np.ndarray:
-    """(z, y, x) distances between voxel centres, in voxels: capped, minus a solid's distance to
-    the nearest air voxel (outside the world is air) in a signed world, 0 on solids of an
-    unsigned one."""
-    def transform(mask: np.ndarray) -> np.ndarray:  # distance from each True voxel to the nearest False one
-        if not (~mask).any():
-            return np.full(mask.shape, float(cap))
-        if metric == "euclidean":
-            return ndimage.distance_transform_edt(mask)
-        return ndimage.distance_transform_cdt(mask, metric="taxicab").astype(np.float64)
-
-    solid = voxels != 0
-    d = np.minimum(transform(~solid), cap)
-    if signed:  # outside the world is air: a solid at a face is one voxel from it
-        inside = transform(np.pad(solid, 1, constant_values=False))[1:-1, 1:-1, 1:-1]
-        d = np.where(solid, -np.minimum(inside, cap), d)
-    return np.where(solid & (not signed), 0.0, d)
 
 
 def trilinear(d: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -93,7 +74,7 @@ def test_points_match_the_interpolated_reference(server, metric, signed, voxel_s
     size, cap = (24, 16, 32), 6
     wid, version, voxels = scene(server, rng, size, cap, metric=metric, signed=signed, voxel_size=voxel_size,
                                  origin=list(origin))
-    d = centre_distances(voxels, metric, signed, cap)
+    d = field_distances(voxels, metric, signed, cap)
     v = rng.uniform(0, 1, (600, 3)) * np.array(size)  # voxel coordinates
     v[:8] = np.array([[0, 0, 0], [0.2, 0.3, 0.1], [23.9, 15.9, 31.9], [3.5, 6.5, 3.5],
                       [10.5, 1.5, 8.5], [10.5, 2.5, 8.5], [12.0, 10.0, 8.0], [0.5, 15.7, 7.25]])
@@ -127,7 +108,7 @@ def test_a_voxel_centre_gives_that_voxels_distance(server):
     """voxel_size 1, origin 0: the centre of a voxel answers the voxel's own (Manhattan) distance."""
     rng = np.random.default_rng()
     wid, version, voxels = scene(server, rng, (16, 16, 16), 8)
-    d = centre_distances(voxels, "manhattan", False, 8)
+    d = field_distances(voxels, "manhattan", False, 8)
     cells = rng.integers(0, 16, (300, 3))
     answer = ask(server, wid, {"points": (cells + 0.5).astype(np.float32)}, version)
     np.testing.assert_array_equal(answer["distances"], d[cells[:, 2], cells[:, 1], cells[:, 0]])
@@ -141,7 +122,7 @@ def test_sphere_clearances_and_directions(server, metric, signed):
     size, cap, voxel_size, origin = (24, 16, 32), 6, 0.5, np.array([2.0, -1.0, 0.5])
     wid, version, voxels = scene(server, rng, size, cap, metric=metric, signed=signed, voxel_size=voxel_size,
                                  origin=origin.tolist())
-    d = centre_distances(voxels, metric, signed, cap)
+    d = field_distances(voxels, metric, signed, cap)
     v = rng.uniform(0, 1, (400, 3)) * np.array(size)
     radii = rng.uniform(0, 2, 400)
     spheres = np.column_stack([origin + v * voxel_size, radii]).astype(np.float32)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import scipy.ndimage as ndi
+from references import field_distances
 
 from sdfserver.edits import BoxEdit, SphereEdit, VoxelsEdit
 from sdfserver.errors import InvalidInput
@@ -19,19 +19,12 @@ COMBINATIONS = [(storage, metric, signed) for storage in ("dense", "sparse") for
 
 
 def reference(voxels: np.ndarray, cap: int, metric: str, signed: bool) -> np.ndarray:
-    """The stored value scipy gives: Manhattan (distance << 8) | colour, Euclidean the squared
-    distance; capped; signed solids carry their distance to air, the outside counting as air."""
-    solid = voxels != 0
+    """The stored value scipy gives (references.field_distances): Manhattan (distance << 8) |
+    colour, Euclidean the squared distance; capped; signed solids carry their distance to air."""
+    d = np.abs(field_distances(voxels, metric, signed, cap))
     if metric == "euclidean":
-        transform, top = (lambda m: np.rint(ndi.distance_transform_edt(m) ** 2)), cap * cap
-    else:
-        transform, top = (lambda m: ndi.distance_transform_cdt(m, metric="taxicab").astype(np.float64)), cap
-    out = np.minimum(transform(~solid), top) if solid.any() else np.full(voxels.shape, float(top))
-    if signed:
-        inside = transform(np.pad(solid, 1, constant_values=False))[1:-1, 1:-1, 1:-1]
-        out = np.where(solid, np.minimum(inside, top), out)
-    out = out.astype(np.int64)
-    return out if metric == "euclidean" else (out << 8) | voxels
+        return np.rint(d * d).astype(np.int64)
+    return (d.astype(np.int64) << 8) | voxels
 
 
 def random_batch(rng: np.random.Generator, size, first: bool) -> list:

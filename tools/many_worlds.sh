@@ -16,7 +16,8 @@ export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD:${PYTHONPATH:-}
 FINAL=${OUT:-/tmp/sdfserver-out}; OUT=$(mktemp -d); mkdir -p "$FINAL"
 trap 'tar czf "$FINAL/many-worlds.tgz" -C "$OUT" . ; rm -rf "$OUT"' EXIT
 port=8767
-device=${DEVICE-nvidia}; size=${SIZE:-128}; dur=${DUR:-12}
+size=${SIZE:-128}; dur=${DUR:-12}
+source "$new/tools/serve_build.sh"
 load="python3 $new/clients/loadtest --url http://127.0.0.1:$port --size $size $size $size --quiet --read-every 0"
 
 spread() {  # spread NAME K C [PROCESSES]: K generators of C clients at once
@@ -31,11 +32,7 @@ spread() {  # spread NAME K C [PROCESSES]: K generators of C clients at once
 
 measure() {  # measure NAME ROOT
   local name=$1 root=$2
-  rm -rf /tmp/sdfserver-many-data
-  (cd "$root" && PYTHONPATH=$root:${PYTHONPATH:-} exec python3 -m sdfserver serve ${device:+--device "$device"} \
-    --port $port --data-dir /tmp/sdfserver-many-data) > "$OUT/$name-server.log" 2>&1 &
-  local server=$!
-  for _ in $(seq 480); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
+  serve_build "$root" "$OUT/$name-server.log" $port /tmp/sdfserver-many-data
   spread "$name-w1" 1 64 8
   spread "$name-w16" 16 4
   spread "$name-w64" 64 1

@@ -17,16 +17,13 @@ export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD:${PYTHONPATH:-}
 FINAL=${OUT:-/tmp/sdfserver-out}; OUT=$(mktemp -d); mkdir -p "$FINAL"
 trap 'tar czf "$FINAL/service-ab.tgz" -C "$OUT" . ; rm -rf "$OUT"' EXIT
 port=8765
-device=${DEVICE-nvidia}; size=${SIZE:-256}; load_s=${LOAD_S:-15}
+size=${SIZE:-256}; load_s=${LOAD_S:-15}
+source "$new/tools/serve_build.sh"
 load="python3 $new/clients/loadtest --url http://127.0.0.1:$port --size $size $size $size --quiet"
 
 measure() {  # measure NAME ROOT: serve checkout ROOT, run the loads, stop it
   local name=$1 root=$2
-  rm -rf /tmp/sdfserver-ab-data
-  (cd "$root" && PYTHONPATH=$root:${PYTHONPATH:-} exec python3 -m sdfserver serve ${device:+--device "$device"} \
-    --port $port --data-dir /tmp/sdfserver-ab-data) > "$OUT/$name-server.log" 2>&1 &
-  local server=$!
-  for _ in $(seq 480); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
+  serve_build "$root" "$OUT/$name-server.log" $port /tmp/sdfserver-ab-data
   timeout 60 $load --clients 1 --duration 6 --read-every 1 --read-size 16 --json "$OUT/$name-rtt.json" \
     > "$OUT/$name-rtt.txt" 2>&1
   timeout 90 $load --clients 64 --processes 8 --duration "$load_s" --read-every 0 --json "$OUT/$name-64.json" \

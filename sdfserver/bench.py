@@ -55,6 +55,22 @@ def summarize(samples_ms: list[float]) -> dict:
             "median_ms": float(np.median(a)), "min_ms": float(a.min())}
 
 
+def cupy_event_ms(call, reps: int) -> list[float]:
+    """``reps`` timings of ``call()`` on the GPU by CuPy events (after one warm-up call), in ms."""
+    import cupy
+
+    call()
+    times = []
+    for _ in range(reps):
+        start, end = cupy.cuda.Event(), cupy.cuda.Event()
+        start.record()
+        call()
+        end.record()
+        end.synchronize()
+        times.append(cupy.cuda.get_elapsed_time(start, end))
+    return times
+
+
 def random_brushes(rng: np.random.Generator, size, count: int, max_radius: float) -> list[SphereEdit]:
     """The dissertation's benchmark mode: brushes at random places and sizes, most placing, some erasing."""
     centers = rng.uniform(0, 1, (count, 3)) * np.asarray(size)
@@ -222,18 +238,10 @@ def bench_anchors(args, results: Results) -> None:
             continue
         progress(f"anchors: cupyx edt {n}^3")
         gmask = cupy.asarray(mask)
-        distance_transform_edt(gmask)  # warm-up
-        times = []
-        for _ in range(args.reps):
-            start, end = cupy.cuda.Event(), cupy.cuda.Event()
-            start.record()
-            distance_transform_edt(gmask)
-            end.record()
-            end.synchronize()
-            times.append(cupy.cuda.get_elapsed_time(start, end))
+        times = cupy_event_ms(lambda: distance_transform_edt(gmask), args.reps)
         row = {"anchor": "cupyx.distance_transform_edt (GPU, Euclidean)", "world_size": n, **summarize(times)}
         results.add("anchors", row, f"cupyx edt {n}^3: mean {row['mean_ms']:.3f} ms")
-        del gmask
+        gmask = None  # the next size's mask may need its memory
 
 
 def format_tables(results: dict) -> str:

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sdfserver.bench import populate
+from sdfserver.bench import cupy_event_ms, populate, summarize
 from sdfserver.benchrun import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts
 from sdfserver.edits import EditLimits, SphereEdit
 from sdfserver.errors import DeviceMemoryExceeded
@@ -44,11 +44,6 @@ BRUSH_RADIUS_VOX = 8.0
 
 def label(metric: str, signed: bool) -> str:
     return metric + (" signed" if signed else "")
-
-
-def stats(samples_ms: list[float]) -> dict:
-    a = np.asarray(samples_ms, dtype=np.float64)
-    return {"n": len(a), "median_ms": float(np.median(a)), "min_ms": float(a.min())}
 
 
 def git_commit() -> str | None:
@@ -87,7 +82,7 @@ def measure_full(world: World, args, row: dict, results: Results) -> float | Non
         result = world.recompute()
         device.append(result.device_ms)
         wall.append(result.wall_ms)
-    full = {**row, **stats(device), "wall_median_ms": float(np.median(wall)), "device_bytes": world.device_bytes}
+    full = {**row, **summarize(device), "wall_median_ms": float(np.median(wall)), "device_bytes": world.device_bytes}
     results.add("full", full, f"{row['label']} {row['world_size']}^3: median {full['median_ms']:.4f} ms over {len(device)}")
     return full["median_ms"]
 
@@ -114,7 +109,7 @@ def measure_brush(world: World, args, row: dict, results: Results, rng: np.rando
             result = world.recompute()
             device.append(result.device_ms)
             wall.append(result.wall_ms)
-        brush = {**row, "place": place, "radius": BRUSH_RADIUS_VOX, **stats(device),
+        brush = {**row, "place": place, "radius": BRUSH_RADIUS_VOX, **summarize(device),
                  "wall_median_ms": float(np.median(wall))}
         results.add("brush", brush, f"{row['label']} {n}^3 {place}: median {brush['median_ms']:.4f} ms over {len(device)}")
 
@@ -136,7 +131,7 @@ def measure_queries(world: World, args, row: dict, results: Results, rng: np.ran
             start = time.perf_counter()
             run_query(world, kind, rows)
             wall.append((time.perf_counter() - start) * 1e3)
-        q = {**row, "kind": kind, "count": len(rows), **stats(wall)}
+        q = {**row, "kind": kind, "count": len(rows), **summarize(wall)}
         results.add("queries", q, f"{row['label']} {n}^3 {len(rows)} {kind}: median {q['median_ms']:.3f} ms over {len(wall)}")
 
 
@@ -156,22 +151,14 @@ def measure_anchor(voxels: np.ndarray, n: int, euclidean_ms: float | None, args,
     progress(f"anchor: cupyx distance_transform_edt {n}^3")
     try:
         mask = cupy.asarray(voxels == 0)
-        edt(mask)  # warm-up
-        times = []
-        for _ in range(args.reps):
-            start, end = cupy.cuda.Event(), cupy.cuda.Event()
-            start.record()
-            edt(mask)
-            end.record()
-            end.synchronize()
-            times.append(cupy.cuda.get_elapsed_time(start, end))
+        times = cupy_event_ms(lambda: edt(mask), args.reps)
     except cupy.cuda.memory.OutOfMemoryError as exc:
         results.add("anchor", {"world_size": n, "skipped": str(exc)}, f"cupyx edt {n}^3: skipped: {exc}")
         return
     finally:
         mask = None
         cupy.get_default_memory_pool().free_all_blocks()
-    row = {"world_size": n, "anchor": "cupyx.scipy.ndimage.distance_transform_edt", **stats(times),
+    row = {"world_size": n, "anchor": "cupyx.scipy.ndimage.distance_transform_edt", **summarize(times),
            "euclidean_median_ms": euclidean_ms,
            "ratio": None if euclidean_ms is None else euclidean_ms / float(np.median(times))}
     results.add("anchor", row, f"cupyx edt {n}^3: median {row['median_ms']:.3f} ms over {len(times)}")

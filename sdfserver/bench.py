@@ -167,17 +167,32 @@ def bench_worlds(gpu, args, rng, results: Results) -> None:
                 world.release()
 
 
+def scipy_distances(voxels: np.ndarray, metric: str, signed: bool, cap: int) -> np.ndarray:
+    """scipy's capped transform of ``voxels`` as a world of ``metric`` and ``signed`` reads it
+    (``World.read_distance``): distances in voxels, float64; in a signed world the solids' are
+    minus their distance to air, the world's outside counting as air."""
+    from scipy.ndimage import distance_transform_cdt, distance_transform_edt
+
+    def transform(mask: np.ndarray) -> np.ndarray:  # distance of each True to the nearest False
+        if mask.all():
+            return np.full(mask.shape, float(cap))
+        d = distance_transform_edt(mask) if metric == "euclidean" else distance_transform_cdt(mask, metric="taxicab")
+        d = np.minimum(d, cap)
+        return d.astype(np.float32).astype(np.float64) if metric == "euclidean" else d.astype(np.float64)
+
+    solid = voxels != 0
+    out = transform(~solid)
+    if signed and solid.any():  # the world's outside counts as air
+        inside = transform(np.pad(solid, 1, constant_values=False))[1:-1, 1:-1, 1:-1]
+        out[solid] = -inside[solid]
+    return out
+
+
 def reference_field(world: World, n: int, args) -> tuple[np.ndarray, str] | None:
     """What the algorithms are measured against: scipy's capped taxicab transform of the world's
     voxels up to --scipy-max-world, above it `exact`'s field (None until `exact` has run)."""
     if n <= args.scipy_max_world:
-        from scipy.ndimage import distance_transform_cdt
-
-        voxels = world.read_voxels()
-        if not voxels.any():
-            return np.full(voxels.shape, args.max_distance, np.uint8), "scipy"
-        truth = distance_transform_cdt(voxels == 0, metric="taxicab")
-        return np.minimum(truth, args.max_distance).astype(np.uint8), "scipy"
+        return scipy_distances(world.read_voxels(), "manhattan", False, args.max_distance).astype(np.uint8), "scipy"
     if world.config.algorithm == "exact" and world.config.borders == "exact":
         return world.read_distance(), "exact"
     return None

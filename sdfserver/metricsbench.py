@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sdfserver.bench import cupy_event_ms, populate, summarize
+from sdfserver.bench import cupy_event_ms, populate, scipy_distances, summarize
 from sdfserver.benchrun import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts
 from sdfserver.edits import EditLimits, SphereEdit
 from sdfserver.errors import DeviceMemoryExceeded
@@ -54,25 +54,6 @@ def git_commit() -> str | None:
     return (done.stdout.strip() or None) if done.returncode == 0 else None
 
 
-def reference(voxels: np.ndarray, metric: str, signed: bool, cap: int) -> np.ndarray:
-    """scipy's capped transform of ``voxels`` as the world reads it: distances in voxels, float64."""
-    from scipy.ndimage import distance_transform_cdt, distance_transform_edt
-
-    def transform(mask: np.ndarray) -> np.ndarray:  # distance of each True to the nearest False
-        if mask.all():
-            return np.full(mask.shape, float(cap))
-        d = distance_transform_edt(mask) if metric == "euclidean" else distance_transform_cdt(mask, metric="taxicab")
-        d = np.minimum(d, cap)
-        return d.astype(np.float32).astype(np.float64) if metric == "euclidean" else d.astype(np.float64)
-
-    solid = voxels != 0
-    out = transform(~solid)
-    if signed and solid.any():  # the world's outside counts as air
-        inside = transform(np.pad(solid, 1, constant_values=False))[1:-1, 1:-1, 1:-1]
-        out[solid] = -inside[solid]
-    return out
-
-
 def measure_full(world: World, args, row: dict, results: Results) -> float | None:
     world.mark_all_dirty()
     world.recompute()  # warm-up: builds the programs
@@ -90,7 +71,7 @@ def measure_full(world: World, args, row: dict, results: Results) -> float | Non
 def measure_accuracy(world: World, args, row: dict, results: Results, after: str = "full") -> None:
     """``after``: what made the field, a full regeneration or the brushes' incremental recomputes."""
     progress(f"accuracy: {row['label']} {row['world_size']}^3 after {after}, against scipy")
-    truth = reference(world.read_voxels(), row["metric"], row["signed"], args.max_distance)
+    truth = scipy_distances(world.read_voxels(), row["metric"], row["signed"], args.max_distance)
     error = np.abs(world.read_distance().astype(np.float64) - truth)
     acc = {**row, "after": after, "exact_share": float((error == 0).mean()), "max_abs_error": float(error.max())}
     results.add("accuracy", acc, f"{row['label']} {row['world_size']}^3 after {after}: {100 * acc['exact_share']:.2f}% exact, "

@@ -6,7 +6,8 @@ Every failure answers with the same body::
 
 ``code`` is the exception class's ``code`` (``sdfserver.errors``), ``detail``
 is present only where there is more to say (the list of validation errors).
-A 405 carries ``Allow`` (the methods the path takes). ``document`` adds these answers to
+A 405 carries ``Allow``: every method some route serves at that path (Starlette's own 405 names
+only the first route whose path matched, and ``/v1/worlds/{id}`` is three routes). ``document`` adds these answers to
 the OpenAPI schema, so that it lists every status a route can return.
 """
 
@@ -20,6 +21,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from pydantic import ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match, Mount
 
 from sdfserver.errors import (
     BodyTooLarge, Conflict, DeviceMemoryExceeded, Forbidden, InvalidInput, KernelBuildError, NotFound, NotReady,
@@ -134,8 +136,31 @@ def document(schema: dict[str, Any]) -> dict[str, Any]:
     return schema
 
 
+# The methods a 405's probe tries, in the order Allow lists them.
+HTTP_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS")
+
+
+def allowed_methods(app: FastAPI, scope: dict[str, Any], said: str = "") -> str:
+    """The ``Allow`` of a 405 at ``scope``'s path: the methods that some route of ``app`` would
+    take there, with those ``said`` by the route that answered (a mounted app knows its own)."""
+    allowed = {m.strip().upper() for m in said.split(",") if m.strip()}
+    path, root_path = scope["path"], scope.get("root_path", "")
+    for route in app.router.routes:
+        if isinstance(route, Mount):  # takes every method and answers 405 itself, with its Allow
+            continue
+        for method in HTTP_METHODS:
+            probe = {"type": "http", "method": method, "path": path, "root_path": root_path, "headers": []}
+            if method not in allowed and route.matches(probe)[0] == Match.FULL:
+                allowed.add(method)
+    return ", ".join([m for m in HTTP_METHODS if m in allowed] + sorted(allowed.difference(HTTP_METHODS)))
+
+
 def install(app: FastAPI) -> None:
     async def handle(request: Request, exc: Exception) -> JSONResponse:
+        if isinstance(exc, StarletteHTTPException) and exc.status_code == 405:
+            said = (exc.headers or {}).get("Allow", "")
+            exc = StarletteHTTPException(405, exc.detail, {**(exc.headers or {}),
+                                                            "Allow": allowed_methods(app, request.scope, said)})
         return error_response(exc)
 
     for cls in (SdfServerError, WireError, RequestValidationError, ValidationError, StarletteHTTPException,

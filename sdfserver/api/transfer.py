@@ -87,9 +87,13 @@ async def import_world(request: Request,
         sparse, header_config = upload_config(data) if format == "snapshot" else (False, {})
         if sparse:  # a sparse world: its engine checks the bricks
             try:
-                return config_from_dict(header_config), None
+                config = config_from_dict(header_config)
             except (KeyError, TypeError, ValueError) as exc:
                 raise InvalidInput(f"uploaded snapshot: bad configuration: {exc!r}") from None
+            if config.storage != "sparse":  # else no bricks would be read and the world made empty
+                raise InvalidInput("uploaded snapshot: format 2 (a sparse world's bricks) with a configuration "
+                                   f"of storage {config.storage!r}")
+            return config, None
         if format == "snapshot":
             snap = decode_upload(data, max_voxels=limit)
             try:

@@ -97,6 +97,22 @@ def _read_header(view: memoryview, fail) -> tuple[Any, int]:
         raise fail(head, f"bad header: {type(exc).__name__}: {str(exc)[:200]}") from None
 
 
+# (format, compression, dtype, order) of each format this server reads: whether it is sparse
+FORMATS = {(1, "zlib", "uint8", "zyx"): False, (2, "zlib", "bricks", "zyx"): True}
+
+
+def _is_sparse(header: Any, fail) -> bool:
+    """Whether a snapshot header is a sparse world's (format 2) or a dense one's (format 1);
+    ``fail(reason)`` refuses any other, so that no reader takes a body for what it is not."""
+    fmt = tuple(header.get(k) for k in ("format", "compression", "dtype", "order")) if isinstance(header, dict) else ()
+    known = (len(fmt) == 4 and type(fmt[0]) is int and all(isinstance(v, str) for v in fmt[1:])
+             and fmt in FORMATS)  # an exact int: true and 1.0 equal 1 but are not a format number
+    if not known:
+        raise fail(f"unsupported format {str(fmt or type(header).__name__)[:200]}: this server reads "
+                   f"format 1 (zlib uint8 zyx voxels) and format 2 (zlib bricks)")
+    return FORMATS[fmt]
+
+
 def decode_snapshot(data: bytes | memoryview, where: str = "snapshot", *,
                     max_voxels: int | None = None, corrupt=CorruptData, allow_sparse: bool = True) -> Snapshot:
     """Parse and check a snapshot. ``corrupt`` picks the error: ``CorruptData`` for files on
@@ -112,14 +128,11 @@ def decode_snapshot(data: bytes | memoryview, where: str = "snapshot", *,
         version, config = int(header["version"]), dict(header["config"])
         size = [int(v) for v in config["size"]]
         body_bytes, body_crc = int(header["body_bytes"]), int(header["body_crc32"])
-        fmt = (header["format"], header["compression"], header["dtype"], header["order"])
     except (ValueError, KeyError, TypeError, OverflowError, RecursionError) as exc:  # a hostile header nests deeply
         raise fail(head, f"bad header: {type(exc).__name__}: {str(exc)[:200]}") from None
-    if fmt not in ((1, "zlib", "uint8", "zyx"), (2, "zlib", "bricks", "zyx")):
-        raise fail(head, f"unsupported format {fmt}")
+    sparse = _is_sparse(header, lambda reason: fail(head, reason))
     if not 0 <= version <= MAX_VERSION or len(size) != 3 or not 0 < min(size) <= max(size) <= MAX_SIDE:
         raise fail(head, f"bad version {version} or size {size}")
-    sparse = fmt[0] == 2
     if sparse and not allow_sparse:
         raise fail(head, "a sparse world's snapshot cannot be imported")
     if sparse:
@@ -167,8 +180,9 @@ def upload_config(data: bytes) -> tuple[bool, dict[str, Any]]:
     """(whether it is a sparse world's snapshot, its configuration), from the header alone: the
     body is checked where the world is made (``sparse_upload``, ``decode_upload``)."""
     header, _ = _read_header(memoryview(data), lambda at, reason: InvalidInput(f"uploaded snapshot: {reason}"))
+    sparse = _is_sparse(header, lambda reason: InvalidInput(f"uploaded snapshot: {reason}"))
     try:
-        return header["format"] == 2, dict(header["config"])
+        return sparse, dict(header["config"])
     except (KeyError, TypeError, ValueError) as exc:
         raise InvalidInput(f"uploaded snapshot: bad header: {type(exc).__name__}") from None
 

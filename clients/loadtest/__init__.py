@@ -17,8 +17,13 @@ Reports throughput, p50/p95/p99 latency and errors per request kind, and for
 ``--read-every`` runs the round trip (an edit's latency plus its read's: brush
 edit to field ready, read-your-writes); prints a
 progress line once a second (to stderr); ``--json`` writes everything. Exits 1
-when any request failed. Latency is measured from the moment a request is
-sent to its answer; with ``--rate`` a client that falls behind sends at once.
+when any request failed. Without ``--rate`` the load is a closed loop: each client
+sends when its last answer comes, and latency runs from the send to the answer.
+With ``--rate`` it is an open loop (``loadtest.schedule``): each request has a slot
+fixed at the start, latency runs from that slot (a client still waiting for an
+answer sends its overdue requests as soon as it can, and a server's stall shows in
+every request due during it), the service time from the actual send is reported
+beside it, and so are how many requests left late and by how much.
 With ``--processes P`` the clients are spread over P processes (one Python
 process tops out at a few thousand requests per second).
 
@@ -30,9 +35,10 @@ generator CPU a request), ``--http httpx`` ``sdfclient.AsyncClient``. The report
 says what the load generator itself cost: its processes' CPU time per request
 (``client_cpu_us_per_request``).
 
-Modules: ``config`` (the run's settings, the brushes), ``game`` (one game client, a worker's
-clients on one event loop), ``drive`` (spreading them over processes), ``report`` (percentiles,
-the progress line, the result document), ``parsed`` (the httptools connection), ``connection`` (the aiohttp one), ``cli``.
+Modules: ``config`` (the run's settings, the brushes), ``schedule`` (when each request is due),
+``game`` (one game client, a worker's clients on one event loop), ``drive`` (spreading them over
+processes), ``report`` (percentiles, the progress line, the result document), ``parsed`` (the
+httptools connection), ``connection`` (the aiohttp one), ``cli``.
 """
 
 from __future__ import annotations

@@ -7,6 +7,7 @@ import array
 import asyncio
 import contextlib
 import functools
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any, Coroutine, TypeVar
@@ -17,6 +18,7 @@ from loadtest.collector import FullCollections
 from loadtest.config import Brushes, LoadConfig
 from loadtest.connection import Connection
 from loadtest.parsed import ParsedConnection
+from loadtest.schedule import schedule_for
 from sdfclient import AsyncClient, RateLimited, SdfClientError, ServerError
 from sdfclient.stream import Stream
 
@@ -26,10 +28,19 @@ LEAN_CLIENTS = {"aiohttp": Connection, "httptools": ParsedConnection}  # each bo
 
 @dataclass
 class Tally:
+    """A worker's measurements. Latencies count from when each request was due (loadtest.schedule:
+    at a set rate, its slot; without one, when it left); service times from when it actually left."""
+
     edit_ms: array.array = field(default_factory=lambda: array.array("d"))
-    edit_at_s: array.array = field(default_factory=lambda: array.array("d"))  # when each edit was sent
+    edit_service_ms: array.array = field(default_factory=lambda: array.array("d"))
+    edit_at_s: array.array = field(default_factory=lambda: array.array("d"))  # when each edit was due
     read_ms: array.array = field(default_factory=lambda: array.array("d"))
+    read_service_ms: array.array = field(default_factory=lambda: array.array("d"))
     round_trip_ms: array.array = field(default_factory=lambda: array.array("d"))  # edit + its read
+    round_trip_service_ms: array.array = field(default_factory=lambda: array.array("d"))
+    send_lag_ms: array.array = field(default_factory=lambda: array.array("d"))  # at a set rate: left - due
+    missed: int = 0  # at a set rate: requests already due while their client still waited
+    unsent: int = 0  # at a set rate: requests due before the end that never left
     errors: dict[str, int] = field(default_factory=dict)
     error_messages: dict[str, str] = field(default_factory=dict)  # the first of each code
     cpu_s: float = 0.0  # the load generator's own CPU time (time.process_time) over the run
@@ -53,8 +64,11 @@ class Tally:
 
     def merge(self, other: "Tally") -> None:
         """Add a worker's tally to this one."""
-        for name in ("edit_ms", "edit_at_s", "read_ms", "round_trip_ms"):
+        for name in ("edit_ms", "edit_service_ms", "edit_at_s", "read_ms", "read_service_ms", "round_trip_ms",
+                     "round_trip_service_ms", "send_lag_ms"):
             getattr(self, name).extend(getattr(other, name))
+        self.missed += other.missed
+        self.unsent += other.unsent
         for key, n in other.errors.items():
             self.errors[key] = self.errors.get(key, 0) + n
         for key, message in other.error_messages.items():
@@ -82,11 +96,14 @@ class Budget:
         self.left -= 1
         return True
 
+    @property
+    def out_of_tickets(self) -> bool:
+        return self.left is not None and self.left <= 0
+
 
 async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget, start: float) -> None:
     brushes = Brushes(cfg.seed * 1_000_003 + index, cfg)
-    interval = cfg.clients / cfg.rate if cfg.rate > 0 else 0.0
-    next_at = start + interval * index / cfg.clients
+    schedule = schedule_for(index, cfg.clients, cfg.rate, start)
     edits_sent = 0
     async with contextlib.AsyncExitStack() as stack:
         if cfg.http in LEAN_CLIENTS:
@@ -107,41 +124,52 @@ async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget,
             def send_edit(batch: list[dict]):
                 return asyncio.wait_for(edit(batch), cfg.timeout_s)
         pending_read = None
+        answered_at = -math.inf  # the client's last answer (or error): a slot due before it was missed
         while True:
-            if interval:
-                delay = next_at - time.perf_counter()
-                if delay > 0:
-                    await asyncio.sleep(delay)
-                next_at = max(next_at + interval, time.perf_counter() - interval)
+            due = await schedule.turn()
             if not budget.take():
+                if not budget.out_of_tickets:  # the deadline ended the run
+                    tally.unsent += schedule.unsent_before(budget.deadline)
                 return
-            t0 = time.perf_counter()
+            sent = time.perf_counter()
+            if not schedule.closed:
+                tally.send_lag_ms.append((sent - due) * 1e3)
+                if due < answered_at:
+                    tally.missed += 1
+            due = min(due, sent)  # from here on: when the latency counts from
             try:
                 if pending_read is not None:
-                    box, version, edit_ms = pending_read
+                    box, version, edit_ms, edit_service_ms = pending_read
                     pending_read = None
                     block = await client.read_field(cfg.world_id, box, format=cfg.read_format,
                                                     min_version=version)
                     if block.version < version:
                         tally.errors["stale_read"] = tally.errors.get("stale_read", 0) + 1
                         continue
-                    read_ms = (time.perf_counter() - t0) * 1e3
+                    answered = time.perf_counter()
+                    read_ms, read_service_ms = (answered - due) * 1e3, (answered - sent) * 1e3
                     tally.read_ms.append(read_ms)
+                    tally.read_service_ms.append(read_service_ms)
                     tally.round_trip_ms.append(edit_ms + read_ms)
+                    tally.round_trip_service_ms.append(edit_service_ms + read_service_ms)
                     continue
                 batch, center = brushes.batch()
                 version = await send_edit(batch)
-                edit_ms = (time.perf_counter() - t0) * 1e3
+                answered = time.perf_counter()
+                edit_ms, edit_service_ms = (answered - due) * 1e3, (answered - sent) * 1e3
                 tally.edit_ms.append(edit_ms)
-                tally.edit_at_s.append(t0 - start)
+                tally.edit_service_ms.append(edit_service_ms)
+                tally.edit_at_s.append(due - start)
                 edits_sent += 1
                 if cfg.read_every and edits_sent % cfg.read_every == 0:
-                    pending_read = (brushes.read_box(center), version, edit_ms)
+                    pending_read = (brushes.read_box(center), version, edit_ms, edit_service_ms)
             except (SdfClientError, TimeoutError) as exc:
                 tally.error(exc)
                 if isinstance(exc, RateLimited):  # a well-behaved game client waits as told
                     pause = exc.retry_after_s if exc.retry_after_s is not None else 1.0
                     await asyncio.sleep(max(0.0, min(pause, budget.deadline - time.perf_counter())))
+            finally:
+                answered_at = time.perf_counter()
 
 
 async def run_clients(cfg: LoadConfig, indices: list[int], requests: int, tally: Tally,

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 PERCENTILES = (50, 95, 99)
+LATE_MS = 1.0  # a send further than this past its slot left late (beyond the event loop timer's jitter)
 
 
 class ProgressLine:
@@ -37,14 +38,42 @@ class ProgressLine:
             sys.stderr.write("\n")
 
 
-def latency_summary(samples: array.array, elapsed_s: float) -> dict:
-    ms = np.frombuffer(samples, dtype=np.float64) if len(samples) else np.zeros(0)
+def _ms(samples: array.array) -> np.ndarray:
+    return np.frombuffer(samples, dtype=np.float64) if len(samples) else np.zeros(0)
+
+
+def _percentiles(ms: np.ndarray) -> dict:
+    pct = np.percentile(ms, PERCENTILES)
+    return {**{f"p{p}": float(v) for p, v in zip(PERCENTILES, pct)},
+            "mean": float(ms.mean()), "min": float(ms.min()), "max": float(ms.max())}
+
+
+def latency_summary(samples: array.array, elapsed_s: float, service: array.array | None = None) -> dict:
+    """Count, throughput and latency percentiles; with ``service`` (at a set rate) the service
+    times beside them, each request timed from when it actually left."""
+    ms = _ms(samples)
     summary = {"count": int(ms.size), "throughput_per_s": ms.size / elapsed_s if elapsed_s > 0 else 0.0}
     if ms.size:
-        pct = np.percentile(ms, PERCENTILES)
-        summary["latency_ms"] = {**{f"p{p}": float(v) for p, v in zip(PERCENTILES, pct)},
-                                 "mean": float(ms.mean()), "min": float(ms.min()), "max": float(ms.max())}
+        summary["latency_ms"] = _percentiles(ms)
+    if service is not None and len(service):
+        summary["service_time_ms"] = _percentiles(_ms(service))
     return summary
+
+
+def schedule_summary(cfg: Any, tally: Any) -> dict:
+    """How the requests were paced and what latency counts from (loadtest.schedule); at a set rate,
+    how many left late and by how much."""
+    if cfg.rate <= 0:
+        return {"loop": "closed", "latency_from": "send"}
+    lag = _ms(tally.send_lag_ms)
+    return {
+        "loop": "open", "rate_per_s": cfg.rate, "latency_from": "due",
+        "sent": int(lag.size),
+        "missed": tally.missed,  # due while their client still waited for an answer; sent as soon as it could
+        "late": int((lag > LATE_MS).sum()), "late_after_ms": LATE_MS,
+        "send_lag_ms": _percentiles(lag) if lag.size else None,
+        "unsent_at_end": tally.unsent,  # due before the end, never sent
+    }
 
 
 def edit_timeline(tally: Any) -> list[dict]:
@@ -60,6 +89,7 @@ def edit_timeline(tally: Any) -> list[dict]:
 
 def report(cfg: Any, tally: Any, elapsed_s: float, world: dict) -> dict:
     error_count = sum(tally.errors.values())
+    open_loop = cfg.rate > 0
     return {
         "url": cfg.url,
         "world": world,
@@ -67,9 +97,12 @@ def report(cfg: Any, tally: Any, elapsed_s: float, world: dict) -> dict:
         "elapsed_s": elapsed_s,
         "requests": tally.count,
         "throughput_rps": tally.answered / elapsed_s if elapsed_s > 0 else 0.0,  # answered, not failed
-        "edits": latency_summary(tally.edit_ms, elapsed_s),
-        "reads": latency_summary(tally.read_ms, elapsed_s),
-        "round_trips": latency_summary(tally.round_trip_ms, elapsed_s),  # an edit and its min_version read
+        "schedule": schedule_summary(cfg, tally),
+        "edits": latency_summary(tally.edit_ms, elapsed_s, tally.edit_service_ms if open_loop else None),
+        "reads": latency_summary(tally.read_ms, elapsed_s, tally.read_service_ms if open_loop else None),
+        # an edit and its min_version read, their latencies summed
+        "round_trips": latency_summary(tally.round_trip_ms, elapsed_s,
+                                       tally.round_trip_service_ms if open_loop else None),
         "edit_timeline": edit_timeline(tally),
         "errors": {"count": error_count, "by_code": dict(sorted(tally.errors.items())),
                    "first_message": dict(sorted(tally.error_messages.items()))},
@@ -81,17 +114,37 @@ def report(cfg: Any, tally: Any, elapsed_s: float, world: dict) -> dict:
     }
 
 
+def _schedule_lines(schedule: dict) -> list[str]:
+    if schedule["loop"] == "closed":
+        return ["  closed loop (no --rate): each client sends its next request when the last is answered, "
+                "latency from the send"]
+    lines = [f"  open loop at {schedule['rate_per_s']:g}/s: latency from when each request was due, "
+             "service time from when it left"]
+    lag = schedule["send_lag_ms"]
+    if lag is not None:
+        lines.append(f"  left late (> {schedule['late_after_ms']:g} ms): {schedule['late']} of {schedule['sent']}, "
+                     f"{schedule['missed']} due while their client still waited; send lag p50 {lag['p50']:.2f} ms  "
+                     f"p99 {lag['p99']:.2f} ms  max {lag['max']:.2f} ms; never sent: {schedule['unsent_at_end']}")
+    return lines
+
+
+def _percentile_cells(lat: dict) -> str:
+    return (f"p50 {lat['p50']:.2f} ms  p95 {lat['p95']:.2f} ms  p99 {lat['p99']:.2f} ms  "
+            f"max {lat['max']:.2f} ms")
+
+
 def format_report(result: dict) -> str:
     lines = [f"{result['requests']} requests in {result['elapsed_s']:.2f} s: "
              f"{result['throughput_rps']:.1f} requests/s, {result['errors']['count']} errors"]
+    lines += _schedule_lines(result["schedule"])
     for kind in ("edits", "reads", "round_trips"):
         s = result.get(kind)
         if s and s["count"]:
-            lat = s["latency_ms"]
             name = "edit+read" if kind == "round_trips" else kind
             lines.append(f"  {name:9s} {s['count']:8d}  {s['throughput_per_s']:9.1f}/s  "
-                         f"p50 {lat['p50']:.2f} ms  p95 {lat['p95']:.2f} ms  p99 {lat['p99']:.2f} ms  "
-                         f"max {lat['max']:.2f} ms")
+                         f"{_percentile_cells(s['latency_ms'])}")
+            if "service_time_ms" in s:
+                lines.append(f"  {'service time':>31s}  {_percentile_cells(s['service_time_ms'])}")
     if result.get("client_cpu_us_per_request") is not None:
         lines.append(f"  load generator CPU {result['client_cpu_us_per_request']:.0f} us/request "
                      f"({result['config']['http']} HTTP client on {result['config']['loop']})")

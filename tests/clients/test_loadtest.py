@@ -84,6 +84,7 @@ def _check_client_cpu(result: dict, stdout: str, processes: int) -> None:
 def test_short_run_reports_sane_numbers(server_url, tmp_path):
     proc, result = _run(server_url, tmp_path, "--clients", "4", "--duration", "2", "--size", "32", "32", "32")
     assert result["errors"] == {"count": 0, "by_code": {}, "first_message": {}}
+    assert result["schedule"] == {"loop": "closed", "latency_from": "send"} and "closed loop" in proc.stdout
     edits, reads = result["edits"], result["reads"]
     assert edits["count"] > 0 and reads["count"] > 0
     assert abs(edits["count"] - reads["count"]) <= 4  # --read-every 1: one read per edit
@@ -120,9 +121,14 @@ def test_request_count_and_rate_bound_the_run_on_a_given_world(server_url, tmp_p
             assert client.get_world(world.id).version == 30
             _check_client_cpu(result, proc.stdout, processes=2)  # summed over the workers
 
-            _, result = _run(server_url, tmp_path, "--world", world.id, "--clients", "2", "--rate", "20",
-                             "--duration", "1", "--read-every", "0", "--quiet")
+            proc, result = _run(server_url, tmp_path, "--world", world.id, "--clients", "2", "--rate", "20",
+                                "--duration", "1", "--read-every", "0", "--processes", "2", "--quiet")
             assert 10 <= result["requests"] <= 24 and result["errors"]["count"] == 0
+            schedule = result["schedule"]  # an open loop, its send lags merged over both workers
+            assert schedule["loop"] == "open" and schedule["sent"] == result["requests"]
+            assert 0 <= schedule["missed"] <= schedule["sent"] and schedule["unsent_at_end"] >= 0
+            service, latency = result["edits"]["service_time_ms"], result["edits"]["latency_ms"]
+            assert latency["max"] >= service["max"] - 1e-6 and "open loop at 20/s" in proc.stdout
             version = 30 + result["edits"]["count"]
             assert client.get_world(world.id).version == version
 

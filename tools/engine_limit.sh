@@ -6,7 +6,8 @@
 #   source .whl/activate.sh; bash tools/engine_limit.sh "default" "nosync --no-sync" "nopersist --no-persist"
 # Each argument is a row: its name, then `sdfserver serve` flags. DEVICE, SIZE, DUR override the
 # device (nvidia), the world's side (256) and the 64-client run's seconds (12), PROCS the load
-# generator's processes for the 64 clients (8), RATE adds a run at that many batches a second,
+# generator's processes for the 64 clients (8), RATE adds a run at that many batches a second
+# (its p99 timed from each request's slot and from its send: tools/set_rate_cell.py),
 # SERVER_TREE runs another checkout's server (an A/B: same load generator), LOAD_FLAGS adds load
 # generator flags (--http httptools); a CPU smoke run:
 #   DEVICE= SIZE=32 DUR=3 bash tools/engine_limit.sh default
@@ -47,9 +48,11 @@ done
 
 python3 - "$out" "$@" <<'PY'
 import json, os, re, sys
+sys.path.insert(0, "tools")
+from set_rate_cell import HEADER, cell_from
 out, rows = sys.argv[1], [r.split()[0] for r in sys.argv[2:]]
 rate = os.environ.get("RATE")
-print("| row | lone round trip p50 | 64 clients: batches/s, p99 |" + (f" a set {rate}/s: p99 |" if rate else "")
+print("| row | lone round trip p50 | 64 clients: batches/s, p99 |" + (f" a set {rate}/s: {HEADER} |" if rate else "")
       + " steps | batches a step | in steps (s): apply / recompute / serve |")
 print("| --- | --- | --- |" + (" --- |" if rate else "") + " ---: | ---: | --- |")
 for name in rows:
@@ -64,12 +67,7 @@ for name in rows:
     steps, batches = total(r"\nsdfserver_engine_steps_total"), total(r"\nsdfserver_edit_batches_total")
     phase = dict(re.findall(r'sdfserver_engine_phase_seconds_total\{phase="([a-z_]+)"\}\s+([0-9.e+-]+)', metrics))
     phases = " / ".join(f"{float(phase.get(p, 0)):.2f}" for p in ("apply", "recompute", "serve"))
-    at_rate = ""
-    if rate:
-        try:
-            at_rate = f" {json.load(open(f'{out}/{name}-rate.json'))['edits']['latency_ms']['p99']:.1f} ms |"
-        except (OSError, ValueError, KeyError) as exc:
-            at_rate = f" failed: {exc} |"
+    at_rate = f" {cell_from(f'{out}/{name}-rate.json')} |" if rate else ""
     print(f"| {name} | {rtt['round_trips']['latency_ms']['p50']:.2f} ms | {full['throughput_rps']:,.0f}, "
           f"{full['edits']['latency_ms']['p99']:.1f} ms |{at_rate} {steps:,.0f} | {batches / max(steps, 1):.1f} | {phases} |")
 PY

@@ -2,7 +2,8 @@
 # 64 game clients against two builds of the server in one lease, alternating (issue 30: "nothing
 # about Manhattan worlds gets slower"): each build serves with its default flags, then a lone
 # client's round trip, 64 clients as fast as they go, and 64 clients at a set 5,000 batches/s
-# (each request timed from when it was scheduled), every run with THIS checkout's load generator.
+# (each request timed from its slot and from its send: tools/set_rate_cell.py), every run with THIS
+# checkout's load generator.
 #
 # On the GPU machine, from this checkout's root, the old build unpacked inside the tree:
 #   mkdir -p ab/before-metrics && git archive 8963431 sdfserver kernels pyproject.toml | tar -x -C ab/before-metrics
@@ -38,21 +39,23 @@ for round in $(seq "$rounds"); do
   measure "r$round-new" "$new"
 done
 
-python3 - "$OUT" <<'PY'
+python3 - "$OUT" "$new/tools" <<'PY'
 import glob, json, os, sys
 out = sys.argv[1]
+sys.path.insert(0, sys.argv[2])
+from set_rate_cell import HEADER, cell_from
 def j(path):
     try:
         return json.load(open(path))
     except (OSError, ValueError):
         return None
 names = sorted({os.path.basename(p).rsplit("-server.log", 1)[0] for p in glob.glob(f"{out}/*-server.log")})
-print("| run | lone round trip p50 (ms) | 64 clients: batches/s, p99 (ms) | a set 5,000/s: p99 (ms) |")
+print(f"| run | lone round trip p50 (ms) | 64 clients: batches/s, p99 (ms) | a set 5,000/s: {HEADER} |")
 print("| --- | --- | --- | --- |")
 for n in names:
-    rtt, full, rate = j(f"{out}/{n}-rtt.json"), j(f"{out}/{n}-64.json"), j(f"{out}/{n}-64-rate5000.json")
+    rtt, full = j(f"{out}/{n}-rtt.json"), j(f"{out}/{n}-64.json")
     cells = [f"{rtt['round_trips']['latency_ms']['p50']:.2f}" if rtt else "",
              f"{full['throughput_rps']:,.0f}, {full['edits']['latency_ms']['p99']:.1f}" if full else "",
-             f"{rate['edits']['latency_ms']['p99']:.1f}" if rate else ""]
+             cell_from(f"{out}/{n}-64-rate5000.json")]
     print(f"| {n} | " + " | ".join(cells) + " |")
 PY

@@ -61,25 +61,27 @@ for round in $(seq "$rounds"); do
   for n in $workers; do measure "r$round-new-workers$n" "$new" --workers "$n"; done
 done
 
-python3 - "$OUT" <<'EOF'
+python3 - "$OUT" "$new/tools" <<'EOF'
 import glob, json, os, sys
 out = sys.argv[1]
+sys.path.insert(0, sys.argv[2])
+from set_rate_cell import HEADER, cell_from
 def j(path):
     try:
         return json.load(open(path))
     except (OSError, ValueError):
         return None
 names = sorted({os.path.basename(p).rsplit("-server.log", 1)[0] for p in glob.glob(f"{out}/*-server.log")})
-print("| run | rtt p50 (ms) | 64 clients: batches/s, p99 (ms) | at a set 5,000/s: p99 (ms) | WS FPS 512³ | restart (s) |")
+print(f"| run | rtt p50 (ms) | 64 clients: batches/s, p99 (ms) | at a set 5,000/s: {HEADER} | WS FPS 512³ | restart (s) |")
 print("| --- | --- | --- | --- | --- | --- |")
 for n in names:
     rtt = [j(f"{out}/{n}-rtt{i}.json") for i in (1, 2)]
     rtt = ", ".join(f"{r['round_trips']['latency_ms']['p50']:.2f}" for r in rtt if r)
-    full, rate, ws = j(f"{out}/{n}-64.json"), j(f"{out}/{n}-64-rate5000.json"), j(f"{out}/{n}-ws.json")
+    full, ws = j(f"{out}/{n}-64.json"), j(f"{out}/{n}-ws.json")
     restart = open(f"{out}/{n}-restart.txt").read().strip() if os.path.exists(f"{out}/{n}-restart.txt") else ""
     cells = [rtt,
              f"{full['throughput_rps']:,.0f}, {full['edits']['latency_ms']['p99']:.1f}" if full else "",
-             f"{rate['edits']['latency_ms']['p99']:.1f}" if rate else "",
+             cell_from(f"{out}/{n}-64-rate5000.json"),
              f"{ws.get('fps', 0):.1f}" if ws else "", restart]
     print(f"| {n} | " + " | ".join(cells) + " |")
 EOF

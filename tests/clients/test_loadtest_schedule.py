@@ -116,9 +116,11 @@ def test_a_stall_shows_in_the_latencies_at_a_set_rate(stalling_server, tmp_path)
     assert edits["count"] >= 0.9 * rate * duration_s
     assert schedule["loop"] == "open" and schedule["latency_from"] == "due" and schedule["rate_per_s"] == rate
     assert schedule["sent"] == edits["count"]
-    assert schedule["missed"] >= 0.1 * STALL_S * rate and schedule["late"] >= schedule["missed"] - 2
+    # Each client had about 19 slots come due while it waited out the stall.
+    assert schedule["missed"] >= 0.25 * STALL_S * rate and schedule["late"] >= 0.25 * STALL_S * rate
     assert schedule["send_lag_ms"]["max"] >= 0.75 * STALL_S * 1e3
-    assert schedule["unsent_at_end"] <= 2
+    # Every slot due before the end either left or is counted as never sent.
+    assert abs(schedule["sent"] + schedule["unsent_at_end"] - rate * duration_s) <= 2
     assert f"open loop at {rate}/s" in stdout and "service time" in stdout
     assert f"{schedule['missed']} due while their client still waited" in stdout
 

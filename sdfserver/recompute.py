@@ -4,15 +4,18 @@ touched world's recompute, then waits for the device once). Re-exported by ``wor
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
+import pyopencl as cl
 
 from sdfserver.algorithms.stats import AlgorithmStats
 from sdfserver.geometry import Box
 
 if TYPE_CHECKING:
+    from sdfserver.algorithms.base import Pieces
     from sdfserver.world import World
 
 
@@ -57,15 +60,49 @@ class RecomputeResult:
 @dataclass
 class PendingRecompute:
     """A recompute enqueued on the device (``World.begin_recompute``), finished by ``finish``:
-    after the device is done, the field's version moves and the figures are summed."""
+    after the device is done, the field's version moves and the figures are summed. One left in
+    ``pieces`` is enqueued by ``advance``, a piece at a time, before it can finish."""
 
     world: "World"
     regions: list[Box]
     runs: list
     started: float
     version: int  # the version the field will reflect
+    pieces: "Pieces | None" = None  # the work not yet enqueued; None: all of it is
+    pieces_run: int = 0
+
+    @property
+    def in_pieces(self) -> bool:
+        return self.pieces is not None
+
+    def advance(self, budget_s: float) -> bool:
+        """Enqueue pieces, waiting for the device after each, until ``budget_s`` has passed (one
+        piece at least) or none is left; True when none is left and the device is done."""
+        if self.pieces is None:
+            return True
+        started, queue = time.perf_counter(), self.world.gpu.queue
+        for _ in self.pieces:
+            queue.finish()
+            self.pieces_run += 1
+            if time.perf_counter() - started >= budget_s:
+                return False
+        queue.finish()
+        self.pieces = None
+        return True
+
+    def cancel(self) -> None:
+        """Stop enqueuing (the world goes away); what was enqueued runs out first."""
+        if self.pieces is not None:
+            self.pieces.close()
+            self.pieces = None
+            try:
+                self.world.gpu.queue.finish()
+            except cl.Error:  # the device is lost: nothing runs out
+                pass
 
     def finish(self, device_done: bool = False) -> RecomputeResult:
         """``device_done``: the caller has waited for the device already (one wait for a step's
         worlds)."""
+        if self.pieces is not None:
+            raise RuntimeError("a recompute in pieces finishes only once advance() has run them all")
         return self.world._finish_recompute(self, device_done)

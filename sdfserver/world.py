@@ -31,10 +31,11 @@ import pyopencl as cl
 from sdfserver import bulk
 from sdfserver.brushes import enqueue_brushes, enqueue_voxels
 from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, RegionJob, WorldBuffers, get_algorithm
-from sdfserver.algorithms.base import WORK_PLANE_PAD, int4, prepared
+from sdfserver.algorithms.base import WORK_PLANE_PAD, Pieces, int4, prepared, run_pieces
 from sdfserver.algorithms.euclidean import EUCLIDEAN_EXACT, StageBoxes
 from sdfserver.algorithms.stats import summarize
 from sdfserver.recompute import PendingRecompute, RecomputeResult
+from sdfserver.recompute_cost import visits_per_voxel
 from sdfserver.dirty import SMALL_DIRTY_CHUNKS, DirtySet  # noqa: F401  (SMALL_DIRTY_CHUNKS: read by tests)
 from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, validate_batch
 from sdfserver.errors import InvalidInput
@@ -47,6 +48,9 @@ from sdfserver.world_config import CHUNK_SIZES, MAX_SIDE_VOX, MAX_WORLD_VOXELS, 
 BRUSHES_PER_LAUNCH = 256  # each work-item of fill_brushes checks the later brushes of its launch
 WORK_ITEMS_PER_LAUNCH = 1 << 30  # fill_brushes counts its work-items in 32 bits
 PREPARED_PER_WORLD = 16  # dirty-region lists whose runs a world keeps prepared (World._launches)
+# A recompute of more voxel visits than this may run in pieces (World.begin_recompute): below it,
+# the wait for the device after each piece would cost more than the pause could give back.
+SLICE_ABOVE_VISITS = 10_000_000
 
 
 
@@ -276,20 +280,45 @@ class World:
         """Bring the field up to date with the voxels; returns the chunks rewritten."""
         return self.begin_recompute().finish()
 
-    def begin_recompute(self) -> "PendingRecompute":
+    def begin_recompute(self, piece_s: float | None = None) -> "PendingRecompute":
         """Enqueue the recompute of everything dirty and return without waiting for the device
         (algorithms that decide on the host as they go, such as fim's convergence, wait inside):
         the engine starts every touched world's recompute, then waits for the device once.
-        Nothing else may touch the world until ``finish``; the field's version moves there."""
+        Nothing else may touch the world until ``finish``; the field's version moves there.
+
+        ``piece_s``: where the world's algorithm can pause (fim, jfa, jfa_fim, brute) and the
+        work is long (``SLICE_ABOVE_VISITS``), nothing is enqueued yet: the recompute is left
+        to ``PendingRecompute.advance`` in pieces of about that long, so that the engine serves
+        other worlds between them."""
         start = time.perf_counter()
         regions = self.dirty_regions() if self.dirty else []
         runs: list[tuple[str, AlgorithmRun]] = []
+        pieces = None
         if self.config.euclidean and regions:
             runs.append(("exact", self._compute_euclidean(regions)))
+        elif regions and piece_s is not None and self._runs_long(regions):
+            pieces = self._pieces(regions, runs, piece_s)
         elif regions:
             runs = [(name, launch()) for name, launch in self._launches(regions)]
         self.dirty.clear()
-        return PendingRecompute(self, regions, runs, start, self.version)
+        return PendingRecompute(self, regions, runs, start, self.version, pieces)
+
+    def _runs_long(self, regions: list[Box]) -> bool:
+        """Whether recomputing ``regions`` is work worth cutting into pieces: an algorithm that
+        can pause and more than ``SLICE_ABOVE_VISITS`` voxel visits (recompute_cost's count)."""
+        cfg = self.config
+        names = [cfg.algorithm] + ([cfg.lod_algorithm] if cfg.focus is not None else [])
+        if not any(hasattr(ALGORITHMS[n], "pieces") for n in names):
+            return False
+        per_voxel = max(visits_per_voxel(n, cfg) for n in names)
+        return sum(r.volume for r in regions) * per_voxel > SLICE_ABOVE_VISITS
+
+    def _pieces(self, regions: list[Box], runs: list[tuple[str, AlgorithmRun]], piece_s: float) -> Pieces:
+        for region in regions:
+            for algorithm, job in self._region_jobs(region):
+                run = AlgorithmRun()
+                runs.append((algorithm.name, run))
+                yield from run_pieces(algorithm, self.gpu, job, run, piece_s)
 
     def _launches(self, regions: list[Box]) -> list[tuple[str, Callable[[], AlgorithmRun]]]:
         """The algorithm runs over ``regions``, each a call prepared once (``algorithms.base.prepared``)

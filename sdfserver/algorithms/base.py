@@ -16,7 +16,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, field
 from functools import partial
-from typing import Callable, Protocol
+from typing import Callable, Iterator, Protocol
 
 import numpy as np
 import pyopencl as cl
@@ -141,8 +141,39 @@ class Algorithm(Protocol):
     # (RegionJob.chunk > 0); seed_scratch — needs WorldBuffers.seeds/seeds2.
     # Optional: prepare(gpu, job) -> a call that does run(gpu, job), the host work that repeats
     # done once (World keeps it while a world's dirty regions repeat; ``prepared`` below).
+    # Optional: pieces(gpu, job, run, piece_s) -> Pieces, the same work cut where it may pause
+    # (an iterative algorithm whose run can outlast an engine step; ``run_pieces`` below).
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun: ...
+
+
+# An algorithm's work as a generator: each step enqueues launches, and each ``yield`` is a point
+# where the work may pause (the device may be left idle there, and other worlds' work run)
+# without changing the result. The field is written only after the last yield, so nothing read
+# between pieces sees a partial result. ``piece_s``: about how long a piece may keep the device
+# busy (None: the algorithm's own batching, as one uninterrupted run would use).
+Pieces = Iterator[None]
+
+
+def run_pieces(algorithm: Algorithm, gpu: GpuContext, job: RegionJob, run: AlgorithmRun,
+               piece_s: float | None) -> Pieces:
+    """``algorithm`` over ``job`` in pieces, its figures summed into ``run``; one piece where the
+    algorithm cannot pause (its whole run is short: exact, conservative)."""
+    pieces = getattr(algorithm, "pieces", None)
+    if pieces is not None:
+        yield from pieces(gpu, job, run, piece_s)
+        return
+    done = algorithm.run(gpu, job)
+    run.events += done.events
+    run.iterations += done.iterations
+    run.bytes_moved += done.bytes_moved
+    yield
+
+
+def run_whole(pieces: Pieces) -> None:
+    """Enqueue every piece at once (a run that is not to pause)."""
+    for _ in pieces:
+        pass
 
 
 def init_work(gpu: GpuContext, job: RegionJob, target: cl.Buffer) -> cl.Event:

@@ -29,7 +29,9 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
-from sdfserver.algorithms.base import AlgorithmRun, RegionJob, grid, init_work, int4, pack_region
+from sdfserver.algorithms.base import (
+    AlgorithmRun, Pieces, RegionJob, grid, init_work, int4, pack_region, run_whole,
+)
 from sdfserver.gpu import GpuContext
 
 EXTRA_STEPS = {0: (), 1: (1,), 2: (2, 1)}  # Rong & Tan's JFA, JFA+1, JFA+2
@@ -54,9 +56,9 @@ def step_sizes(job: RegionJob, extra_passes: int = 0) -> list[int]:
     return steps + list(EXTRA_STEPS[extra_passes])
 
 
-def flood(gpu: GpuContext, job: RegionJob, run: AlgorithmRun, out: cl.Buffer, extra_passes: int = 0) -> None:
+def flood(gpu: GpuContext, job: RegionJob, run: AlgorithmRun, out: cl.Buffer, extra_passes: int = 0) -> Pieces:
     """Jump flooding from the initial distances in job.buffers.work (left as they are);
-    the distances found go to ``out``, a uchar box like work."""
+    the distances found go to ``out``, a uchar box like work. Cut after each pass."""
     b = job.buffers
     if b.seeds is None or b.seeds2 is None:
         raise RuntimeError("jump flooding needs the world's seed buffers (World.buffer_bytes allocates them)")
@@ -70,6 +72,7 @@ def flood(gpu: GpuContext, job: RegionJob, run: AlgorithmRun, out: cl.Buffer, ex
             gpu.queue, gsize, lsize, b.work, src, dst, w_n, np.int32(step), cap, chunk))
         src, dst = dst, src
         run.iterations += 1
+        yield
     run.events.append(kernel("jfa.cl", "jfa_resolve")(gpu.queue, gsize, lsize, b.work, src, out, w_n, cap))
 
 
@@ -83,7 +86,11 @@ class Jfa:
         self.name = "jfa" if extra_passes == 0 else f"jfa+{extra_passes}"
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
-        run = AlgorithmRun([init_work(gpu, job, job.buffers.work)])
-        flood(gpu, job, run, job.buffers.work2, self.extra_passes)
-        run.events.append(pack_region(gpu, job, job.buffers.work2))
+        run = AlgorithmRun()
+        run_whole(self.pieces(gpu, job, run))
         return run
+
+    def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, piece_s: float | None = None) -> Pieces:
+        run.events.append(init_work(gpu, job, job.buffers.work))
+        yield from flood(gpu, job, run, job.buffers.work2, self.extra_passes)
+        run.events.append(pack_region(gpu, job, job.buffers.work2))

@@ -13,8 +13,8 @@ Failure modes: as fim, with far fewer passes.
 
 from __future__ import annotations
 
-from sdfserver.algorithms.base import AlgorithmRun, RegionJob, init_work, pack_region
-from sdfserver.algorithms.fim import relax_to_convergence
+from sdfserver.algorithms.base import AlgorithmRun, Pieces, RegionJob, init_work, pack_region, run_whole
+from sdfserver.algorithms.fim import relax_pieces
 from sdfserver.algorithms.jfa import flood
 from sdfserver.gpu import GpuContext
 
@@ -26,10 +26,14 @@ class JfaFim:
     seed_scratch = True
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
-        b = job.buffers
-        run = AlgorithmRun([init_work(gpu, job, b.work)])
-        flood(gpu, job, run, b.work2)
-        run.iterations = 0  # report FIM passes, as the dissertation's Table 4.6 does
-        relax_to_convergence(gpu, job, run, b.work2)
-        run.events.append(pack_region(gpu, job, b.work2))
+        run = AlgorithmRun()
+        run_whole(self.pieces(gpu, job, run))
         return run
+
+    def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, piece_s: float | None = None) -> Pieces:
+        b = job.buffers
+        run.events.append(init_work(gpu, job, b.work))
+        yield from flood(gpu, job, run, b.work2)
+        run.iterations = 0  # report FIM passes, as the dissertation's Table 4.6 does
+        yield from relax_pieces(gpu, job, run, b.work2, piece_s)
+        run.events.append(pack_region(gpu, job, b.work2))

@@ -10,7 +10,9 @@ whenever commands are queued:
    and changes nothing; a world's valid batches are journaled in one log write,
    applied in order and acknowledged with their versions (after the log sync);
    with no other command queued, the step waits for that acknowledgement;
-3. recompute each touched world once, however many batches it took;
+3. recompute each touched world once, however many batches it took; a long recompute runs in
+   pieces over several steps, within ``limits.step_budget_ms`` a step, the world's own commands
+   waiting for its end (``long_recomputes.py``) while other worlds are served;
 4. publish the chunks each recompute rewrote to the subscribers of those chunks;
 5. serve reads, point queries, frames, picks, subscriptions and ``run_on_device`` calls
    (one handler per command type), which therefore see every edit applied before them. A read whose ``min_version``
@@ -49,6 +51,7 @@ from sdfserver.engine.commands import (
 )
 from sdfserver.engine.journal import Journal
 from sdfserver.engine.lifetime import EngineLifetime, Pending
+from sdfserver.engine.long_recomputes import LongRecomputes
 from sdfserver.engine.mailbox import Subscription
 from sdfserver.engine.metrics import EngineMetrics
 from sdfserver.engine.moves import Moves
@@ -116,6 +119,7 @@ class Engine(EngineLifetime, CommandCalls):
         self.table, self.batches, self.reads, self.subscriptions = (
             parts.table, parts.batches, parts.reads, parts.subscriptions)
         self.moves = Moves(gpu, limits, self.table, self.batches, self.subscriptions, journal)
+        self.long = LongRecomputes()
         self._changers: dict[type, Callable[[Any, set[str]], Any]] = {  # the changing commands' handlers
             CreateWorld: self._create_world, DeleteWorld: self._delete_world, Reconfigure: self._reconfigure,
             ReleaseWorld: lambda c, _: self.moves.release(c.world_id, c.destination),
@@ -190,7 +194,7 @@ class Engine(EngineLifetime, CommandCalls):
 
     def step(self) -> StepReport:
         """Apply queued edits, recompute touched worlds once each, publish, serve reads."""
-        commands = self._drain()
+        commands = self.long.take_released() + self._drain()
         serve = self._waiting + [c for c in commands if not isinstance(c[0], APPLY)]
         self._waiting, self.batches.acknowledging = [], []
         report = StepReport()
@@ -212,12 +216,14 @@ class Engine(EngineLifetime, CommandCalls):
             self.subscriptions.publish(report.recomputed)
             clock.lap("publish")
             clock.doing("serve", _WorldsOf(serve))
+            serve = [c for c in serve if not self.long.hold(*c)]
             answers = self.reads.serve(serve, report, self._waiting)
             clock.lap("serve")
         except cl.Error as exc:
-            self._lose_device(exc, self._unanswered(commands + serve + self._waiting))
+            self._lose_device(exc, self._unanswered(commands + serve + self._waiting) + self._held_all())
             self._waiting = []
         except Exception as exc:
+            self._stop_long_recomputes()  # a piece that failed would fail again every step
             self._fail_step(exc, self._unanswered(commands + serve + self._waiting))
             self._waiting, answers = [], []
         with self.answering():  # before the step's bookkeeping: they need not wait for it
@@ -230,13 +236,33 @@ class Engine(EngineLifetime, CommandCalls):
 
     def busy(self) -> dict[str, Any] | None:
         """The running step's phase, worlds and time, when it has run ``limits.busy_step_ms`` or
-        longer; else None (any thread: /readyz and /metrics ask while the step runs)."""
+        longer, and the recomputes running in pieces; else None (any thread: /readyz and
+        /metrics ask while the step runs)."""
         clock = self.running
-        return None if clock is None else clock.busy(self.limits.busy_step_ms)
+        step = None if clock is None else clock.busy(self.limits.busy_step_ms)
+        long = self.long.describe()
+        if not long:
+            return step
+        busy_ms = max(e["running_ms"] for e in long)
+        step = step or {"busy_ms": busy_ms, "phase": "recompute in pieces", "worlds": sorted(e["world"] for e in long)}
+        return {**step, "recomputing": long}
 
     def _busy_seconds(self) -> float:
         busy = self.busy()
         return 0.0 if busy is None else busy["busy_ms"] / 1e3
+
+    def _stop_long_recomputes(self) -> None:
+        """Give up the recomputes running in pieces; their worlds recompute whole at their next edit."""
+        for world_id in list(self.long.running):
+            self.long.cancel(world_id)
+            if world_id in self.worlds:
+                self.worlds[world_id].mark_all_dirty()
+
+    def _wait_timeout(self) -> float | None:
+        return 0.0 if self.long.has_work else super()._wait_timeout()
+
+    def _held_all(self) -> list[Pending]:
+        return self.long.all_waiting()
 
     def _wait_for_acknowledgements(self) -> None:
         """While no other command is queued, wait for this step's batches to be acknowledged."""
@@ -267,6 +293,8 @@ class Engine(EngineLifetime, CommandCalls):
         touched: set[str] = set()
         batches: list[Planned] = []
         for command, future in commands:
+            if self.long.hold(command, future):  # after its world's recompute in pieces
+                continue
             if not future.set_running_or_notify_cancel():
                 continue
             if isinstance(command, ApplyEdits):
@@ -295,6 +323,7 @@ class Engine(EngineLifetime, CommandCalls):
         return self.table.describe(world_id)
 
     def _delete_world(self, command: DeleteWorld, touched: set[str]) -> None:
+        self.long.cancel(command.world_id)
         self.table.delete(command.world_id)
         self.subscriptions.drop_world(command.world_id)
         self.batches.forget_world(command.world_id)
@@ -304,8 +333,8 @@ class Engine(EngineLifetime, CommandCalls):
         touched.add(command.world_id)
 
     def _recompute(self, touched: set[str]) -> dict[str, RecomputeResult]:
-        """One recompute per touched world (the step's one loop over worlds)."""
-        results = {}
+        """One recompute per touched world (the step's one loop over worlds), and the step's share
+        of those running in pieces."""
         worlds = {i: self.worlds[i] for i in touched if i in self.worlds}
         now = time.monotonic()
         if now - self._dirty_gauge_at >= DIRTY_GAUGE_EVERY_S:  # counting costs more than the gauge is worth each step
@@ -313,12 +342,19 @@ class Engine(EngineLifetime, CommandCalls):
             self.metrics.dirty_chunks.set(sum(w.dirty_chunk_count for w in worlds.values()))
         # Every world's work goes to the device before the step waits, once, for all of it: a
         # wait per world would leave the device idle while the next world's launches are made.
-        pending = {world_id: world.begin_recompute() for world_id, world in worlds.items()}
+        piece_s = self.limits.step_budget_ms / 1e3
+        pending = {world_id: world.begin_recompute(piece_s) for world_id, world in worlds.items()}
+        for world_id, started in list(pending.items()):
+            if started.in_pieces:
+                self.long.start(world_id, pending.pop(world_id), worlds[world_id].config.algorithm)
         if len(pending) > 1:
             self.gpu.queue.finish()
-        observed = []
-        for world_id, world in worlds.items():
-            result = pending[world_id].finish(device_done=len(pending) > 1)
+        finished = [(world_id, p.finish(device_done=len(pending) > 1)) for world_id, p in pending.items()]
+        if self.long.running:
+            finished += [(world_id, p.finish(device_done=True)) for world_id, p in self.long.advance(piece_s).items()]
+        observed, results = [], {}
+        for world_id, result in finished:
+            world = self.worlds[world_id]
             observed.append((world.config.algorithm, result))
             self.last_recompute_ms[world_id] = result.wall_ms
             results[world_id] = result

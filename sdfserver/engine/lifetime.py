@@ -88,6 +88,10 @@ class EngineLifetime:
     def _release_all(self) -> None:
         raise NotImplementedError
 
+    def _held_all(self) -> list[Pending]:
+        """Commands the engine holds back for later steps (none here; the engine's own)."""
+        return []
+
     def start(self, warm_up: bool = True, on_death: Callable[[str], None] | None = None) -> None:
         """Start the engine thread; from then on only it touches the device. ``on_death(reason)``
         is called on that thread if it ever dies of an error."""
@@ -141,12 +145,12 @@ class EngineLifetime:
             log.critical("the engine thread died", exc_info=exc)
             self.failure = f"the engine thread died: {first_line(exc)}"
             self._warm.set()
-            self._fail_all(NotReady(self.failure), self._drain() + self._waiting)
+            self._fail_all(NotReady(self.failure), self._drain() + self._waiting + self._held_all())
             if self._on_death is not None:
                 self._on_death(self.failure)
             return
         # reads still waiting for a version are cut off by the stop too: 503, as the queued ones
-        self._fail_all(NotReady("the server is shutting down"), self._drain() + self._waiting)
+        self._fail_all(NotReady("the server is shutting down"), self._drain() + self._waiting + self._held_all())
         self._waiting = []
         self._release_all()
 

@@ -60,6 +60,7 @@ class DoneRecompute:
     """``World.begin_recompute``'s answer for a recompute already finished."""
 
     result: RecomputeResult
+    in_pieces = False
 
     def finish(self, device_done: bool = False) -> RecomputeResult:
         return self.result
@@ -292,9 +293,11 @@ class SparseWorld(SparseSnapshots):
 
     # -- recompute -----------------------------------------------------------------------------
 
-    def begin_recompute(self) -> "DoneRecompute":
+    def begin_recompute(self, piece_s: float | None = None) -> "DoneRecompute":
         """A sparse world's recompute waits for the device as it goes (each region's bricks are
-        classified on the host), so it is done when this returns."""
+        classified on the host), so it is done when this returns; it does not run in pieces
+        (``piece_s`` is not used): its regions share one scratch box of at most
+        ``MAX_SIDE_VOX`` a side, bounded by the recompute cost limit."""
         return DoneRecompute(self.recompute())
 
     def recompute(self) -> RecomputeResult:

@@ -76,7 +76,7 @@ def test_a_lone_batch_is_acknowledged_before_its_step_recomputes(gpu, journal, m
     engine.step()
     world_id = created.result()["id"]
     order, begin_recompute = [], World.begin_recompute
-    monkeypatch.setattr(World, "begin_recompute", lambda self: (order.append("recompute"), begin_recompute(self))[1])
+    monkeypatch.setattr(World, "begin_recompute", lambda self, *a: (order.append("recompute"), begin_recompute(self, *a))[1])
     for _ in range(5):
         batch = edits(engine, world_id, [{"op": "box", "min": [0, 0, 0], "max": [2, 2, 2], "colour": 3}])
         batch.add_done_callback(lambda _: order.append("acknowledged"))

@@ -61,8 +61,11 @@ def engine(gpu):
 
 
 def run(engine, command):
+    """Step until ``command`` is answered (a world's commands wait while it recomputes in pieces)."""
     future = engine.submit(command)
     engine.step()
+    while not future.done():
+        engine.step()
     return future
 
 

@@ -283,7 +283,7 @@ def test_a_step_that_raises_fails_its_commands_and_the_engine_goes_on(engine, mo
     world_id = create(engine)
     world = engine.worlds[world_id]
     begin_recompute = world.begin_recompute
-    monkeypatch.setattr(world, "begin_recompute", lambda: (_ for _ in ()).throw(RuntimeError("a bug\nin detail")))
+    monkeypatch.setattr(world, "begin_recompute", lambda piece_s=None: (_ for _ in ()).throw(RuntimeError("a bug\nin detail")))
     batch = edits(engine, world_id, [{"op": "box", "min": [0, 0, 0], "max": [2, 2, 2], "colour": 1}])
     read, describe = engine.submit(Read(world_id, "distance")), engine.submit(Describe(world_id))
     engine.step()

@@ -105,6 +105,13 @@ class Settings(BaseSettings):
                                                              "(POST /v1/worlds/{id}/query; 413 above it).")
     move_release_timeout_s: float = Field(
         10.0, gt=0, le=600, description="How long a world's move (POST /v1/worlds/{id}/move) waits for its engine "
+    step_budget_ms: float = Field(
+        20.0, gt=0, le=10_000,
+        description="How long one world's recompute may hold the engine at a time, in milliseconds: a longer "
+                    "one by an algorithm that can pause (fim, jfa, jfa+1, jfa+2, jfa_fim, brute) runs in pieces "
+                    "of about this long over several steps, every other world served between them, while that "
+                    "world's own edits, reads and frames wait for its end. exact, conservative and the Euclidean "
+                    "transform run whole (bounded by max_recompute_voxel_visits).")
                                         "to hand it over; past that the target engine takes the world over and its "
                                         "new epoch fences the old holder.")
     rebalance_below: float = Field(

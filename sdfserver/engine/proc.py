@@ -55,7 +55,7 @@ def engine_limits(settings: Settings) -> EngineLimits:
                         max_subscriptions_per_key=settings.max_subscriptions_per_key,
                         max_wait_s=settings.max_wait_ms / 1e3,
                         max_recompute_voxel_visits=settings.max_recompute_voxel_visits or None,
-                        busy_step_ms=settings.busy_step_ms)
+                        busy_step_ms=settings.busy_step_ms, step_budget_ms=settings.step_budget_ms)
 
 
 def data_dir_of(settings: Settings, index: int, engines: int) -> Path:

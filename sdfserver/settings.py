@@ -161,6 +161,11 @@ class Settings(BaseSettings):
     ws_ping_interval_s: float = Field(20.0, ge=0, description="Seconds between WebSocket pings; a peer that "
                                                               "does not answer one within as long is closed "
                                                               "(0: no pings).")
+    ws_send_timeout_s: float = Field(30.0, ge=0, le=3600, description="Time a WebSocket peer may take none of "
+                                     "the bytes waiting for it (its socket buffers full: a client that sends "
+                                     "and never reads) before the connection is aborted, logged and counted in "
+                                     "sdfserver_websocket_send_timeouts_total; seen within 1.5 times this "
+                                     "(0: never).")
     # -- durability (sdfserver/storage) --
     persist: bool = Field(True, description="Keep every world on disk (write-ahead log and snapshots in "
                                             "data_dir) and restore them at start-up; off: worlds live in memory only.")

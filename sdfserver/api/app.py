@@ -21,6 +21,7 @@ from prometheus_client import CollectorRegistry
 
 from sdfserver import __version__
 from sdfserver.api import auth, bodies, errors, health, models, render_routes, routes, stream, transfer
+from sdfserver.api.counts import CountsCollector, SharedCounts
 from sdfserver.api.engine_client import BaseClient, LocalEngineClient
 from sdfserver.api.engines import Engines, LocalPlacement
 from sdfserver.gcpauses import GcPauses, freeze_startup_objects
@@ -33,10 +34,13 @@ REPORT_EVERY_S = 0.5  # how often an API process reports the bytes it sent to th
 
 class ApiMetrics:
     """What only an API process sees: counted here, reported to the first engine (so that
-    /metrics, from any API process, shows every process's counts); GC pauses stay local."""
+    /metrics, from any API process, shows every process's counts); what happens to connections
+    below the app is in ``counts``, shared by the API processes (``counts.py``); GC pauses stay local."""
 
-    def __init__(self) -> None:
-        self.registry = CollectorRegistry()  # this process's own: its GC pauses
+    def __init__(self, counts: SharedCounts | None = None) -> None:
+        self.registry = CollectorRegistry()  # this process's own: its GC pauses, and the shared counts
+        self.counts = counts if counts is not None else SharedCounts()
+        self.registry.register(CountsCollector(self.counts))
         self.engines: Engines | None = None
         self.bytes_out = _Accumulator()
         self.ws_clients = _WebSocketGauge(self)
@@ -118,9 +122,11 @@ class RebalanceLeader:
 
 
 def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[BaseClient] | None = None,
-               freeze_gc: bool = False, addresses_file: str | None = None) -> FastAPI:
+               freeze_gc: bool = False, addresses_file: str | None = None,
+               counts: SharedCounts | None = None) -> FastAPI:
     """``clients``: the engine processes' clients (started with the app); ``engine``: an Engine
-    in this process instead (started if it is not running, stopped at shutdown).
+    in this process instead (started if it is not running, stopped at shutdown). ``counts``:
+    the API processes' shared connection counts (this process's own when left out).
     ``freeze_gc``: exempt start-up objects from garbage collection and count collections on
     /metrics (``gcpauses.py``), and keep freed heap memory (``heap.py``), for a server process."""
 
@@ -171,7 +177,7 @@ def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[Base
                               "See docs/api.md.")
     app.state.settings = settings
     app.state.engine = None  # Engines: the engines' clients, routed by world id
-    app.state.metrics = ApiMetrics()
+    app.state.metrics = ApiMetrics(counts)
 
     def use(engine_clients: list[BaseClient]) -> None:
         app.state.engine = Engines(LocalPlacement(engine_clients), settings.max_wait_ms / 1e3)

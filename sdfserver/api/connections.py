@@ -3,14 +3,17 @@
 uvicorn bounds a kept-alive connection's idle time, WebSocket message sizes and queues (its
 ``Config`` options, set in ``worker.py``), but not how long a client may take to send a request's
 headers, how many header bytes it may send (httptools keeps an unfinished header in memory as it
-arrives), how many connections a process holds, or which method may ask for a WebSocket
-upgrade. ``guarded_protocol`` returns uvicorn's httptools protocol with those four added; it is
-handed to uvicorn through its public ``http=`` option (a protocol class), and relies on the
-protocol's documented shape in the tested uvicorn range (pyproject.toml).
+arrives), how many connections a process holds, which method may ask for a WebSocket upgrade, or
+how long a WebSocket peer may leave what is sent to it unread. ``guarded_protocol`` returns
+uvicorn's httptools protocol with the first four added, ``guarded_websocket_protocol`` its
+WebSocket protocol with the last; they are handed to uvicorn through its public ``http=`` and
+``ws=`` options (protocol classes), and rely on the protocols' documented shape in the tested
+uvicorn range (pyproject.toml).
 
-- **Connections:** past this process's share of ``max_connections`` (HTTP and WebSocket alike:
-  uvicorn counts both in one set), a new connection is answered 503 and closed at once, so
-  sockets held by idle or slow clients cannot take every file descriptor.
+- **Connections** (``connection_limits``, enforced by ``port.Listener`` as it accepts): past this
+  process's share of ``max_connections`` (HTTP and WebSocket alike: uvicorn counts both in one
+  set), or past what its file-descriptor limit leaves room for, a new connection is answered 503
+  and closed at once, so that sockets held by idle or slow clients cannot take every descriptor.
 - **Header time:** from the connection's start, or from a kept-alive request's first byte, the
   request line and headers must arrive within ``header_timeout_s``, else 408 and close.
 - **Header bytes and lines:** the bytes of an unfinished header are counted as they arrive, and
@@ -18,21 +21,34 @@ protocol's documented shape in the tested uvicorn range (pyproject.toml).
   close, without reading further.
 - **Upgrades:** a WebSocket upgrade must be a GET (RFC 6455); any other method asking for one
   gets 400 rather than a handshake that never answers.
+- **WebSocket peers that stop reading:** while bytes wait for a peer that takes none of them for
+  ``ws_send_timeout_s`` (its socket buffers full), the connection is aborted, counted and
+  logged. Without this nothing ends it: the app's send waits for the transport to drain, the
+  ping timeout's close waits for the same, and each such peer pins megabytes of socket buffers.
 """
 
 from __future__ import annotations
 
 import asyncio
+import fcntl
 import logging
+import resource
+import struct
+import termios
 from dataclasses import dataclass
 from typing import Any
 
 import httptools
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
+
+from sdfserver.api.counts import SharedCounts, ThrottledLog
 
 log = logging.getLogger("sdfserver.connections")
-REASONS = {400: b"Bad Request", 408: b"Request Timeout", 431: b"Request Header Fields Too Large",
-           503: b"Service Unavailable"}
+# Descriptors an API process keeps for what is not a client's connection: the listening socket,
+# its engines' sockets, the event loop's own, log and library files, and a 503 to a refused client.
+RESERVED_DESCRIPTORS = 64
+REASONS = {400: b"Bad Request", 408: b"Request Timeout", 431: b"Request Header Fields Too Large"}
 
 
 @dataclass(frozen=True)
@@ -41,6 +57,7 @@ class ConnectionLimits:
     max_header_bytes: int = 65536
     max_header_count: int = 100
     header_timeout_s: float = 10.0
+    capped_by_descriptors: bool = False  # max_connections is what the descriptor limit leaves room for
 
 
 class HeadersTooLarge(Exception):
@@ -60,9 +77,6 @@ class GuardedHttpProtocol(HttpToolsProtocol):
         super().connection_made(transport)
         self.header_bytes = self.header_lines = self.header_size = 0  # as arrived; lines; as parsed
         self.reading_headers = True
-        if len(self.connections) > self.limits.max_connections:
-            self.refuse(503, "this server holds as many connections as it may; try again later")
-            return
         self.arm_header_timer()
 
     def connection_lost(self, exc: Exception | None) -> None:
@@ -162,13 +176,110 @@ class GuardedHttpProtocol(HttpToolsProtocol):
             self.transport.close()
 
 
-def uvicorn_options(settings: Any, workers: int) -> dict[str, Any]:
+def guarded_websocket_protocol(send_timeout_s: float, counts: SharedCounts) -> type[WebSocketsSansIOProtocol]:
+    """uvicorn's WebSocket protocol that aborts a peer that stops reading (a class, as ``ws=`` takes)."""
+    return type("GuardedWebSocketProtocol", (GuardedWebSocketProtocol,),
+                {"send_timeout_s": send_timeout_s, "counts": counts, "stalls": ThrottledLog(log)})
+
+
+class GuardedWebSocketProtocol(WebSocketsSansIOProtocol):
+    """Bytes wait for the peer while the transport is over its high-water mark (the app's sends
+    wait then) or closing (a close waits for them to drain). In both states nothing new is
+    written but control frames, so if the bytes waiting — in the transport and in the socket's
+    send queue, not yet acknowledged by the peer — have not gone down in ``send_timeout_s``, the
+    peer took nothing: it is aborted, since ``close()`` would wait for it forever. A reader that
+    is slow but reads acknowledges something every little while and stays."""
+
+    send_timeout_s = 30.0  # 0: never
+    counts = SharedCounts()
+    stalls = ThrottledLog(log)
+    watch_timer: asyncio.TimerHandle | None = None
+    stalled: tuple[float, int] | None = None  # (since, bytes waiting then) while bytes wait
+
+    def connection_made(self, transport: Any) -> None:
+        super().connection_made(transport)
+        self.watch()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self.watch_timer is not None:
+            self.watch_timer.cancel()
+            self.watch_timer = None
+        super().connection_lost(exc)
+
+    def handle_ping(self) -> None:
+        if not self.writable.is_set():  # the peer is not reading: its pongs would only pile up here
+            self.conn.data_to_send()
+            return
+        super().handle_ping()
+
+    def watch(self) -> None:
+        if self.send_timeout_s > 0:  # looked at twice a timeout: a stall is seen within 1.5 timeouts
+            self.watch_timer = self.loop.call_later(self.send_timeout_s / 2, self.check_peer_reads)
+
+    def check_peer_reads(self) -> None:
+        self.watch_timer = None
+        waiting = self.transport.get_write_buffer_size() + unacknowledged_bytes(self.transport)
+        now = self.loop.time()
+        if waiting == 0 or (self.writable.is_set() and not self.transport.is_closing()):
+            self.stalled = None
+        elif self.stalled is None or waiting < self.stalled[1]:
+            self.stalled = (now, waiting)  # the peer took some: the wait starts again
+        elif now - self.stalled[0] >= self.send_timeout_s:
+            self.counts.add("websocket_send_timeouts")
+            client = "%s:%d" % self.client if self.client else "a client"
+            self.stalls.warning("closing the WebSocket of %s: it took none of the %d bytes waiting for it in "
+                                "%.0f s (ws_send_timeout_s)", client, waiting, now - self.stalled[0])
+            self.transport.abort()
+            return
+        self.watch()
+
+
+def unacknowledged_bytes(transport: Any) -> int:
+    """Bytes in the socket's send queue that the peer has not acknowledged (Linux's SIOCOUTQ);
+    0 where that cannot be asked. Unlike the transport's buffer, which the kernel refills only
+    once a third of a (megabytes) send buffer is free, it goes down as soon as the peer reads."""
+    sock = transport.get_extra_info("socket")
+    if sock is None or not hasattr(termios, "TIOCOUTQ"):
+        return 0
+    try:
+        return struct.unpack("i", fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0" * 4))[0]
+    except OSError:  # closed meanwhile, or not a socket that keeps a send queue
+        return 0
+
+
+def descriptor_limit() -> int | None:
+    """This process's soft RLIMIT_NOFILE, or None where there is none."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+    return None if soft == resource.RLIM_INFINITY else soft
+
+
+def connection_limits(settings: Any, workers: int) -> ConnectionLimits:
+    """One API process's limits: its share of ``max_connections``, or fewer where its
+    file-descriptor limit leaves room for fewer (then refusals say so)."""
+    share = max(1, -(-settings.max_connections // workers))
+    limit = descriptor_limit()
+    room = share if limit is None else max(1, limit - RESERVED_DESCRIPTORS)
+    return ConnectionLimits(max_connections=min(share, room), max_header_bytes=settings.max_header_bytes,
+                            max_header_count=settings.max_header_count, header_timeout_s=settings.header_timeout_s,
+                            capped_by_descriptors=room < share)
+
+
+def say_descriptor_room(settings: Any, workers: int) -> None:
+    """A warning at start-up where the descriptor limit leaves an API process room for fewer
+    connections than its share of ``max_connections``."""
+    limits = connection_limits(settings, workers)
+    if limits.capped_by_descriptors:
+        log.warning("the file-descriptor limit (%d) leaves each API process room for %d connections, fewer than "
+                    "its share of max_connections (%d): those past it are answered 503; raise LimitNOFILE "
+                    "(ulimit -n)", descriptor_limit(), limits.max_connections,
+                    -(-settings.max_connections // workers))
+
+
+def uvicorn_options(settings: Any, workers: int, counts: SharedCounts) -> dict[str, Any]:
     """The ``uvicorn.Config`` options that bound one API process's connections."""
-    limits = ConnectionLimits(max_connections=max(1, -(-settings.max_connections // workers)),
-                              max_header_bytes=settings.max_header_bytes,
-                              max_header_count=settings.max_header_count,
-                              header_timeout_s=settings.header_timeout_s)
     ping = settings.ws_ping_interval_s or None
-    return {"http": guarded_protocol(limits), "timeout_keep_alive": settings.idle_timeout_s,
+    return {"http": guarded_protocol(connection_limits(settings, workers)),
+            "ws": guarded_websocket_protocol(settings.ws_send_timeout_s, counts),
+            "timeout_keep_alive": settings.idle_timeout_s,
             "ws_max_size": settings.max_request_bytes, "ws_max_queue": settings.ws_max_queue,
             "ws_per_message_deflate": settings.ws_deflate, "ws_ping_interval": ping, "ws_ping_timeout": ping}

@@ -142,12 +142,17 @@ class Launcher:
             print(f"sdfserver serve: {failure}", file=sys.stderr)
             return 1
         import sdfserver.api.worker  # noqa: F401  imported once here, inherited by every API process
+        from sdfserver.api.connections import say_descriptor_room
+        from sdfserver.api.counts import SharedCounts
 
-        self.workers = [self._start_worker() for _ in range(worker_count(self.settings))]
+        workers = worker_count(self.settings)
+        self.counts = SharedCounts(workers)  # before the fork: every API process shares it
+        self.workers = [self._start_worker(row) for row in range(workers)]
         self.serving = True
         host, port = self.sock.getsockname()[:2]
         log.info("listening on http://%s:%d (%d API processes, %d engines%s)", host, port, len(self.workers),
                  len(self.addresses), f", Ray cluster {self.settings.cluster}" if self.settings.cluster else "")
+        say_descriptor_room(self.settings, workers)
         return self._watch()
 
     def _start_cluster(self) -> str | None:
@@ -196,12 +201,13 @@ class Launcher:
             if not process.is_alive() and not pipe.poll(0):
                 return False, f"the {_role(process)} process exited with status {process.exitcode}"
 
-    def _start_worker(self) -> tuple[Any, float]:
+    def _start_worker(self, row: int) -> tuple[Any, float]:
+        """The API process that counts in ``row`` of the shared counts (a replacement takes its row)."""
         from sdfserver.api.worker import worker_main
 
         process = self.context.Process(target=_exit_with, args=(worker_main, self.settings, self.sock,
                                                                  self.addresses, self.log_config,
-                                                                 self.addresses_file),
+                                                                 self.addresses_file, self.counts.for_process(row)),
                                        name="sdfserver-api")
         process.start()
         return process, time.monotonic()
@@ -223,7 +229,7 @@ class Launcher:
                                 process.exitcode)
                     if time.monotonic() - started < RESTART_QUIET_S:
                         time.sleep(RESTART_QUIET_S)  # no crash loop
-                    self.workers[i] = self._start_worker()
+                    self.workers[i] = self._start_worker(i)
 
     def stop(self) -> None:
         if self._stopped:

@@ -99,6 +99,8 @@ class StreamSession:
         sender = asyncio.create_task(self._send_updates())
         try:
             await self._receive()
+        except WebSocketDisconnect:  # gone, or aborted for not reading (connections.py) while answered
+            pass
         finally:
             await self.frames.close()
             sender.cancel()

@@ -203,7 +203,7 @@ class Engine(EngineLifetime, CommandCalls):
         try:
             changing = [c for c in commands if isinstance(c[0], APPLY)]
             clock.doing("apply", _WorldsOf(changing))
-            touched = self._apply(changing, report)
+            touched = self._apply(changing, report) | self.long.take_restoring()
             clock.lap("apply")
             if self.batches.acknowledging and self.journal is not None:
                 clock.doing("durable")
@@ -253,10 +253,10 @@ class Engine(EngineLifetime, CommandCalls):
 
     def _stop_long_recomputes(self) -> None:
         """Give up the recomputes running in pieces; their worlds recompute whole at their next edit."""
-        for world_id in list(self.long.running):
-            self.long.cancel(world_id)
-            if world_id in self.worlds:
-                self.worlds[world_id].mark_all_dirty()
+        for world_id in self.long.give_up():
+            world = self.worlds.get(world_id)
+            if world is not None and world.config.storage == "dense":
+                world.mark_all_dirty()
 
     def _wait_timeout(self) -> float | None:
         return 0.0 if self.long.has_work else super()._wait_timeout()
@@ -373,11 +373,14 @@ class Engine(EngineLifetime, CommandCalls):
 
     # -- the table, for start-up and the service ----------------------------------------------------
 
-    def adopt_world(self, world_id: str, world: World, owner: str | None) -> None:
-        """Register a world restored from disk; only before ``start()``."""
+    def adopt_world(self, world_id: str, world: World, owner: str | None, field_pending: bool = False) -> None:
+        """Register a world restored from disk; only before ``start()``. ``field_pending``: its
+        field is still to be computed, by the first step (which serves its reads after that)."""
         if self.started:
             raise RuntimeError("adopt_world is for start-up, before the engine thread runs")
         self.table.adopt(world_id, world, owner)
+        if field_pending:
+            self.long.restore(world_id)
 
     def owner_of(self, world_id: str) -> str | None:
         """The owning key's name (any thread); NotFound for an unknown world."""

@@ -8,6 +8,9 @@ field (edits, reads, queries, frames, subscriptions, reconfigurations, moves) wa
 arrival order and go back to the engine when it is done; the field's version moves only then, so
 nothing reads a partial field. Deleting the world stops its recompute after the piece on the
 device; stopping the engine fails what waits here with the engine's other waiting commands.
+
+A world restored at start-up has its field computed by the engine's first step, which serves
+its reads after that (or holds them here, where the recompute runs in pieces).
 """
 
 from __future__ import annotations
@@ -49,6 +52,7 @@ class Running:
 class LongRecomputes:
     def __init__(self) -> None:
         self.running: dict[str, Running] = {}
+        self._restoring: set[str] = set()  # restored worlds whose field the next step computes
         self._held: dict[str, list[Pending]] = {}
         self._released: list[Pending] = []  # held commands whose world is done: the next step's first
 
@@ -58,7 +62,15 @@ class LongRecomputes:
     @property
     def has_work(self) -> bool:
         """Whether the engine has a step to run without any new command."""
-        return bool(self.running or self._released)
+        return bool(self.running or self._released or self._restoring)
+
+    def restore(self, world_id: str) -> None:
+        """A restored world's field is still to be computed, by the next step."""
+        self._restoring.add(world_id)
+
+    def take_restoring(self) -> set[str]:
+        taken, self._restoring = self._restoring, set()
+        return taken
 
     def start(self, world_id: str, pending: PendingRecompute, algorithm: str) -> None:
         voxels = sum(r.volume for r in pending.regions)
@@ -102,12 +114,21 @@ class LongRecomputes:
     def cancel(self, world_id: str) -> None:
         """The world goes away: stop its recompute; what waited for it runs next step (and finds
         the world gone, or a new one of that id)."""
+        self._restoring.discard(world_id)
         entry = self.running.pop(world_id, None)
         if entry is not None:
             entry.pending.cancel()
             log.info("world %s: its %s recompute stopped after %d pieces (the world is deleted)", world_id,
                      entry.algorithm, entry.pending.pieces_run)
         self._released += self._held.pop(world_id, [])
+
+    def give_up(self) -> list[str]:
+        """A step failed: stop every running recompute and let every held command go on (a
+        piece that failed would fail again each step); the worlds whose field is not done."""
+        stopped = list(self.running)
+        for world_id in stopped:
+            self.cancel(world_id)
+        return stopped
 
     def take_released(self) -> list[Pending]:
         released, self._released = self._released, []

@@ -1,8 +1,9 @@
 """One stored world rebuilt on the device: its snapshot's voxels loaded, its logged batches
 replayed in version order (each through ``parse_edits`` and the world's edit planning, as when
 they arrived, but under ``REPLAY_LIMITS``: a batch that was accepted once is applied whatever
-today's limits are), then its whole distance field recomputed. Used at start-up
-(``restore.py``) and when a world moves to this engine (``moves.py``).
+today's limits are), then its whole distance field recomputed: here when a world moves to this
+engine (``moves.py``); at start-up (``restore.py``) by the running engine, so that one heavy
+world does not keep the others from serving.
 
 ``config_from_dict`` reads a configuration from a catalog entry or an uploaded snapshot: a
 focus beyond the range requests may carry (which older servers accepted) is narrowed to the
@@ -79,12 +80,15 @@ class Restored:
     owner: str | None
     batch_ids: list[tuple[str, int]]  # (Idempotency-Key, version) of the logged batches that carry one
     replayed: int
+    recomputed: bool = True  # False: its field is still to be computed (restore_world's recompute)
 
 
-def restore_world(gpu: GpuContext, limits: EngineLimits, storage: Storage, world_id: str) -> Restored:
+def restore_world(gpu: GpuContext, limits: EngineLimits, storage: Storage, world_id: str,
+                  recompute: bool = True) -> Restored:
     """One stored world rebuilt on the device (its store open under a new epoch); raises what
     refuses it (``SdfServerError``, or KeyError/TypeError/ValueError for a bad catalog entry),
-    leaving nothing open."""
+    leaving nothing open. ``recompute=False``: a dense world's field is left to the engine
+    (``Restored.recomputed`` False, the whole world dirty); a sparse world's is made here."""
     meta = storage.read_meta(world_id)
     store, recovered = storage.open_world(world_id)
     world = None
@@ -95,7 +99,11 @@ def restore_world(gpu: GpuContext, limits: EngineLimits, storage: Storage, world
         world.version = recovered.snapshot_version
         batch_ids = _replay(world, recovered.records, store.directory)
         world.limits = limits.edits  # what comes in from now on meets today's limits
-        world.recompute()
+        recomputed = recompute or world.config.storage == "sparse"
+        if recomputed:
+            world.recompute()
+        else:
+            world.mark_all_dirty()
     except BaseException:
         store.close()
         if world is not None:
@@ -103,7 +111,7 @@ def restore_world(gpu: GpuContext, limits: EngineLimits, storage: Storage, world
         raise
     if recovered.torn:
         log.warning("world %s: %s", world_id, recovered.torn)
-    return Restored(world, store, meta.get("owner"), batch_ids, len(recovered.records))
+    return Restored(world, store, meta.get("owner"), batch_ids, len(recovered.records), recomputed)
 
 
 def _replay(world: World, records: list[tuple[int, bytes]], directory: Path) -> list[tuple[str, int]]:

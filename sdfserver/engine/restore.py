@@ -1,7 +1,9 @@
 """Start-up: rebuild every stored world on the device before the engine thread starts.
 
-For each world in the catalog, ``rebuild.restore_world`` (snapshot, replayed log, recompute,
-its store open under a new epoch). A world whose files fail their checks is refused — left
+For each world in the catalog, ``rebuild.restore_world`` (snapshot, replayed log, its store
+open under a new epoch). A dense world's field is computed by the engine once it runs, in its
+first step, or in pieces over several steps where that is long (``long_recomputes.py``): each
+world serves as soon as its own field is back, and its commands wait until then. A world whose files fail their checks is refused — left
 untouched on disk, answered with a storage error naming the file — and the others still load;
 so is a world directory holding a log but no catalog entry (``Storage.orphans``).
 """
@@ -39,17 +41,18 @@ def restore_worlds(engine: Engine, storage: Storage, journal: StorageJournal) ->
                                                       "catalog entry (world.json); restore it or remove the directory"))
     for world_id in storage.world_ids():
         try:
-            restored = restore_world(engine.gpu, engine.limits, storage, world_id)
+            restored = restore_world(engine.gpu, engine.limits, storage, world_id, recompute=False)
         except (SdfServerError, KeyError, TypeError, ValueError) as exc:
             _refuse(engine, report, world_id, exc)
             continue
-        engine.adopt_world(world_id, restored.world, restored.owner)
+        engine.adopt_world(world_id, restored.world, restored.owner, field_pending=not restored.recomputed)
         engine.batches.remember(world_id, restored.batch_ids)
         journal.adopt(world_id, restored.store, restored.owner)
         report.restored.append(world_id)
         report.batches_replayed += restored.replayed
     report.elapsed_s = time.perf_counter() - start
-    log.info("restored %d worlds (%d logged batches replayed) in %.2f s; %d refused",
+    log.info("restored %d worlds (%d logged batches replayed) in %.2f s; %d refused; the engine computes "
+             "their fields as it starts, each world serving once its own is done",
              len(report.restored), report.batches_replayed, report.elapsed_s, len(report.refused))
     return report
 

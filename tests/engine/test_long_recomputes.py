@@ -179,3 +179,39 @@ def test_a_quick_world_keeps_its_round_trip_while_another_recomputes(gpu):
         print(f"{len(trips)} round trips during a {recompute_s:.2f} s recompute, the slowest {max(trips) * 1e3:.0f} ms")
     finally:
         engine.stop()
+
+
+def test_a_restart_serves_each_world_once_its_own_field_is_back(gpu, tmp_path):
+    from sdfserver.engine.restore import restore_worlds
+    from sdfserver.storage import Storage
+    from sdfserver.storage.journal import StorageJournal
+
+    rng = np.random.default_rng()
+    journal = StorageJournal(Storage(tmp_path / "data"))
+    engine = Engine(gpu, EngineLimits(step_budget_ms=1.0), journal=journal)
+    slow, quick = create(engine, **SLOW), create(engine, **QUICK)
+    slow_batch, quick_batch = scattered(rng, 48, 200), scattered(rng, 16, 10)
+    for world_id, raw in ((slow, slow_batch), (quick, quick_batch)):
+        future = edit(engine, world_id, raw)
+        while not future.done():
+            engine.step()
+    engine.stop()
+    journal.close()
+
+    journal = StorageJournal(Storage(tmp_path / "data"))
+    fresh = Engine(gpu, EngineLimits(step_budget_ms=1.0), journal=journal)
+    try:
+        report = restore_worlds(fresh, journal.storage, journal)
+        assert sorted(report.restored) == sorted([slow, quick])
+        slow_read, quick_read = fresh.submit(Read(slow, "packed")), fresh.submit(Read(quick, "packed"))
+        fresh.step()
+        assert slow in fresh.long, "the heavy world's field is computed in pieces after the restart"
+        assert np.array_equal(quick_read.result(timeout=5).array, whole(gpu, QUICK, [quick_batch]))
+        assert not slow_read.done()
+        while not slow_read.done():
+            fresh.step()
+        assert slow_read.result().version == 1
+        assert np.array_equal(slow_read.result().array, whole(gpu, SLOW, [slow_batch]))
+    finally:
+        fresh.stop()
+        journal.close()

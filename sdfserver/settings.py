@@ -98,13 +98,6 @@ class Settings(BaseSettings):
         20.0, gt=0, description="An engine step running longer than this, in milliseconds, shows in /readyz "
                                 "(still 200, with the engine, world and time) and in /metrics "
                                 "(sdfserver_engine_busy_seconds).")
-    max_worlds: int = Field(64, ge=1, description="Most worlds that may live in the server at once (413 above it).")
-    max_read_voxels: int = Field(
-        1 << 27, ge=1, description="Largest box one field or voxel read may cover, in voxels (413 above it).")
-    max_query_points: int = Field(1 << 17, ge=1, description="Most points, spheres or rays in one query "
-                                                             "(POST /v1/worlds/{id}/query; 413 above it).")
-    move_release_timeout_s: float = Field(
-        10.0, gt=0, le=600, description="How long a world's move (POST /v1/worlds/{id}/move) waits for its engine "
     step_budget_ms: float = Field(
         20.0, gt=0, le=10_000,
         description="How long one world's recompute may hold the engine at a time, in milliseconds: a longer "
@@ -112,6 +105,13 @@ class Settings(BaseSettings):
                     "of about this long over several steps, every other world served between them, while that "
                     "world's own edits, reads and frames wait for its end. exact, conservative and the Euclidean "
                     "transform run whole (bounded by max_recompute_voxel_visits).")
+    max_worlds: int = Field(64, ge=1, description="Most worlds that may live in the server at once (413 above it).")
+    max_read_voxels: int = Field(
+        1 << 27, ge=1, description="Largest box one field or voxel read may cover, in voxels (413 above it).")
+    max_query_points: int = Field(1 << 17, ge=1, description="Most points, spheres or rays in one query "
+                                                             "(POST /v1/worlds/{id}/query; 413 above it).")
+    move_release_timeout_s: float = Field(
+        10.0, gt=0, le=600, description="How long a world's move (POST /v1/worlds/{id}/move) waits for its engine "
                                         "to hand it over; past that the target engine takes the world over and its "
                                         "new epoch fences the old holder.")
     rebalance_below: float = Field(

@@ -14,6 +14,7 @@ itself and each chunk is computed alone, everything outside it solid
 from __future__ import annotations
 
 import struct
+import time
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Callable, Iterator, Protocol
@@ -168,6 +169,39 @@ def run_pieces(algorithm: Algorithm, gpu: GpuContext, job: RegionJob, run: Algor
     run.iterations += done.iterations
     run.bytes_moved += done.bytes_moved
     yield
+
+
+class SlabPace:
+    """How many z-planes one launch of a pass covers when the work runs in pieces: sized from
+    the launches timed before it, kept across an algorithm's passes. Whole work-groups deep, so
+    that slabs do not overlap."""
+
+    def __init__(self, piece_s: float, group_depth: int = 4):
+        self.piece_s, self.group_depth = piece_s, group_depth
+        self.planes = group_depth
+        self.plane_s = 0.0  # the last launch's time a plane
+
+    def learn(self, planes: int, seconds: float) -> None:
+        self.plane_s = max(seconds / planes, 1e-9)
+        self.planes = max(self.group_depth, int(self.piece_s / self.plane_s) // self.group_depth * self.group_depth)
+
+
+def slabs(run: AlgorithmRun, launch: Callable[[int, int], cl.Event], depth: int, pace: SlabPace | None) -> Pieces:
+    """``launch(z0, planes)`` over z-planes 0..depth: at once without a ``pace``; else in slabs,
+    each waited for and timed, a pause after each."""
+    if pace is None:
+        run.events.append(launch(0, depth))
+        return
+    z = 0
+    while z < depth:
+        planes = min(pace.planes, depth - z)
+        started = time.perf_counter()
+        event = launch(z, planes)
+        run.events.append(event)
+        event.wait()
+        pace.learn(planes, time.perf_counter() - started)
+        z += planes
+        yield
 
 
 def run_whole(pieces: Pieces) -> None:

@@ -15,12 +15,11 @@ large cap, hours at 512^3. For small worlds, tests and the benchmark tables.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
+import pyopencl as cl
 
 from sdfserver.algorithms.base import (
-    AlgorithmRun, Pieces, RegionJob, grid, init_work, int4, pack_region, run_whole,
+    AlgorithmRun, Pieces, RegionJob, SlabPace, grid, init_work, int4, pack_region, run_whole, slabs,
 )
 from sdfserver.gpu import GpuContext
 
@@ -36,25 +35,17 @@ class Brute:
         return run
 
     def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, piece_s: float | None = None) -> Pieces:
-        """One launch over R; with ``piece_s``, slabs of R's z-planes, each sized from the
-        slabs before it to take about that long (the first is one plane)."""
+        """One launch over R; with ``piece_s``, slabs of R's z-planes of about that long."""
         b = job.buffers
         run.events.append(init_work(gpu, job, b.work))
         yield
         brute = gpu.programs.kernel("brute.cl", "brute_region")
         (ox, oy, oz), (nx, ny, nz) = job.region_offset, job.region.shape_xyz
-        z, planes = 0, nz if piece_s is None else 1
-        while z < nz:
-            planes = min(planes, nz - z)
-            started = time.perf_counter()
+
+        def launch(z0: int, planes: int) -> cl.Event:
             gsize, lsize = grid((nx, ny, planes))
-            run.events.append(brute(gpu.queue, gsize, lsize, b.work, b.work2, int4(job.work_box.shape_xyz),
-                                    int4((ox, oy, oz + z)), int4((nx, ny, planes)), np.int32(job.cap),
-                                    np.int32(job.chunk)))
-            z += planes
-            if piece_s is not None:
-                run.events[-1].wait()
-                plane_s = (time.perf_counter() - started) / planes
-                planes = max(1, int(piece_s / max(plane_s, 1e-9)))
-                yield
+            return brute(gpu.queue, gsize, lsize, b.work, b.work2, int4(job.work_box.shape_xyz),
+                         int4((ox, oy, oz + z0)), int4((nx, ny, planes)), np.int32(job.cap), np.int32(job.chunk))
+
+        yield from slabs(run, launch, nz, None if piece_s is None else SlabPace(piece_s, 1))
         run.events.append(pack_region(gpu, job, b.work2))

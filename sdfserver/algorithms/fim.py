@@ -17,14 +17,14 @@ Failure modes: passes grow with the distance information must travel (up to
 
 from __future__ import annotations
 
-import time
+from functools import partial
 
 import numpy as np
 import pyopencl as cl
 
 from sdfserver import bulk
 from sdfserver.algorithms.base import (
-    AlgorithmRun, Pieces, RegionJob, grid, init_work, int4, pack_region, run_whole,
+    AlgorithmRun, Pieces, RegionJob, SlabPace, grid, init_work, int4, pack_region, run_whole, slabs,
 )
 from sdfserver.gpu import GpuContext
 
@@ -34,23 +34,27 @@ MAX_BATCH = 64
 def relax_pieces(gpu: GpuContext, job: RegionJob, run: AlgorithmRun, work: cl.Buffer | None = None,
                  piece_s: float | None = None) -> Pieces:
     """fim passes on ``work`` (default job.buffers.work) until one changes nothing, cut after
-    each batch of passes: with ``piece_s``, a batch grows only while it is expected to take no
-    longer than that (timed from the batches before it)."""
+    each batch of passes. With ``piece_s``, each pass runs in slabs of z-planes of about that
+    long (a pass relaxes in place, in any order), and a batch grows only while it is expected
+    to take no longer than that."""
     work = job.buffers.work if work is None else work
     fim_pass = gpu.programs.kernel("fim.cl", "fim_pass")
     w_n = job.work_box.shape_xyz
-    gsize, lsize = grid(w_n)
+    (gx, gy, _), lsize = grid(w_n)
+    pace = None if piece_s is None else SlabPace(piece_s, lsize[2])
     flags = np.zeros(MAX_BATCH, dtype=np.int32)
     flag_buf = cl.Buffer(gpu.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=flags)
+
+    def launch(iteration: int, z0: int, planes: int) -> cl.Event:
+        return fim_pass(gpu.queue, (gx, gy, grid((1, 1, planes), lsize)[0][2]), lsize, work, int4(w_n), flag_buf,
+                        np.int32(iteration), np.int32(job.chunk), global_offset=(0, 0, z0))
+
     try:
         batch = 1
         while True:
-            started = time.perf_counter()
             bulk.fill(gpu, flag_buf, np.int32, 0, MAX_BATCH)
             for i in range(batch):
-                run.events.append(fim_pass(
-                    gpu.queue, gsize, lsize, work, int4(w_n), flag_buf, np.int32(i), np.int32(job.chunk)
-                ))
+                yield from slabs(run, partial(launch, i), w_n[2], pace)
             cl.enqueue_copy(gpu.queue, flags, flag_buf)  # waits: the batch is done
             changed = flags[:batch]
             if not changed.all():
@@ -58,9 +62,8 @@ def relax_pieces(gpu: GpuContext, job: RegionJob, run: AlgorithmRun, work: cl.Bu
                 return
             run.iterations += batch
             next_batch = batch * 2
-            if piece_s is not None:
-                pass_s = (time.perf_counter() - started) / batch
-                next_batch = min(next_batch, max(1, int(piece_s / max(pass_s, 1e-9))))
+            if pace is not None:
+                next_batch = min(next_batch, max(1, int(piece_s / (pace.plane_s * w_n[2]))))
             batch = min(MAX_BATCH, next_batch)
             yield
     finally:

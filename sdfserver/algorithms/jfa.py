@@ -30,7 +30,7 @@ import numpy as np
 import pyopencl as cl
 
 from sdfserver.algorithms.base import (
-    AlgorithmRun, Pieces, RegionJob, grid, init_work, int4, pack_region, run_whole,
+    AlgorithmRun, Pieces, RegionJob, SlabPace, grid, init_work, int4, pack_region, run_whole, slabs,
 )
 from sdfserver.gpu import GpuContext
 
@@ -56,20 +56,26 @@ def step_sizes(job: RegionJob, extra_passes: int = 0) -> list[int]:
     return steps + list(EXTRA_STEPS[extra_passes])
 
 
-def flood(gpu: GpuContext, job: RegionJob, run: AlgorithmRun, out: cl.Buffer, extra_passes: int = 0) -> Pieces:
+def flood(gpu: GpuContext, job: RegionJob, run: AlgorithmRun, out: cl.Buffer, extra_passes: int = 0,
+          piece_s: float | None = None) -> Pieces:
     """Jump flooding from the initial distances in job.buffers.work (left as they are);
-    the distances found go to ``out``, a uchar box like work. Cut after each pass."""
+    the distances found go to ``out``, a uchar box like work. Cut after each pass; with
+    ``piece_s``, each pass runs in slabs of z-planes of about that long."""
     b = job.buffers
     if b.seeds is None or b.seeds2 is None:
         raise RuntimeError("jump flooding needs the world's seed buffers (World.buffer_bytes allocates them)")
     kernel = gpu.programs.kernel
     w_n, cap, chunk = int4(job.work_box.shape_xyz), np.int32(job.cap), np.int32(job.chunk)
     gsize, lsize = grid(job.work_box.shape_xyz)
+    pace = None if piece_s is None else SlabPace(piece_s, lsize[2])
+    seed_pass = kernel("jfa.cl", "jfa_seed_pass")
     src, dst = b.seeds, b.seeds2
     run.events.append(kernel("jfa.cl", "jfa_seed_init")(gpu.queue, gsize, lsize, b.work, src, w_n, cap, chunk))
     for step in step_sizes(job, extra_passes):
-        run.events.append(kernel("jfa.cl", "jfa_seed_pass")(
-            gpu.queue, gsize, lsize, b.work, src, dst, w_n, np.int32(step), cap, chunk))
+        def launch(z0: int, planes: int, src=src, dst=dst, step=step) -> cl.Event:
+            return seed_pass(gpu.queue, (gsize[0], gsize[1], grid((1, 1, planes), lsize)[0][2]), lsize, b.work,
+                             src, dst, w_n, np.int32(step), cap, chunk, global_offset=(0, 0, z0))
+        yield from slabs(run, launch, job.work_box.shape_xyz[2], pace)
         src, dst = dst, src
         run.iterations += 1
         yield
@@ -92,5 +98,5 @@ class Jfa:
 
     def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, piece_s: float | None = None) -> Pieces:
         run.events.append(init_work(gpu, job, job.buffers.work))
-        yield from flood(gpu, job, run, job.buffers.work2, self.extra_passes)
+        yield from flood(gpu, job, run, job.buffers.work2, self.extra_passes, piece_s)
         run.events.append(pack_region(gpu, job, job.buffers.work2))

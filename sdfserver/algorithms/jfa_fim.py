@@ -33,7 +33,7 @@ class JfaFim:
     def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, piece_s: float | None = None) -> Pieces:
         b = job.buffers
         run.events.append(init_work(gpu, job, b.work))
-        yield from flood(gpu, job, run, b.work2)
+        yield from flood(gpu, job, run, b.work2, piece_s=piece_s)
         run.iterations = 0  # report FIM passes, as the dissertation's Table 4.6 does
         yield from relax_pieces(gpu, job, run, b.work2, piece_s)
         run.events.append(pack_region(gpu, job, b.work2))

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 import pyopencl as cl
@@ -75,16 +75,17 @@ class PendingRecompute:
     def in_pieces(self) -> bool:
         return self.pieces is not None
 
-    def advance(self, budget_s: float) -> bool:
-        """Enqueue pieces, waiting for the device after each, until ``budget_s`` has passed (one
-        piece at least) or none is left; True when none is left and the device is done."""
+    def advance(self, budget_s: float, interrupted: Callable[[], bool] = lambda: False) -> bool:
+        """Enqueue pieces, waiting for the device after each, until ``budget_s`` has passed or
+        ``interrupted()`` (one piece at least) or none is left; True when none is left and the
+        device is done."""
         if self.pieces is None:
             return True
         started, queue = time.perf_counter(), self.world.gpu.queue
         for _ in self.pieces:
             queue.finish()
             self.pieces_run += 1
-            if time.perf_counter() - started >= budget_s:
+            if time.perf_counter() - started >= budget_s or interrupted():
                 return False
         queue.finish()
         self.pieces = None

@@ -11,12 +11,14 @@ whenever commands are queued:
    applied in order and acknowledged with their versions (after the log sync);
    with no other command queued, the step waits for that acknowledgement;
 3. recompute each touched world once, however many batches it took; a long recompute runs in
-   pieces over several steps, within ``limits.step_budget_ms`` a step, the world's own commands
-   waiting for its end (``long_recomputes.py``) while other worlds are served;
+   pieces over several steps (6.), the world's own commands waiting for its end
+   (``long_recomputes.py``) while other worlds are served;
 4. publish the chunks each recompute rewrote to the subscribers of those chunks;
 5. serve reads, point queries, frames, picks, subscriptions and ``run_on_device`` calls
    (one handler per command type), which therefore see every edit applied before them. A read whose ``min_version``
-   the field has not reached waits for later steps until its deadline.
+   the field has not reached waits for later steps until its deadline;
+6. after the answers are out, run the long recomputes for up to ``limits.step_budget_ms``, in
+   pieces of a quarter of that, stopping after a piece as soon as a command is queued.
 
 The engine is handed its collaborators and only sequences them: the world table
 (``worlds.py``), the batch pipeline (``batches.py``: plan -> journal -> apply -> acknowledge),
@@ -73,6 +75,9 @@ DIRTY_GAUGE_EVERY_S = 0.1  # the dirty-chunks gauge is counted at most this ofte
 # slice, so that a slow disk holds them up no longer than that.
 LONE_ACKNOWLEDGEMENT_WAIT_S = 0.002
 LONE_ACKNOWLEDGEMENT_SLICE_S = 0.00025
+# A recompute in pieces is cut this many times finer than a step's budget for it: a command that
+# comes while it runs waits for the piece on the device, not for the budget.
+PIECES_PER_BUDGET = 4
 
 __all__ = ["Engine", "EngineParts", "new_world_id", "world_config_dict"]
 
@@ -229,6 +234,8 @@ class Engine(EngineLifetime, CommandCalls):
         with self.answering():  # before the step's bookkeeping: they need not wait for it
             for future, result in answers:
                 future.set_result(result)
+        if self.long.running:
+            self._advance_long_recomputes(report, clock)
         self.subscriptions.count_pending()
         clock.stop(self.metrics, self.limits.slow_step_ms)
         self.running = None
@@ -342,16 +349,33 @@ class Engine(EngineLifetime, CommandCalls):
             self.metrics.dirty_chunks.set(sum(w.dirty_chunk_count for w in worlds.values()))
         # Every world's work goes to the device before the step waits, once, for all of it: a
         # wait per world would leave the device idle while the next world's launches are made.
-        piece_s = self.limits.step_budget_ms / 1e3
+        piece_s = self.limits.step_budget_ms / 1e3 / PIECES_PER_BUDGET
         pending = {world_id: world.begin_recompute(piece_s) for world_id, world in worlds.items()}
         for world_id, started in list(pending.items()):
             if started.in_pieces:
                 self.long.start(world_id, pending.pop(world_id), worlds[world_id].config.algorithm)
         if len(pending) > 1:
             self.gpu.queue.finish()
-        finished = [(world_id, p.finish(device_done=len(pending) > 1)) for world_id, p in pending.items()]
-        if self.long.running:
-            finished += [(world_id, p.finish(device_done=True)) for world_id, p in self.long.advance(piece_s).items()]
+        return self._finished([(world_id, p.finish(device_done=len(pending) > 1)) for world_id, p in pending.items()])
+
+    def _advance_long_recomputes(self, report: StepReport, clock: StepClock) -> None:
+        """The step's share of the recomputes running in pieces, after its answers are out; those
+        that end are published now, and the commands that waited for them run next step."""
+        clock.doing("pieces", list(self.long.running))
+        try:
+            done = self.long.advance(self.limits.step_budget_ms / 1e3, lambda: not self._commands.empty())
+            results = self._finished([(world_id, p.finish(device_done=True)) for world_id, p in done.items()])
+            self.subscriptions.publish(results)
+            report.recomputed.update(results)
+        except cl.Error as exc:
+            self._lose_device(exc, self._held_all())
+        except Exception as exc:
+            self._stop_long_recomputes()
+            self._fail_step(exc, self._held_all())
+        clock.lap("pieces")
+
+    def _finished(self, finished: list[tuple[str, RecomputeResult]]) -> dict[str, RecomputeResult]:
+        """Count the recomputes that ended and snapshot their worlds where due."""
         observed, results = [], {}
         for world_id, result in finished:
             world = self.worlds[world_id]

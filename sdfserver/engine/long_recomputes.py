@@ -19,7 +19,7 @@ import logging
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 from sdfserver.engine.commands import (
     ApplyEdits, CopyBricks, Draw, PickAt, Query, Read, Reconfigure, ReleaseWorld, Subscribe,
@@ -87,14 +87,15 @@ class LongRecomputes:
         self._held.setdefault(world_id, []).append((command, future))
         return True
 
-    def advance(self, budget_s: float) -> dict[str, PendingRecompute]:
-        """Run each recompute for a share of ``budget_s`` (a piece at least); the ones done."""
+    def advance(self, budget_s: float, interrupted: Callable[[], bool]) -> dict[str, PendingRecompute]:
+        """Run each recompute for a share of ``budget_s`` (a piece at least), each stopping after
+        a piece once ``interrupted()``; the ones done."""
         done: dict[str, PendingRecompute] = {}
         if not self.running:
             return done
         share = budget_s / len(self.running)
         for world_id, entry in list(self.running.items()):
-            if not entry.pending.advance(share):
+            if not entry.pending.advance(share, interrupted):
                 self._log_progress(world_id, entry)
                 continue
             del self.running[world_id]

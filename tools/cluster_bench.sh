@@ -18,24 +18,22 @@ KILL_WORLDS=${KILL_WORLDS:-10}; KILL_SIZE=${KILL_SIZE:-256}; DEVICE=${DEVICE-nvi
 STAGGER=${STAGGER:-0.2}
 FINAL=${OUT:-/tmp/sdfserver-out}; mkdir -p "$FINAL"
 export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
+source "$(dirname "$0")/serve_build.sh"
 url=http://127.0.0.1:$port
 load="python3 clients/loadtest --url $url --size $SIZE $SIZE $SIZE --quiet"
 
-serve() {  # serve TAG FLAGS...: a server, waited for until ready (or 240 s)
+serve() {  # serve TAG FLAGS...: a server, waited for until ready (or 240 s), its start time kept
   local tag=$1; shift
-  rm -rf /tmp/sdfserver-cluster-data
-  python3 -m sdfserver serve --device "$DEVICE" --workers "$WORKERS" --port $port --no-warm-up \
-    --data-dir /tmp/sdfserver-cluster-data "$@" > "$FINAL/cluster-$tag-server.log" 2>&1 &
-  server=$!
   local started; started=$(date +%s.%N)
-  for _ in $(seq 960); do curl -sf $url/readyz >/dev/null && break; kill -0 $server 2>/dev/null || break; sleep 0.25; done
+  READY_S=240 serve_build . "$FINAL/cluster-$tag-server.log" $port /tmp/sdfserver-cluster-data \
+    --workers "$WORKERS" --no-warm-up "$@" || return 1
   python3 -c 'import sys, time; print(round(time.time() - float(sys.argv[1]), 1))' "$started" \
     > "$FINAL/cluster-$tag-start.txt"
 }
 
 measure() {  # measure TAG FLAGS...
   local tag=$1; shift
-  serve "$tag" "$@"
+  serve "$tag" "$@" || return
   timeout 60 $load --clients 1 --duration 8 --read-every 1 --read-size 16 --json "$FINAL/cluster-$tag-rtt.json" \
     > /dev/null 2>&1
   pids=()
@@ -56,7 +54,7 @@ measure ray2 --cluster local --engines 2 --engine-gpus "$(gpus 2)"
 measure ray4 --cluster local --engines 4 --engine-gpus "$(gpus 4)"
 
 # the kill: two actors, KILL_WORLDS worlds written to, SIGKILL of the engine holding the first
-serve kill --cluster local --engines 2 --engine-gpus "$(gpus 2)"
+serve kill --cluster local --engines 2 --engine-gpus "$(gpus 2)" || exit 1
 python3 - "$url" "$KILL_WORLDS" "$KILL_SIZE" "$FINAL/cluster-kill.json" <<'PY'
 import json, os, signal, sys, time
 import httpx

@@ -1,15 +1,15 @@
 #!/usr/bin/env bash
-# Dense worlds against an older build in one lease (issue 20: "dense worlds no slower than
-# today"): exact 512^3 full regeneration and a radius-8 brush in a 1024^3 world (cap 255),
-# `sdfserver bench` of each checkout in turn, alternating, so both see the same device state.
+# Dense worlds against an older build in one lease (the targets' "nothing gets slower"): exact
+# 512^3 full regeneration and a radius-8 brush in a 1024^3 world (cap 255), `sdfserver bench` of
+# each checkout in turn, alternating, so both see the same device state.
 #
 # Usage on the GPU machine, from this checkout's root, the old build unpacked inside the tree so
 # that it travels:
-#   mkdir -p ab-dense && git archive 17e7b97 sdfserver kernels pyproject.toml | tar -x -C ab-dense
-#   source .whl/activate.sh; bash tools/dense_ab.sh ab-dense [rounds]
+#   mkdir -p ab/old && git archive OLD_COMMIT sdfserver kernels pyproject.toml | tar -x -C ab/old
+#   source .whl/activate.sh; bash tools/dense_ab.sh ab/old [rounds]
 # DEVICE, WORLD, UPDATE_WORLD, REPS override the device (nvidia), the regenerated world's side
 # (512), the brush's world side (1024) and the repetitions (20); a CPU smoke run uses
-#   DEVICE= WORLD=64 UPDATE_WORLD=128 REPS=3 bash tools/dense_ab.sh ab-dense 1
+#   DEVICE= WORLD=64 UPDATE_WORLD=128 REPS=3 bash tools/dense_ab.sh ab/old 1
 # Results: $OUT/dense-ab/*.json (each run's `bench --json`) and a table on stdout.
 set -uo pipefail
 old=$(cd "${1:?old checkout}" && pwd); rounds=${2:-2}

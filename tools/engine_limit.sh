@@ -16,22 +16,20 @@
 # time went inside the engine process (tools/engine_trace.py).
 set -uo pipefail
 export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD:${PYTHONPATH:-}
-out=${OUT:-/tmp/sdfserver-out}/engine-limit; mkdir -p "$out"
-device=${DEVICE-nvidia}; size=${SIZE:-256}; dur=${DUR:-12}; port=8765
+here=$(cd "$(dirname "$0")" && pwd)
+source "$here/serve_build.sh"
+out=${OUT:-/tmp/sdfserver-out}/engine-limit; mkdir -p "$out"; out=$(cd "$out" && pwd)
+size=${SIZE:-256}; dur=${DUR:-12}; port=8765
 load="python3 clients/loadtest --url http://127.0.0.1:$port --size $size $size $size --quiet ${LOAD_FLAGS:-}"
 
 for row in "$@"; do
   read -r name flags <<< "$row"
-  rm -rf /tmp/sdfserver-limit-data
-  # shellcheck disable=SC2086  # the flags are words
-  serve=(-m sdfserver serve)  # TRACE=1: the engine process traced (tools/engine_trace.py)
-  [ -n "${TRACE:-}" ] && serve=(-c "import sys; sys.path.insert(0, 'tools'); import engine_trace; \
+  SERVE_ENTRY=(-m sdfserver serve)  # TRACE=1: the engine process traced, its record written as it stops
+  [ -n "${TRACE:-}" ] && SERVE_ENTRY=(-c "import sys; sys.path.insert(0, '$here'); import engine_trace; \
 engine_trace.install('$out/$name-trace.json'); from sdfserver.api.server import main; raise SystemExit(main())")
   # SERVER_TREE: another checkout's server (an A/B), driven by this checkout's load generator
-  (cd "${SERVER_TREE:-.}" && PYTHONPATH=$PWD:$PYTHONPATH exec python3 "${serve[@]}" ${device:+--device "$device"} \
-    --port $port --data-dir /tmp/sdfserver-limit-data $flags) > "$out/$name-server.log" 2>&1 &
-  server=$!
-  for _ in $(seq 480); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
+  # shellcheck disable=SC2086  # the flags are words
+  serve_build "${SERVER_TREE:-.}" "$out/$name-server.log" $port /tmp/sdfserver-limit-data $flags || continue
   timeout 30 $load --clients 1 --duration 6 --read-every 1 --read-size 16 --json "$out/$name-rtt.json" > /dev/null 2>&1
   python3 tools/cpu_use.py snap $server > "$out/$name-cpu-before.json"
   loaded_at=$(python3 -c "import time; print(time.perf_counter())")

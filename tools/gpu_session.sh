@@ -11,16 +11,14 @@ has() { [[ ",$sections," == *",$1,"* ]]; }
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
 
 port=8765
-serve() {  # serve LOG: start the server on the data directory in /tmp, wait until it is ready
-  python3 -m sdfserver serve --device nvidia --port $port --data-dir /tmp/sdfserver-data ${SERVE_FLAGS:-} \
-    > "$OUT/$1" 2>&1 &
-  server=$!
-  for _ in $(seq 240); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
+source tools/serve_build.sh
+serve() {  # serve LOG: this checkout's server on the data directory in /tmp, waited for until ready
+  serve_build . "$OUT/$1" $port /tmp/sdfserver-data ${SERVE_FLAGS:-}
 }
 
 if has host; then
   # Is this host quiet? Stalls of every CPU at once with nothing else running come from below the
-  # guest, and they set the service's tail latency (docs/benchmarks.md, "Noisy hosts").
+  # guest, and they set the service's tail latency (docs/benchmarks.md, "How we measure").
   grep -m1 "model name" /proc/cpuinfo > "$OUT/host.txt"
   python3 tools/stall_probe.py --per-cpu --seconds 8 --threshold-ms 1 >> "$OUT/host.txt" 2>&1
 fi
@@ -37,10 +35,9 @@ if has render; then
     --duration 4 --width 1280 --height 720 --json "$OUT/render.json" > "$OUT/render.txt" 2>&1
 fi
 if has service; then
-  rm -rf /tmp/sdfserver-data
   serve server.log
-  # The one-client round trip four times: its sync time depends on how long the disk idled
-  # between syncs (docs/benchmarks.md), so one run says little about the next.
+  # The one-client round trip four times: one run's p50 moves by a few hundred microseconds on
+  # the lent hosts (docs/benchmarks.md, "How we measure"), so one run says little about the next.
   rtt="--clients 1 --duration 8 --read-every 1 --read-size 16"
   for run in "load-rtt-1:$rtt" "load-rtt-2:$rtt" "load-rtt-3:$rtt" "load-rtt-4:$rtt" \
              "load-64:--clients 64 --processes 8 --duration 15 --read-every 0" \
@@ -59,13 +56,12 @@ fi
 if has restart; then
   # Recovery after a crash under load: 64 clients for 8 s on a kept world, SIGKILL, start again;
   # the restart replays the batches logged since the world's last snapshot.
-  rm -rf /tmp/sdfserver-data
   serve server-crash.log
   timeout 60 python3 clients/loadtest --url http://127.0.0.1:$port --size 256 256 256 --quiet --keep-world \
     --clients 64 --processes 8 --duration 8 --read-every 0 > "$OUT/load-before-crash.txt" 2>&1
   kill -9 $server; wait $server 2>/dev/null; sleep 1  # its engine and API processes die with it (PDEATHSIG)
   started=$(date +%s.%N)
-  serve server-restart.log
+  KEEP_DATA=1 serve server-restart.log
   echo "ready $(python3 -c 'import sys, time; print(round(time.time() - float(sys.argv[1]), 1))' $started) s" \
     "after the start command" > "$OUT/restart.txt"
   grep -h "restored" "$OUT/server-restart.log" >> "$OUT/restart.txt"

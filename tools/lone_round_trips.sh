@@ -5,24 +5,20 @@
 # the runs is what tells builds apart.
 #
 # Usage on the GPU machine, from the project root:
-#   source .whl/activate.sh; bash tools/lone_round_trips.sh "this=." "old=../ab-old --fronts 2"
+#   source .whl/activate.sh; bash tools/lone_round_trips.sh "this=." "old=ab/old"
 # Each argument is a build: its name, '=', its checkout, then `sdfserver serve` flags. ROUNDS
 # (3) servers a build, RUNS (3) runs of DUR (4) seconds each server, SIZE (256) the world's
 # side. Results: $OUT/lone/ (each run's JSON and server log) and a table of each build's runs
 # and their median.
 set -uo pipefail
 export PYTHONUNBUFFERED=1
+source "$(dirname "$0")/serve_build.sh"
 out=${OUT:-/tmp/sdfserver-out}/lone; mkdir -p "$out"; port=8766
-device=${DEVICE-nvidia}
 for round in $(seq "${ROUNDS:-3}"); do
   for build in "$@"; do
     name=${build%%=*}; read -r tree flags <<< "${build#*=}"
-    rm -rf /tmp/sdfserver-lone-data
     # shellcheck disable=SC2086  # the flags are words
-    (cd "$tree" && PYTHONPATH=$PWD:${PYTHONPATH:-} exec python3 -m sdfserver serve ${device:+--device "$device"} \
-      --port $port --data-dir /tmp/sdfserver-lone-data $flags) > "$out/$name-$round-server.log" 2>&1 &
-    server=$!
-    for _ in $(seq 480); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
+    serve_build "$tree" "$out/$name-$round-server.log" $port /tmp/sdfserver-lone-data $flags || continue
     for run in $(seq "${RUNS:-3}"); do
       timeout 60 python3 clients/loadtest --url http://127.0.0.1:$port --size ${SIZE:-256} ${SIZE:-256} ${SIZE:-256} --quiet --clients 1 \
         --duration "${DUR:-4}" --read-every 1 --read-size 16 --json "$out/$name-$round-$run.json" > /dev/null 2>&1

@@ -4,8 +4,8 @@
 # generators at once, each with its own 128^3 world and C clients, edits only; batches/s summed.
 #
 # On the GPU machine, from this checkout's root, the old build unpacked inside the tree:
-#   mkdir -p ab/before-metrics && git archive 8963431 sdfserver kernels pyproject.toml | tar -x -C ab/before-metrics
-#   source .whl/activate.sh; bash tools/many_worlds.sh ab/before-metrics [rounds]
+#   mkdir -p ab/old && git archive OLD_COMMIT sdfserver kernels pyproject.toml | tar -x -C ab/old
+#   source .whl/activate.sh; bash tools/many_worlds.sh ab/old [rounds]
 # DEVICE, SIZE, DUR override the device (nvidia), the worlds' side (128) and each run's seconds (12);
 # a CPU smoke run: DEVICE= SIZE=32 DUR=3 bash tools/many_worlds.sh OLD 1
 # Results: $OUT/many-worlds.tgz and a table on stdout.

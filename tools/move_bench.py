@@ -15,37 +15,18 @@ import argparse
 import json
 import os
 import shutil
-import subprocess
-import sys
 import tempfile
 import threading
 import time
 import uuid
+from pathlib import Path
 
 import httpx
 import numpy as np
 
+from serve_build import serve_build  # tools/ is sys.path[0]
 
-def start_server(args: argparse.Namespace, data_dir: str) -> subprocess.Popen:
-    engines = (["--cluster", "local", "--engines", "2", "--engine-gpus", str(args.engine_gpus), "--device", args.device]
-               if args.cluster else ["--devices", f"{args.device},{args.device}"])
-    command = [sys.executable, "-m", "sdfserver", "serve", "--port", str(args.port), "--workers", str(args.workers),
-               "--no-warm-up", "--data-dir", data_dir, *engines]
-    os.makedirs(args.log_dir, exist_ok=True)
-    log = open(os.path.join(args.log_dir, "move-bench-server.log"), "w")
-    server = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
-    deadline = time.monotonic() + 300
-    while time.monotonic() < deadline:
-        if server.poll() is not None:
-            raise SystemExit(f"the server exited {server.returncode}; see {log.name}")
-        try:
-            if httpx.get(f"{args.url}/readyz", timeout=2).status_code == 200:
-                return server
-        except httpx.TransportError:
-            pass
-        time.sleep(0.25)
-    server.kill()
-    raise SystemExit("the server did not become ready in 300 s")
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def brush(rng: np.random.Generator, size: int) -> list[dict]:
@@ -74,16 +55,15 @@ def main() -> None:
     parser.add_argument("--log-dir", default=os.environ.get("OUT", tempfile.gettempdir()))
     args = parser.parse_args()
     args.url = f"http://127.0.0.1:{args.port}"
+    engines = (["--cluster", "local", "--engines", "2", "--engine-gpus", str(args.engine_gpus), "--device", args.device]
+               if args.cluster else ["--devices", f"{args.device},{args.device}"])
     data_dir = tempfile.mkdtemp(prefix="sdf-move-bench-")
-    server = start_server(args, data_dir)
+    os.makedirs(args.log_dir, exist_ok=True)
     try:
-        report = run(args)
+        with serve_build(ROOT, os.path.join(args.log_dir, "move-bench-server.log"), args.port, data_dir,
+                         ["--workers", str(args.workers), "--no-warm-up", *engines], device=None, ready_s=300):
+            report = run(args)
     finally:
-        server.terminate()
-        try:
-            server.wait(60)
-        except subprocess.TimeoutExpired:
-            server.kill()
         shutil.rmtree(data_dir, ignore_errors=True)
     print(json.dumps(report, indent=1))
     if args.json:

@@ -12,14 +12,12 @@ set -uo pipefail
 port=8766; K=${K:-8}; C=${C:-8}; DUR=${DUR:-20}; SIZE=${SIZE:-256}; WORKERS=${WORKERS:-4}
 FINAL=${OUT:-/tmp/sdfserver-out}; mkdir -p "$FINAL"
 export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
+source "$(dirname "$0")/serve_build.sh"
 load="python3 clients/loadtest --url http://127.0.0.1:$port --size $SIZE $SIZE $SIZE --quiet"
 for devices in "$@"; do
   tag=${devices//,/+}
-  rm -rf /tmp/sdfserver-scale-data
-  python3 -m sdfserver serve --devices "$devices" --workers "$WORKERS" --port $port \
-    --data-dir /tmp/sdfserver-scale-data > "$FINAL/scale-$tag-server.log" 2>&1 &
-  server=$!
-  for _ in $(seq 480); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
+  DEVICE= serve_build . "$FINAL/scale-$tag-server.log" $port /tmp/sdfserver-scale-data \
+    --devices "$devices" --workers "$WORKERS" || continue
   timeout 60 $load --clients 1 --duration 8 --read-every 1 --read-size 16 --json "$FINAL/scale-$tag-rtt.json" \
     > /dev/null 2>&1
   pids=()

@@ -14,15 +14,13 @@ port=8768; SIZE=${SIZE:-128}; DUR=${DUR:-15}; WORKERS=${WORKERS:-8}; CAP_SIDE=${
 GPU=${GPU:-1}; GEN=${GEN:-1}; KILL_SIDE=${KILL_SIDE:-256}  # GPU=0: CPU devices (a smoke run); GEN divides the generators
 FINAL=${OUT:-/tmp/sdfserver-out}; mkdir -p "$FINAL"
 export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
+source "$(dirname "$0")/serve_build.sh"
 url=http://127.0.0.1:$port
 load="python3 clients/loadtest --url $url --size $SIZE $SIZE $SIZE --quiet"
 
-serve() {  # serve GPUS: engines as actors, one per GPU, waited for until ready
-  rm -rf /tmp/sdfserver-mgpu-data
-  python3 -m sdfserver serve --workers "$WORKERS" --port $port --no-warm-up --cluster local --engines "$1" \
-    --engine-gpus "$GPU" --data-dir /tmp/sdfserver-mgpu-data > "$FINAL/mgpu-$1-server.log" 2>&1 &
-  server=$!
-  for _ in $(seq 960); do curl -sf $url/readyz >/dev/null && break; kill -0 $server 2>/dev/null || break; sleep 0.25; done
+serve() {  # serve GPUS: engines as actors, one per GPU (each picks its own device), waited for until ready
+  DEVICE= READY_S=240 serve_build . "$FINAL/mgpu-$1-server.log" $port /tmp/sdfserver-mgpu-data \
+    --workers "$WORKERS" --no-warm-up --cluster local --engines "$1" --engine-gpus "$GPU"
 }
 
 load_runs() {  # load_runs TAG GENERATORS CLIENTS_EACH

@@ -29,10 +29,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import socket
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -40,6 +38,8 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
+
+from serve_build import serve_build  # tools/ is sys.path[0]
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -217,28 +217,6 @@ class HttpxClient:
         return dict(r.headers) | {"status": f"{r.status_code} {r.reason_phrase}"}, r.content, [t0, t3, t3, t3]
 
 
-def start_server(directory: str, args) -> tuple[subprocess.Popen, str]:
-    data = tempfile.mkdtemp(prefix="sdfserver-qtimeline-data-")
-    hook = "" if args.no_trace else f"import query_timeline; query_timeline.install({directory!r}); "
-    code = (f"import sys; sys.path.insert(0, {str(HERE)!r}); {hook}"
-            "from sdfserver.api.server import main; raise SystemExit(main())")
-    command = [sys.executable, "-c", code, "--port", str(args.port), "--data-dir", data,
-               "--workers", "1", "--no-persist", *(["--device", args.device] if args.device else [])]
-    env = dict(os.environ, PYTHONPATH=f"{Path(args.server_tree).resolve()}:{os.environ.get('PYTHONPATH', '')}")
-    log = open(os.path.join(directory, "server.log"), "w")
-    server = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=args.server_tree)
-    url = f"http://127.0.0.1:{args.port}"
-    for _ in range(960):
-        try:
-            urllib.request.urlopen(url + "/readyz", timeout=1)
-            return server, url
-        except OSError:
-            if server.poll() is not None:
-                raise SystemExit(f"the server exited: see {log.name}") from None
-            time.sleep(0.25)
-    raise SystemExit("the server did not become ready")
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--device", default="intel")
@@ -255,10 +233,15 @@ def main() -> int:
     from sdfserver import wire
 
     directory = tempfile.mkdtemp(prefix="sdfserver-qtimeline-")
-    server, url = start_server(directory, args)
+    hook = "" if args.no_trace else f"import query_timeline; query_timeline.install({directory!r}); "
+    entry = ["-c", f"import sys; sys.path.insert(0, {str(HERE)!r}); {hook}"
+                   "from sdfserver.api.server import main; raise SystemExit(main())"]
+    url = f"http://127.0.0.1:{args.port}"
     rounds: list[list[float]] = []
     server_ms: list[float] = []
-    try:
+    with serve_build(args.server_tree, os.path.join(directory, "server.log"), args.port,
+                     tempfile.mkdtemp(prefix="sdfserver-qtimeline-data-"), ["--workers", "1", "--no-persist"],
+                     device=args.device, entry=entry, ready_s=240):
         config = {"size": [args.size] * 3, "voxel_size": 0.5}
         request = urllib.request.Request(url + "/v1/worlds", method="POST", data=json.dumps(config).encode(),
                                          headers={"content-type": "application/json"})
@@ -277,9 +260,6 @@ def main() -> int:
                 timing = headers.get("server-timing", "")
                 if "dur=" in timing:
                     server_ms.append(float(timing.split("dur=")[1].split(",")[0].split(";")[0]))
-    finally:
-        server.send_signal(signal.SIGTERM)
-        server.wait(60)
     whole = [(r[3] - r[0]) * 1e3 for r in rounds]
     print(f"{args.kind}: {COUNTS[args.kind]} rows, {len(body)} bytes sent, {len(answer)} bytes answered; "
           f"round trip median {statistics.median(whole):.2f} ms (min {min(whole):.2f}, n {len(whole)})"

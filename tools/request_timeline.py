@@ -31,8 +31,6 @@ import asyncio
 import bisect
 import json
 import os
-import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -42,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from engine_trace import record_sends, wrap
+from serve_build import serve_build
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -236,32 +235,16 @@ def main() -> int:
     parser.add_argument("serve_flags", nargs="*", help="more `sdfserver serve` flags (after --)")
     args = parser.parse_args()
     directory = tempfile.mkdtemp(prefix="sdfserver-timeline-")
-    data = tempfile.mkdtemp(prefix="sdfserver-timeline-data-")
-    code = (f"import sys; sys.path.insert(0, {str(HERE)!r}); import request_timeline; "
-            f"request_timeline.install({directory!r}); from sdfserver.api.server import main; raise SystemExit(main())")
-    command = [sys.executable, "-c", code, "--port", str(args.port), "--data-dir", data, *args.serve_flags]
-    if args.device:
-        command += ["--device", args.device]
-    env = dict(os.environ, PYTHONPATH=f"{Path(args.server_tree).resolve()}:{os.environ.get('PYTHONPATH', '')}")
-    log = open(os.path.join(directory, "server.log"), "w")
-    server = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=args.server_tree)
+    entry = ["-c", f"import sys; sys.path.insert(0, {str(HERE)!r}); import request_timeline; "
+                   f"request_timeline.install({directory!r}); from sdfserver.api.server import main; raise SystemExit(main())"]
     url = f"http://127.0.0.1:{args.port}"
-    try:
-        for _ in range(960):
-            try:
-                urllib.request.urlopen(url + "/readyz", timeout=1)
-                break
-            except OSError:
-                if server.poll() is not None:
-                    raise SystemExit(f"the server exited: see {log.name}") from None
-                time.sleep(0.25)
+    with serve_build(args.server_tree, os.path.join(directory, "server.log"), args.port,
+                     tempfile.mkdtemp(prefix="sdfserver-timeline-data-"), args.serve_flags, device=args.device,
+                     entry=entry, ready_s=240):
         request = urllib.request.Request(url + "/v1/worlds", method="POST", headers={"content-type": "application/json"},
                                          data=json.dumps({"size": [args.size] * 3}).encode())
         world = json.load(urllib.request.urlopen(request))["id"]
         requests = asyncio.run(lone_client(url, world, args.size, args.duration, args.http))
-    finally:
-        server.send_signal(signal.SIGTERM)
-        server.wait(60)
     figures = timeline(directory, requests)
     for kind, per in figures.items():
         points = per.pop("engine points", {})

@@ -6,8 +6,8 @@
 # checkout's load generator.
 #
 # On the GPU machine, from this checkout's root, the old build unpacked inside the tree:
-#   mkdir -p ab/before-metrics && git archive 8963431 sdfserver kernels pyproject.toml | tar -x -C ab/before-metrics
-#   source .whl/activate.sh; bash tools/service_ab.sh ab/before-metrics [rounds]
+#   mkdir -p ab/old && git archive OLD_COMMIT sdfserver kernels pyproject.toml | tar -x -C ab/old
+#   source .whl/activate.sh; bash tools/service_ab.sh ab/old [rounds]
 # DEVICE, SIZE, LOAD_S override the device (nvidia), the world's side (256) and each 64-client
 # run's seconds (15); a CPU smoke run: DEVICE= SIZE=64 LOAD_S=3 bash tools/service_ab.sh OLD 1
 # Results: $OUT/service-ab.tgz (each run's JSON and text, the servers' logs), a table on stdout.

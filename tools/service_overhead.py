@@ -1,8 +1,8 @@
 """The server's host overhead per edit batch, next to the device time it bought.
 
 Runs a command (a load test) against a running ``sdfserver serve`` and reads, before and after,
-the server process's CPU time (``/proc/<pid>/stat``, all threads), its child processes (engine, API)' (if
-its engine and API processes) and its ``/metrics``:
+the CPU time (``/proc/<pid>/stat``, all threads) of the launcher and of its child processes (the
+engine and API processes), and the server's ``/metrics``:
 
     python tools/service_overhead.py --pid $SERVER_PID --url http://127.0.0.1:8765 -- \\
         python clients/loadtest --url http://127.0.0.1:8765 --clients 64 --processes 8 \\
@@ -33,19 +33,19 @@ def cpu_seconds(pid: int, tid: int | None = None) -> float:
 
 
 def children(pid: int) -> list[int]:
-    """The server's child processes (engine, API) (``--fronts``), if any."""
+    """The launcher's child processes: its engine and API processes."""
     try:
         return [int(c) for c in open(f"/proc/{pid}/task/{pid}/children").read().split()]
     except OSError:
         return []
 
 
-def fronts_cpu_seconds(pids: list[int]) -> float:
+def children_cpu_seconds(pids: list[int]) -> float:
     total = 0.0
     for pid in pids:
         try:
             total += cpu_seconds(pid)
-        except OSError:  # a front that exited (and was started again) drops out
+        except OSError:  # a process that exited (and was started again) drops out
             pass
     return total
 
@@ -68,10 +68,10 @@ def main(argv: list[str] | None = None) -> int:
     command = args.command[1:] if args.command[:1] == ["--"] else args.command
     if not command:
         ap.error("give the load-test command after --")
-    fronts = children(args.pid)
-    m0, c0, f0 = metrics(args.url), cpu_seconds(args.pid), fronts_cpu_seconds(fronts)
+    processes = children(args.pid)
+    m0, c0, f0 = metrics(args.url), cpu_seconds(args.pid), children_cpu_seconds(processes)
     code = subprocess.run(command).returncode
-    m1, c1, f1 = metrics(args.url), cpu_seconds(args.pid), fronts_cpu_seconds(fronts)
+    m1, c1, f1 = metrics(args.url), cpu_seconds(args.pid), children_cpu_seconds(processes)
     d = {k: m1[k] - m0[k] for k in COUNTERS}
     batches, steps = d["sdfserver_edit_batches_total"], d["sdfserver_engine_steps_total"]
     if batches <= 0:
@@ -81,7 +81,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{batches:.0f} batches in {steps:.0f} engine steps ({batches / max(steps, 1):.1f} per step); per batch: "
           f"server CPU {per(c1 - c0):.0f} us, recompute wall {per(d['sdfserver_recompute_seconds_sum']):.0f} us, "
           f"recompute device {per(d['sdfserver_recompute_device_seconds_total']):.0f} us"
-          + (f"; {len(fronts)} child processes (engine, API): {per(f1 - f0):.0f} us CPU per batch between them" if fronts else ""))
+          + (f"; {len(processes)} child processes (engine, API): {per(f1 - f0):.0f} us CPU per batch between them"
+             if processes else ""))
     return code
 
 

@@ -2,8 +2,8 @@
 edits' p99 timed from each request's slot, the same requests' p99 timed from when each left (the
 service time), and what keeping the schedule cost (requests that left late, the longest lag).
 
-The benchmark scripts' summaries (``engine_limit.sh``, ``service_ab.sh``, ``topology_ab.sh``)
-import it, so that every set-rate figure they print names both methods the same way:
+The benchmark scripts' summaries (``engine_limit.sh``, ``service_ab.sh``) import it, so that
+every set-rate figure they print names both methods the same way:
 
     python3 tools/set_rate_cell.py RESULT.json   # prints the cell
 """

@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-from sdfserver.edits import parse_edits
 from sdfserver.gpu import GpuContext
 from sdfserver.render import Camera, RenderOptions, Renderer, encode_frame
 from sdfserver.world import World, WorldConfig

@@ -6,7 +6,7 @@ the probe running (``/proc/thread-self/schedstat``) and as waiting on a run queu
 kernel says ran for 4 ms that does 0.2 ms of work on a quiet host ran slower below the guest
 (another tenant, the hypervisor): every process on the machine, the server's engine thread
 included, slows down with it. Steal, IRQ and softirq ticks (``/proc/stat``) are printed each
-second they change. See docs/benchmarks.md, session 7, "Noisy hosts".
+second they change. See docs/benchmarks.md, "How we measure".
 
     python3 tools/stall_probe.py --seconds 13
 

@@ -1,22 +1,24 @@
 #!/usr/bin/env bash
-# Large answers across the engine's transport: WebSocket frames (tools/ws_frames.py, 512³,
-# 1280×720, an edit every frame) and whole-world field reads, from another checkout's server and
-# this one's, alternating, with this checkout's clients.
-# Usage on the GPU machine, from the project root:
-#   source .whl/activate.sh; bash tools/transport_ab.sh OTHER_CHECKOUT [rounds]
-# Results: $OUT/transport-ab/ (each run's JSON, text and server log) and a table on stdout.
+# Large answers from two builds of the server in one lease, alternating: WebSocket frames
+# (tools/ws_frames.py: 512^3, 1280x720 JPEG, an edit every frame) and whole 128^3 field reads
+# (8 clients), every run with this checkout's clients, so only the server differs. Frames at 60
+# edits a second are capped at 60 FPS (a frame is drawn only when the field changed), so the
+# figure to compare is how near each build gets to it.
+#
+# Usage on the GPU machine, from the project root, the other build unpacked inside the tree:
+#   mkdir -p ab/old && git archive OLD_COMMIT sdfserver kernels pyproject.toml | tar -x -C ab/old
+#   source .whl/activate.sh; bash tools/frames_ab.sh ab/old [rounds]
+# DEVICE (nvidia) picks the device. Results: $OUT/frames-ab/ (each run's JSON, text and server
+# log) and a table on stdout.
 set -uo pipefail
 export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD:${PYTHONPATH:-}
-other=$1; rounds=${2:-2}; out=${OUT:-/tmp/sdfserver-out}/transport-ab; mkdir -p "$out"
-device=${DEVICE-nvidia}; port=8771
+source "$(dirname "$0")/serve_build.sh"
+other=${1:?other checkout}; rounds=${2:-2}; out=${OUT:-/tmp/sdfserver-out}/frames-ab; mkdir -p "$out"
+port=8771
 for round in $(seq "$rounds"); do
   for tree in "$other" .; do
     name=$([ "$tree" = . ] && echo this || echo other)-$round
-    rm -rf /tmp/sdfserver-transport-data
-    (cd "$tree" && PYTHONPATH=$PWD:$PYTHONPATH exec python3 -m sdfserver serve ${device:+--device "$device"} \
-      --port $port --data-dir /tmp/sdfserver-transport-data) > "$out/$name-server.log" 2>&1 &
-    server=$!
-    for _ in $(seq 480); do curl -sf http://127.0.0.1:$port/readyz >/dev/null && break; sleep 0.25; done
+    serve_build "$tree" "$out/$name-server.log" $port /tmp/sdfserver-frames-data || continue
     timeout 40 python3 tools/ws_frames.py --url http://127.0.0.1:$port --size 512 --duration 10 \
       --json "$out/$name-ws.json" > "$out/$name-ws.txt" 2>&1
     timeout 40 python3 clients/loadtest --url http://127.0.0.1:$port --size 128 128 128 --clients 8 \

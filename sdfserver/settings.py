@@ -99,12 +99,13 @@ class Settings(BaseSettings):
                                 "(still 200, with the engine, world and time) and in /metrics "
                                 "(sdfserver_engine_busy_seconds).")
     step_budget_ms: float = Field(
-        20.0, gt=0, le=10_000,
-        description="How long one world's recompute may hold the engine at a time, in milliseconds: a longer "
-                    "one by an algorithm that can pause (fim, jfa, jfa+1, jfa+2, jfa_fim, brute) runs in pieces "
-                    "of about this long over several steps, every other world served between them, while that "
-                    "world's own edits, reads and frames wait for its end. exact, conservative and the Euclidean "
-                    "transform run whole (bounded by max_recompute_voxel_visits).")
+        8.0, gt=0, le=10_000,
+        description="How long the engine may run long recomputes in one step, in milliseconds: a recompute by an "
+                    "algorithm that can pause (fim, jfa, jfa+1, jfa+2, jfa_fim, brute) that would take longer runs "
+                    "in pieces of a quarter of this over several steps, after each step's answers, stopping after a "
+                    "piece whenever a request waits; that world's own edits, reads and frames wait for its end. "
+                    "exact, conservative and the Euclidean transform run whole (bounded by "
+                    "max_recompute_voxel_visits).")
     max_worlds: int = Field(64, ge=1, description="Most worlds that may live in the server at once (413 above it).")
     max_read_voxels: int = Field(
         1 << 27, ge=1, description="Largest box one field or voxel read may cover, in voxels (413 above it).")

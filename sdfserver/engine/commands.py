@@ -40,9 +40,8 @@ class EngineLimits:
     # is refused (recompute_cost.py); None: no limit
     max_recompute_voxel_visits: int | None = None
     busy_step_ms: float = 20.0  # /readyz and /metrics show a step running longer than this
-    # a recompute that can pause and would run longer runs in pieces of about this long, other
-    # worlds served between them (long_recomputes.py)
-    step_budget_ms: float = 20.0
+    # how long a step may run recomputes in pieces (long_recomputes.py), other worlds served between
+    step_budget_ms: float = 8.0
 
 
 @dataclass(frozen=True)

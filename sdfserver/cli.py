@@ -13,7 +13,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     commands = {
         "serve": "sdfserver.api.server",
-        "bench": "sdfserver.bench",
+        "bench": "sdfserver.bench.cli",
         "devices": None,
     }
     if not argv or argv[0] in ("-h", "--help") or argv[0] not in commands:

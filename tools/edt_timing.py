@@ -20,7 +20,7 @@ from sdfserver.world import World, WorldConfig
 
 def fill(world: World, which: str) -> None:
     if which == "bench":
-        from sdfserver.bench import populate
+        from sdfserver.bench.scene import populate
         populate(world, np.random.default_rng(0))
         world.recompute()
     else:

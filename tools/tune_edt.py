@@ -14,7 +14,7 @@ import numpy as np
 
 from sdfserver.algorithms.base import int4
 from sdfserver.algorithms.euclidean import STAGE_AXES, _grid
-from sdfserver.bench import populate
+from sdfserver.bench.scene import populate
 from sdfserver.gpu import GpuContext
 from sdfserver.world import World, WorldConfig
 from edt_timing import scene

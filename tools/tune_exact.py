@@ -17,7 +17,7 @@ import pyopencl as cl
 
 from sdfserver.algorithms import RegionJob
 from sdfserver.algorithms.exact import X_PASS_THREADS, Exact
-from sdfserver.bench import populate
+from sdfserver.bench.scene import populate
 from sdfserver.edits import EditLimits
 from sdfserver.gpu import GpuContext
 from sdfserver.world import World, WorldConfig

@@ -3,7 +3,7 @@
 For each world size, algorithm and focus size: build the starting scene, then
 for ``duration_s`` render frames as fast as possible (each read back to the
 host, as a client would receive it) while a brush edit lands every
-``edit_interval_ms`` — the seeded schedule of ``sdfserver.seedbench.schedule``,
+``edit_interval_ms`` — the seeded schedule of ``sdfserver.bench.schedule``,
 the one the web demo's benchmark mode posts — and the field is recomputed
 before the next frame. Frame time is the wall time from one frame to the next,
 the recompute included when an edit landed (FPS = 1000 / dt_ms, equation
@@ -28,13 +28,13 @@ from typing import Any
 import numpy as np
 
 from sdfserver.algorithms import ALGORITHMS
-from sdfserver.benchrun import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts
+from sdfserver.bench.run import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts
+from sdfserver.bench.schedule import DEFAULT_SEED, EDIT_INTERVAL_MS, Schedule
 from sdfserver.edits import parse_edits
 from sdfserver.gpu import GpuContext
 from sdfserver.render.camera import Camera
 from sdfserver.render.renderer import Renderer
 from sdfserver.render.scene import demo_scene
-from sdfserver.seedbench.schedule import DEFAULT_SEED, EDIT_INTERVAL_MS, Schedule
 from sdfserver.world import World
 from sdfserver.world_config import CHUNK_SIZES, Focus, WorldConfig
 

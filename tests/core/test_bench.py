@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from sdfserver.bench import main
+from sdfserver.bench.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 

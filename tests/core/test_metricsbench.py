@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from sdfserver.bench import main as bench_main
+from sdfserver.bench.cli import main as bench_main
 
 ROOT = Path(__file__).resolve().parents[2]
 FIELDS = {("manhattan", False), ("manhattan", True), ("euclidean", False), ("euclidean", True)}

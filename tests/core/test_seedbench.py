@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from sdfserver.seedbench.schedule import Schedule
-from sdfserver.seedbench.tables import DISSERTATION, FIGURES, TABLES, figure_file
+from sdfserver.bench.schedule import Schedule
+from sdfserver.bench.seed.tables import DISSERTATION, FIGURES, TABLES, figure_file
 
 ROOT = Path(__file__).resolve().parents[2]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

@@ -3,7 +3,7 @@ import json
 import pytest
 
 from sdfserver.render import bench
-from sdfserver.seedbench.schedule import Schedule
+from sdfserver.bench.schedule import Schedule
 
 
 def test_brushes_follow_the_seed():

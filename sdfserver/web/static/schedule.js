@@ -1,5 +1,5 @@
 // The dissertation's benchmark mode (§3.5): a brush every 200 ms at a random position and size,
-// from a seed. The same generator and draw order as sdfserver/seedbench/schedule.py (a test runs
+// from a seed. The same generator and draw order as sdfserver/bench/schedule.py (a test runs
 // both with node), so the page and `sdfserver bench` make the same schedule from the same seed.
 
 export const EDIT_INTERVAL_MS = 200;

@@ -1,7 +1,9 @@
-"""What `sdfserver bench` and `sdfserver bench render` share: a line on stderr for each step and
-each measurement, so a slow device shows it is working, and results that outlive a stop: every
-measurement is written to the ``--json`` file as it is taken, and Ctrl-C or SIGTERM ends the run
-with the tables of what was measured."""
+"""What every `sdfserver bench` command shares: a line on stderr for each step and each
+measurement, so a slow device shows it is working; results that outlive a stop (every
+measurement is written to the results file as it is taken, and Ctrl-C or SIGTERM ends the run
+with the tables of what was measured); and the commit that was measured, so a figure can name it.
+
+A leaf: it imports nothing of sdfserver, so ``sdfserver.render.bench`` can use it too."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ import contextlib
 import json
 import os
 import signal
+import subprocess
 import sys
 from pathlib import Path
 from typing import Any, Iterator
@@ -18,6 +21,18 @@ INTERRUPTED_EXIT = 130  # as a shell reports a command ended by SIGINT
 
 def progress(message: str) -> None:
     print(f"[bench] {message}", file=sys.stderr, flush=True)
+
+
+def source_commit() -> str | None:
+    """The commit of the checkout this code runs from; None where git or its history is missing
+    (a tree copied to another machine without ``.git``)."""
+    root = Path(__file__).resolve().parents[2]
+    try:
+        done = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
+                              timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return (done.stdout.strip() or None) if done.returncode == 0 else None
 
 
 def _interrupt(signum: int, frame: Any) -> None:
@@ -58,4 +73,4 @@ class Results:
         os.replace(partial, path)
 
 
-__all__ = ["INTERRUPTED_EXIT", "Results", "progress", "sigterm_interrupts"]
+__all__ = ["INTERRUPTED_EXIT", "Results", "progress", "sigterm_interrupts", "source_commit"]

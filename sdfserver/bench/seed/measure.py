@@ -2,7 +2,7 @@
 
 No matplotlib here: the measuring machine need not have it (``figures`` re-plots from the JSON).
 Each measurement is bounded in time (a run's duration, a repetition count), recorded as it ends
-(``benchrun.Results`` rewrites results.json), and a configuration this build cannot make is
+(``run.Results`` rewrites results.json), and a configuration this build cannot make is
 recorded as not available rather than ending the run.
 """
 
@@ -14,15 +14,15 @@ from typing import Any
 
 import numpy as np
 
-from sdfserver.bench import measure_chunk
-from sdfserver.benchrun import Results, progress
+from sdfserver.bench.run import Results, progress
+from sdfserver.bench.schedule import EDIT_INTERVAL_MS
+from sdfserver.bench.seed import images
+from sdfserver.bench.seed.tables import TABLES, table_key
+from sdfserver.bench.timing import measure_chunk
 from sdfserver.errors import DeviceMemoryExceeded, InvalidInput
 from sdfserver.gpu import GpuContext
 from sdfserver.render.bench import NotAvailable, run_one
 from sdfserver.render.renderer import Renderer
-from sdfserver.seedbench import images
-from sdfserver.seedbench.schedule import EDIT_INTERVAL_MS
-from sdfserver.seedbench.tables import TABLES, table_key
 from sdfserver.world_config import padded_algorithms
 
 

@@ -14,38 +14,27 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import subprocess
 import sys
 from datetime import datetime, timezone
 from pathlib import Path
 
 from sdfserver.algorithms import ALGORITHMS
-from sdfserver.benchrun import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts
-from sdfserver.seedbench import measure as measuring
-from sdfserver.seedbench.report import write_report
-from sdfserver.seedbench.schedule import DEFAULT_SEED
+from sdfserver.bench.run import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts, source_commit
+from sdfserver.bench.schedule import DEFAULT_SEED
+from sdfserver.bench.seed import measure as measuring
+from sdfserver.bench.seed.report import write_report
 
 SECTIONS = ("table_4_1", "table_4_2", "table_4_3", "table_4_4", "table_4_5", "table_4_6",
             "figure_4_3", "figure_4_5", "figure_4_6", "focus_sweep", "figure_4_9")
-
-
-def _commit() -> str:
-    root = Path(__file__).resolve().parents[2]
-    try:
-        done = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, timeout=10)
-    except (OSError, subprocess.TimeoutExpired):
-        return "unknown (git not run)"
-    return done.stdout.strip() or "unknown (not a git checkout)"
 
 
 def finish(data: dict, out_dir: Path, plots: bool) -> None:
     """Plots (if matplotlib is here and wanted) and report.md from the results so far."""
     if plots:
         try:
-            from sdfserver.seedbench.figures import plot_all
+            from sdfserver.bench.seed.figures import plot_all
         except ImportError as exc:  # the package itself imports; matplotlib is checked below
-            raise SystemExit(f"sdfserver.seedbench.figures: {exc}") from exc
+            raise SystemExit(f"sdfserver.bench.seed.figures: {exc}") from exc
         try:
             import matplotlib  # noqa: F401
         except ImportError:
@@ -89,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     command = "sdfserver bench seed " + " ".join(sys.argv[1:] if argv is None else argv)
     results = Results({"meta": {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                                "host": platform.node(), "commit": _commit(), "command": command,
+                                "host": platform.node(), "commit": source_commit() or "unknown (not a git checkout)", "command": command,
                                 "quick": args.quick, "seed": args.seed, "borders": args.borders,
                                 "device": "(not opened)", "algorithms": sorted(ALGORITHMS)}},
                       str(out_dir / "results.json"))

@@ -15,12 +15,12 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw
 
-from sdfserver.bench import compare
+from sdfserver.bench.reference import compare
+from sdfserver.bench.schedule import Schedule
+from sdfserver.bench.seed.tables import figure_file
 from sdfserver.edits import parse_edits
 from sdfserver.render.bench import orbit, world_config
 from sdfserver.render.scene import demo_scene
-from sdfserver.seedbench.schedule import Schedule
-from sdfserver.seedbench.tables import figure_file
 from sdfserver.world import World
 
 HEADER_PX = 18

@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from sdfserver.seedbench.tables import DISSERTATION, FIGURE_CLAIMS, FIGURES, TABLES, figure_file, pick, table_key
+from sdfserver.bench.seed.tables import DISSERTATION, FIGURE_CLAIMS, FIGURES, TABLES, figure_file, pick, table_key
 
 DISSERTATION_DEVICE = "NVIDIA GeForce RTX 3070 Laptop GPU, Vulkan (Fedor 2025, §3.6)"
 NOT_AVAILABLE = "not available"

@@ -21,17 +21,18 @@ takes hours: --quick is the smoke run.
 from __future__ import annotations
 
 import argparse
-import math
 import platform
 import sys
 import time
 from datetime import datetime, timezone
 
 import numpy as np
-from scipy import stats
 
 from sdfserver.algorithms import ALGORITHMS
-from sdfserver.benchrun import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts
+from sdfserver.bench.reference import compare, scipy_distances
+from sdfserver.bench.run import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts, source_commit
+from sdfserver.bench.scene import populate
+from sdfserver.bench.timing import cupy_event_ms, measure_chunk, summarize, time_full
 from sdfserver.edits import EditLimits, SphereEdit
 from sdfserver.errors import DeviceMemoryExceeded
 from sdfserver.gpu import GpuContext
@@ -43,79 +44,6 @@ SECTIONS = ["chunks", "worlds", "update", "anchors"]
 # Brute force is O(n^6) on one chunk: beyond these sizes a single run takes minutes.
 BRUTE_MAX_CHUNK = 64
 BRUTE_MAX_WORLD = 64
-
-
-def summarize(samples_ms: list[float]) -> dict:
-    a = np.asarray(samples_ms, dtype=np.float64)
-    n = len(a)
-    mean = float(a.mean())
-    std = float(a.std(ddof=1)) if n > 1 else 0.0
-    half = float(stats.t.ppf(0.975, n - 1) * std / math.sqrt(n)) if n > 1 else 0.0
-    return {"n": n, "mean_ms": mean, "std_ms": std, "ci95_ms": [mean - half, mean + half],
-            "median_ms": float(np.median(a)), "min_ms": float(a.min())}
-
-
-def cupy_event_ms(call, reps: int) -> list[float]:
-    """``reps`` timings of ``call()`` on the GPU by CuPy events (after one warm-up call), in ms."""
-    import cupy
-
-    call()
-    times = []
-    for _ in range(reps):
-        start, end = cupy.cuda.Event(), cupy.cuda.Event()
-        start.record()
-        call()
-        end.record()
-        end.synchronize()
-        times.append(cupy.cuda.get_elapsed_time(start, end))
-    return times
-
-
-def random_brushes(rng: np.random.Generator, size, count: int, max_radius: float) -> list[SphereEdit]:
-    """The dissertation's benchmark mode: brushes at random places and sizes, most placing, some erasing."""
-    centers = rng.uniform(0, 1, (count, 3)) * np.asarray(size)
-    radii = rng.uniform(1, max(1.5, max_radius), count)
-    colours = np.where(rng.random(count) < 0.8, rng.integers(1, 256, count), 0)
-    return [SphereEdit(tuple(map(float, c)), float(r), int(k)) for c, r, k in zip(centers, radii, colours)]
-
-
-def populate(world: World, rng: np.random.Generator, brushes_per_chunk: float = 0.5) -> None:
-    size = world.config.size
-    chunks = int(np.prod(world.config.chunks))
-    count = max(4, int(chunks * brushes_per_chunk))
-    brushes = random_brushes(rng, size, count, world.config.chunk_size / 2)
-    step = world.limits.max_ops_per_batch
-    for i in range(0, len(brushes), step):
-        world.apply_edits(brushes[i:i + step])
-
-
-def time_full(world: World, reps: int, rng: np.random.Generator | None = None):
-    """Device times and iteration counts of `reps` full regenerations, and the last one's launches."""
-    times, iterations, launches = [], [], []
-    world.recompute()  # warm-up: builds the programs
-    for _ in range(reps):
-        if rng is not None:
-            world.apply_edits(random_brushes(rng, world.config.size, 2, world.config.chunk_size / 2))
-        world.mark_all_dirty()
-        result = world.recompute()
-        times.append(result.device_ms)
-        iterations.append(result.iterations)
-        launches = result.kernel_ms
-    return times, iterations, launches
-
-
-def measure_chunk(gpu, algorithm: str, cs: int, reps: int, rng: np.random.Generator, max_distance: int = 255,
-                  limits: EditLimits = EditLimits(max_ops_per_batch=4096)) -> dict:
-    """One world of one chunk: full regenerations after random brush edits (the dissertation's
-    Tables 4.2, 4.4, 4.5, 4.6). Brute force above 32^3 takes a tenth of the repetitions."""
-    world = World(gpu, WorldConfig((cs, cs, cs), cs, max_distance, algorithm), limits)
-    try:
-        populate(world, rng, brushes_per_chunk=4)
-        reps = reps if algorithm != "brute" or cs <= 32 else max(2, reps // 10)
-        times, iters, _ = time_full(world, reps, rng)
-    finally:
-        world.release()
-    return {"algorithm": algorithm, "chunk_size": cs, **summarize(times), "iterations_mean": float(np.mean(iters))}
 
 
 def bench_chunks(gpu, args, rng, results: Results) -> None:
@@ -167,27 +95,6 @@ def bench_worlds(gpu, args, rng, results: Results) -> None:
                 world.release()
 
 
-def scipy_distances(voxels: np.ndarray, metric: str, signed: bool, cap: int) -> np.ndarray:
-    """scipy's capped transform of ``voxels`` as a world of ``metric`` and ``signed`` reads it
-    (``World.read_distance``): distances in voxels, float64; in a signed world the solids' are
-    minus their distance to air, the world's outside counting as air."""
-    from scipy.ndimage import distance_transform_cdt, distance_transform_edt
-
-    def transform(mask: np.ndarray) -> np.ndarray:  # distance of each True to the nearest False
-        if mask.all():
-            return np.full(mask.shape, float(cap))
-        d = distance_transform_edt(mask) if metric == "euclidean" else distance_transform_cdt(mask, metric="taxicab")
-        d = np.minimum(d, cap)
-        return d.astype(np.float32).astype(np.float64) if metric == "euclidean" else d.astype(np.float64)
-
-    solid = voxels != 0
-    out = transform(~solid)
-    if signed and solid.any():  # the world's outside counts as air
-        inside = transform(np.pad(solid, 1, constant_values=False))[1:-1, 1:-1, 1:-1]
-        out[solid] = -inside[solid]
-    return out
-
-
 def reference_field(world: World, n: int, args) -> tuple[np.ndarray, str] | None:
     """What the algorithms are measured against: scipy's capped taxicab transform of the world's
     voxels up to --scipy-max-world, above it `exact`'s field (None until `exact` has run)."""
@@ -196,13 +103,6 @@ def reference_field(world: World, n: int, args) -> tuple[np.ndarray, str] | None
     if world.config.algorithm == "exact" and world.config.borders == "exact":
         return world.read_distance(), "exact"
     return None
-
-
-def compare(algorithm: str, n: int, field: np.ndarray, reference: np.ndarray) -> dict:
-    error = field.astype(np.int32) - reference.astype(np.int32)
-    return {"algorithm": algorithm, "world_size": n, "exact_share": float((error == 0).mean()),
-            "max_error": int(np.abs(error).max()), "mean_error": float(np.abs(error).mean()),
-            "underestimates": int((error < 0).sum())}
 
 
 def bench_update(gpu, args, rng, results: Results) -> None:
@@ -350,23 +250,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     return args
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["render"]:  # the dissertation's benchmark mode (§3.5): edits while rendering
-        from sdfserver.render.bench import main as render_main
-
-        return render_main(argv[1:])
-    if argv[:1] == ["seed"]:  # the dissertation's chapter 4, every table and figure
-        from sdfserver.seedbench.cli import main as seed_main
-
-        return seed_main(argv[1:])
-    if argv[:1] == ["metrics"]:  # Manhattan and Euclidean, unsigned and signed
-        from sdfserver.metricsbench import main as metrics_main
-
-        return metrics_main(argv[1:])
+def main(argv: list[str]) -> int:
     args = parse_args(argv)
     results = Results({"date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                       "host": platform.node(), "argv": sys.argv, "seed": args.seed}, args.json)
+                       "host": platform.node(), "commit": source_commit(), "argv": sys.argv, "seed": args.seed},
+                      args.json)
     status = 0
     with sigterm_interrupts():
         try:

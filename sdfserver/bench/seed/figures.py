@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from sdfserver.seedbench.tables import figure_file, pick
+from sdfserver.bench.seed.tables import figure_file, pick
 
 DPI = 90
 

@@ -22,7 +22,6 @@ was measured (exit status 130). --quick is a CPU smoke run of seconds.
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import time
 from datetime import datetime, timezone
@@ -30,28 +29,21 @@ from pathlib import Path
 
 import numpy as np
 
-from sdfserver.bench import cupy_event_ms, populate, scipy_distances, summarize
-from sdfserver.benchrun import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts
+from sdfserver.bench.reference import scipy_distances
+from sdfserver.bench.run import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts, source_commit
+from sdfserver.bench.scene import populate
+from sdfserver.bench.timing import cupy_event_ms, summarize
 from sdfserver.edits import EditLimits, SphereEdit
 from sdfserver.errors import DeviceMemoryExceeded
 from sdfserver.gpu import GpuContext
 from sdfserver.world import World, WorldConfig
 
-ROOT = Path(__file__).resolve().parents[1]
 LIMITS = EditLimits(max_ops_per_batch=4096)
 BRUSH_RADIUS_VOX = 8.0
 
 
 def label(metric: str, signed: bool) -> str:
     return metric + (" signed" if signed else "")
-
-
-def git_commit() -> str | None:
-    try:
-        done = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, timeout=10)
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return (done.stdout.strip() or None) if done.returncode == 0 else None
 
 
 def measure_full(world: World, args, row: dict, results: Results) -> float | None:
@@ -264,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    results = Results({"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "commit": git_commit(),
+    results = Results({"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "commit": source_commit(),
                        "argv": ["sdfserver", "bench", "metrics", *argv], "seed": args.seed,
                        "chunk_size": args.chunk_size, "max_distance": args.max_distance, "reps": args.reps,
                        "notes": []},

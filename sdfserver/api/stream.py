@@ -13,7 +13,9 @@ Every frame is a msgpack map with a ``type``. Client to server:
   the new one.
 - ``{type: "unsubscribe", id?}`` -> ``{type: "unsubscribed", id}``
 - ``{type: "ping", id?}`` -> ``{type: "pong", id}``
-- ``{type: "camera", ...}`` -> ``{type: "frame", ...}`` pushes (see api/render_routes.py)
+- ``{type: "camera", ...}`` -> ``{type: "frame", ...}`` pushes (see api/render_routes.py); with a
+  video format a ``{type: "video", ...}`` message starts each video stream (docs/api.md)
+- ``{type: "keyframe", id?}`` -> the next video chunk is a keyframe (a decoder that lost its place)
 
 Server to client, besides the answers: ``{type: "chunks", world, version,
 chunk_size, format, chunks: [{chunk: [cx, cy, cz], origin: [x, y, z], data:
@@ -158,9 +160,11 @@ class StreamSession:
             await self.send({"type": "pong", "id": frame_id})
         elif kind == "camera":
             self.frames.set_view(frame)
+        elif kind == "keyframe":
+            self.frames.request_keyframe()
         else:
-            raise InvalidInput(f"unknown frame type {kind!r}; expected edits, subscribe, unsubscribe, ping "
-                               f"or camera")
+            raise InvalidInput(f"unknown frame type {kind!r}; expected edits, subscribe, unsubscribe, ping, "
+                               f"camera or keyframe")
 
     async def _subscribe(self, frame: dict[str, Any]) -> None:
         fmt = frame.get("format", "distance")

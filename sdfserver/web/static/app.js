@@ -9,6 +9,7 @@ import { encode, decode } from "./msgpack.js";
 import { demoScene } from "./scene.js";
 import { Benchmark } from "./benchmode.js";
 import { nearestValue, rgbHex, selectSwatch, showSwatches, worldPalette } from "./palette.js";
+import { VIDEO_FORMATS, VideoPlayer, canDecode } from "./video.js";
 
 const ALGORITHMS = ["exact", "brute", "fim", "jfa", "jfa_fim"];
 const $ = (id) => document.getElementById(id);
@@ -254,6 +255,7 @@ function connect(worldId) {
   ws.onmessage = (event) => {
     const msg = typeof event.data === "string" ? JSON.parse(event.data) : decode(event.data);
     if (msg.type === "frame") onFrame(msg);
+    else if (msg.type === "video") video.start(msg);
     else if (msg.type === "error" && msg.error?.code === "not_ready") waitForServer();
     else if (msg.type === "error") showStatus(`Server: ${msg.message ?? msg.error?.message ?? "error"}`, true);
   };
@@ -283,7 +285,7 @@ function viewMessage() {
   const message = {
     type: "camera", position: cam.position, yaw_deg: cam.yaw, pitch_deg: cam.pitch, fov_y_deg: cam.fov,
     width, height, max_fps: Math.max(1, Math.min(240, Number($("max-fps").value) || 60)),
-    format: "jpeg", quality: 82,
+    format: frameFormat, ...(VIDEO_FORMATS.includes(frameFormat) ? {} : { quality: 82 }),
     ambient_occlusion: $("ao").checked, shadows: $("shadows").checked,
     highlight_radius: brush.size,
   };
@@ -299,18 +301,48 @@ function sendView(now) {
   lastSent = now;
 }
 
-// Decode one frame at a time; a frame arriving meanwhile replaces any waiting one.
+// Frames come as video (H.264 where WebCodecs decodes it; ?frames=jpeg|h264|vp9|av1 or the View
+// panel chooses) or as JPEG pictures. Pictures: one decoded at a time, a frame arriving meanwhile
+// replaces any waiting one. Video: every chunk decoded, in order (video.js).
+let frameFormat = "jpeg";
+const video = new VideoPlayer((frame) => ctx.drawImage(frame, 0, 0, canvas.width, canvas.height), () => {
+  if (socket && socket.readyState === WebSocket.OPEN) socket.send(encode({ type: "keyframe" }));
+});
+demo.video = video.stats;
 let decoding = false, waiting = null;
-const frameTimes = [];
+const frameTimes = [], frameBytes = [];
+
+async function chooseFrameFormat() {
+  const asked = new URLSearchParams(location.search).get("frames");
+  const choices = asked ? [asked] : ["h264", "jpeg"];
+  for (const choice of choices) {
+    if (choice === "jpeg" || (VIDEO_FORMATS.includes(choice) && await canDecode(choice))) {
+      setFrameFormat(choice);
+      return;
+    }
+  }
+  setFrameFormat("jpeg");  // asked for a video format this browser cannot decode
+}
+
+function setFrameFormat(format) {
+  frameFormat = format;
+  demo.frameFormat = format;
+  $("frame-format").value = format;
+  if (!VIDEO_FORMATS.includes(format)) video.close();
+  viewDirty = true;
+}
 
 function onFrame(msg) {
   demo.framesReceived++;
   demo.lastVersion = msg.version;
   benchmark.onFrame(msg.version);
-  frameTimes.push(performance.now());
+  const now = performance.now();
+  frameTimes.push(now);
+  frameBytes.push([now, msg.data.byteLength]);
   $("render-ms").textContent = msg.render_ms != null ? msg.render_ms.toFixed(2) : "–";
   $("field-ms").textContent = msg.field_ms != null ? msg.field_ms.toFixed(2) : "–";
-  draw(msg);
+  if (VIDEO_FORMATS.includes(msg.format)) video.decode(msg);
+  else draw(msg);
 }
 
 async function draw(msg) {
@@ -329,8 +361,13 @@ async function draw(msg) {
 
 function updateStats(now) {
   while (frameTimes.length && now - frameTimes[0] > 1000) frameTimes.shift();
+  while (frameBytes.length && now - frameBytes[0][0] > 1000) frameBytes.shift();
   // No frames while neither the view nor the world changes: the server sends none.
   $("fps").textContent = frameTimes.length ? String(frameTimes.length) : "idle ·";
+  demo.bitrateMbps = frameBytes.reduce((sum, [, bytes]) => sum + bytes, 0) * 8 / 1e6;
+  $("mbps").textContent = demo.bitrateMbps.toFixed(2);
+  $("frame-kind").textContent = VIDEO_FORMATS.includes(frameFormat) && video.stats.encoder
+    ? `${frameFormat} · ${video.stats.encoder}` : frameFormat;
   if (demo.world) {
     $("world-line").textContent = `${$("world-select").selectedOptions[0]?.textContent ?? demo.world} · v${demo.lastVersion}`;
   }
@@ -508,6 +545,12 @@ function setupPanel() {
     };
   }
   for (const id of ["ao", "shadows", "resolution", "max-fps"]) $(id).onchange = () => { viewDirty = true; };
+  $("frame-format").onchange = (e) => guarded("Frames", async () => {
+    if (e.target.value !== "jpeg" && !await canDecode(e.target.value)) {
+      flash(`This browser cannot decode ${e.target.value} (WebCodecs); JPEG frames instead.`, 3000);
+      setFrameFormat("jpeg");
+    } else setFrameFormat(e.target.value);
+  });
   $("world-select").onchange = (e) => guarded("Open world", async () => {
     openWorld(await api("GET", `/v1/worlds/${encodeURIComponent(e.target.value)}`));
   });
@@ -556,6 +599,7 @@ async function start() {
   takeKeyFromAddress();
   setupPanel();
   setupKeyForm();
+  await chooseFrameFormat();
   requestAnimationFrame(tick);
   await waitForServer();
   await openStartWorld();

@@ -55,8 +55,15 @@ class Settings(BaseSettings):
                     "processes on this machine (`devices`), no Ray.")
     engines: int = Field(1, ge=1, le=256, description="With `cluster`: engine actors, each asking Ray for "
                                                       "`engine_gpus` GPUs.")
-    engine_gpus: float = Field(1.0, ge=0, le=8, description="With `cluster`: the GPUs each engine actor asks Ray "
-                                                            "for; a fraction shares a GPU (0: CPU devices).")
+    engine_gpus: float | None = Field(
+        None, ge=0, le=8, description="With `cluster`: the GPUs each engine actor asks Ray for; a fraction shares a "
+                                      "GPU, 0 runs the engines on CPU devices. Unset: 1 when the Ray cluster has "
+                                      "GPUs, 0 when it has none.")
+    engine_bind_host: str = Field(
+        "", description="With `cluster`: the address each engine actor listens on. Empty: the one it advertises to "
+                        "the API processes (127.0.0.1 on a local cluster, its node's address otherwise); 0.0.0.0: "
+                        "every interface, for a node reached at an address that is not its own. Whatever the "
+                        "address, every connection must prove it holds the engine's credential.")
     access_log: bool = Field(False, description="Log every HTTP request (costs throughput).")
     switch_interval_ms: float = Field(
         0.1, gt=0, le=100, description="Longest a thread of an engine process keeps Python's GIL while another "

@@ -122,6 +122,7 @@ def main() -> None:
     from sdfserver.api.engine_client import EngineClient
     from sdfserver.cluster.engine_actor import EngineActor, free_ports
     from sdfserver.engine import messages as msg
+    from sdfserver.engine.links import LinkLimits, new_credential
     from sdfserver.settings import Settings
 
     began, load_before = time.perf_counter(), os.getloadavg()  # other work on the machine skews both paths
@@ -139,11 +140,12 @@ def main() -> None:
     try:
         # as sdfserver/cluster/manager.py creates them, less the name and detachment (the actor
         # goes with this driver)
+        credential = new_credential()
         actor = (ray.remote(EngineActor).options(num_gpus=args.engine_gpus, num_cpus=0)
-                 .remote(settings.model_dump_json(), 0, 1, "127.0.0.1", tuple(free_ports(2))))
+                 .remote(settings.model_dump_json(), 0, 1, "127.0.0.1", tuple(free_ports(2)), credential))
         described = ray.get(actor.describe.remote(), timeout=600)
         print(f"engine: {described['device']} (pid {described['pid']}), {described['input']}", file=sys.stderr)
-        client = EngineClient(described["input"], described["output"])
+        client = EngineClient(described["input"], described["output"], credential, LinkLimits.of(settings))
         loop.run_until_complete(client.start())
         rows = measure(args, ray, actor, client, msg, loop)
     finally:

@@ -2,9 +2,12 @@
 
 ``EngineClient`` speaks to an engine process over two stream connections (``frames.py``):
 requests written to one, answers read from the other as the event loop hears them. Each
+connection first proves this process holds the engine's credential, and has the engine prove
+the same (``links.py``): nothing is sent to, or believed from, an engine that has not. Each
 request has an id; its future is completed when the ``Reply`` with that id arrives. A
 subscription's updates go to the callback given at ``subscribe``; the callback keeps them in a
-single-slot mailbox.
+single-slot mailbox. A request past the link's limit fails alone (413) and is not sent; an
+answer frame past it ends the connection, as an engine going away does.
 
 ``LocalEngineClient`` is the same interface on an engine running in this process (tests and
 tools): the same messages, encoded and decoded as on the wire, handed to the same
@@ -14,17 +17,18 @@ tools): the same messages, encoded and decoded as on the wire, handed to the sam
 from __future__ import annotations
 
 import asyncio
+import functools
 import itertools
 import logging
 import os
-import socket
 from typing import Any, Callable
 
 import msgspec
 
-from sdfserver.engine import frames
+from sdfserver.api.engine_links import AnswersLink, RequestsLink, open_link
+from sdfserver.engine import frames, links
 from sdfserver.engine import messages as msg
-from sdfserver.errors import InvalidInput, NotReady
+from sdfserver.errors import InvalidInput, NotReady, TooLarge
 
 log = logging.getLogger("sdfserver")
 ENCODE = msg.REQUEST_ENCODER.encode
@@ -33,7 +37,6 @@ DECODE_OUTPUTS = msg.OUTPUTS_DECODER.decode
 HELLO_TIMEOUT_S = 30.0  # how long an API process starting waits for its engine
 WELCOME_TIMEOUT_S = 5.0
 RECONNECT_S = 0.1
-ANSWER_READ_BYTES = 1 << 18  # what one read of the answers socket takes, outside a large answer
 
 
 class BaseClient:
@@ -41,6 +44,7 @@ class BaseClient:
         self._ids = itertools.count(1)
         self._pending: dict[int, asyncio.Future] = {}
         self._updates: dict[int, Callable[[msg.ChunkUpdate], None]] = {}
+        self._dropped: dict[str, int] = {}  # requests told while the engine was away, by type
         self.lost: str | None = None  # why this engine can no longer answer
 
     def next_id(self) -> int:
@@ -62,12 +66,21 @@ class BaseClient:
 
     def tell(self, request: Any) -> None:
         """Send a request nobody waits for (its id is 0: the engine answers nothing). One told
-        while the engine is not connected is dropped, and logged: what it said (a count, a
-        subscription's credit or its end) died with that engine's state."""
+        while the engine is not connected is dropped: what it said (a count, a subscription's
+        credit or its end) died with that engine's state. The drops are said once, when the
+        engine is back (``_say_dropped``), not once each."""
         try:
             self._send(request)
-        except NotReady as exc:
-            log.info("%s not sent: %s", type(request).__name__, exc)
+        except NotReady:
+            kind = type(request).__name__
+            self._dropped[kind] = self._dropped.get(kind, 0) + 1
+
+    def _say_dropped(self, where: str) -> None:
+        if self._dropped:
+            kinds = ", ".join(f"{kind} {n}" for kind, n in sorted(self._dropped.items()))
+            log.info("the engine at %s is back; %d messages nobody waited for were dropped while it was away (%s)",
+                     where, sum(self._dropped.values()), kinds)
+            self._dropped = {}
 
     def on_updates(self, number: int, deliver: Callable[[msg.ChunkUpdate], None] | None) -> None:
         if deliver is None:
@@ -108,11 +121,18 @@ class EngineClient(BaseClient):
     its input, answers read from its output as they arrive. An engine that goes away (a
     cluster's engine actor restarting) takes the requests it held with it: they fail at once,
     503, rather than wait for answers that cannot come; the client reconnects, trying every
-    ``RECONNECT_S``, and meanwhile a request fails at once with the same 503."""
+    ``RECONNECT_S``, and meanwhile a request fails at once with the same 503.
 
-    def __init__(self, input_address: str, output_address: str):
+    ``credential``: the engine's (``EngineAddress.credential``; None for a Unix socket).
+    ``limits``: the server's ``LinkLimits``; None takes those of the default settings (tools
+    and tests)."""
+
+    def __init__(self, input_address: str, output_address: str, credential: bytes | None = None,
+                 limits: links.LinkLimits | None = None):
         super().__init__()
         self.input_address, self.output_address = input_address, output_address
+        self.credential = credential
+        self.limits = limits if limits is not None else default_limits()
         self.identity = f"api-{os.getpid()}-{id(self):x}".encode()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._requests: asyncio.Transport | None = None
@@ -121,6 +141,7 @@ class EngineClient(BaseClient):
         self._connecting: asyncio.Task | None = None
         self._stopped = False
         self._outbox: list[bytes] | None = None  # this turn's requests, written as it ends
+        self._refused_by: str | None = None  # why the engine was last not believed (said once)
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
@@ -153,26 +174,40 @@ class EngineClient(BaseClient):
         self._generation += 1
         generation = self._generation
         welcomed = self._loop.create_future()
+        requests_proven = self._loop.create_future()
         answers = requests = None
         try:
-            answers, _ = await _open_connection(self._loop, self.output_address,
-                                                lambda: _Answers(self, generation, welcomed))
-            answers.write(frames.frame(self.identity))
-            requests, _ = await _open_connection(self._loop, self.input_address,
-                                                 lambda: _Requests(self, generation))
-            requests.write(frames.frame(self.identity))
-            await asyncio.wait_for(asyncio.shield(welcomed), WELCOME_TIMEOUT_S)
-        except (OSError, asyncio.TimeoutError) as exc:
-            welcomed.cancel()  # a welcome or a close that comes later is nobody's news
+            answers, _ = await open_link(self._loop, self.output_address, lambda: AnswersLink(
+                self, generation, links.ApiSide(self.credential, links.ANSWERS, self.identity), welcomed))
+            requests, _ = await open_link(self._loop, self.input_address, lambda: RequestsLink(
+                self, generation, links.ApiSide(self.credential, links.REQUESTS, self.identity), requests_proven))
+            done, _ = await asyncio.wait((requests_proven, welcomed), timeout=WELCOME_TIMEOUT_S,
+                                         return_when=asyncio.FIRST_EXCEPTION)
+            for future in done:
+                if future.exception() is not None:
+                    raise future.exception()
+            if len(done) < 2:
+                raise asyncio.TimeoutError()
+        except (OSError, asyncio.TimeoutError, links.LinkRefused) as exc:
+            for future in (welcomed, requests_proven):  # a welcome or a close that comes later is nobody's news
+                if future.done() and not future.cancelled():
+                    future.exception()
+                future.cancel()
             for transport in (answers, requests):
                 if transport is not None:
                     transport.abort()
+            if isinstance(exc, links.LinkRefused) and str(exc) != self._refused_by:
+                log.error("the engine at %s is not believed, and is tried again until it is: %s",
+                          self.output_address, exc)
+                self._refused_by = str(exc)
             raise ConnectionError(f"no welcome from the engine at {self.output_address}") from exc
+        self._refused_by = None
         if generation != self._generation:  # relocated meanwhile: these go to the old address
             answers.abort()
             requests.abort()
             raise ConnectionError(f"the engine moved away from {self.output_address}")
         self._answers, self._requests = answers, requests
+        self._say_dropped(self.output_address)
 
     def _reconnect(self) -> None:
         if not self._stopped and (self._connecting is None or self._connecting.done()):
@@ -202,7 +237,10 @@ class EngineClient(BaseClient):
         with, and waiting for the turn's end would only delay it."""
         if self._requests is None:
             raise NotReady(f"the engine at {self.input_address} is not connected (restarting?); retry the request")
-        data = frames.encode_frame(ENCODE_INTO, request)
+        try:
+            data = frames.encode_frame(ENCODE_INTO, request, self.limits.request_bytes)
+        except frames.FrameTooLarge as exc:  # the engine would close the link: this request fails alone
+            raise TooLarge(f"{type(request).__name__}: {exc} (sdfserver/engine/links.py)") from None
         if self._outbox is None and len(self._pending) <= 1:
             self._requests.write(data)
         elif self._outbox is None:
@@ -228,50 +266,12 @@ class EngineClient(BaseClient):
             log.exception("delivering engine outputs failed")
 
 
-class _Answers(asyncio.BufferedProtocol):
-    """The engine's answers, frame by frame; the first (an empty batch) is its welcome. The
-    event loop reads into this protocol's buffer, or straight into a large answer's own
-    (``FrameReader.space``): a megabyte answer in a read or two, copied once."""
+@functools.cache
+def default_limits() -> links.LinkLimits:
+    """The link limits of the default settings, environment ignored (tools and tests)."""
+    from sdfserver.settings import Settings
 
-    def __init__(self, client: EngineClient, generation: int, welcomed: asyncio.Future):
-        self.client, self.generation, self.welcomed = client, generation, welcomed
-        self.reader = frames.FrameReader()
-        self.buffer = memoryview(bytearray(ANSWER_READ_BYTES))
-        self.into_frame = False  # the last buffer given was a large frame's
-
-    def get_buffer(self, sizehint: int) -> memoryview:
-        space = self.reader.space()
-        self.into_frame = space is not None
-        return self.buffer if space is None else space
-
-    def buffer_updated(self, nbytes: int) -> None:
-        payloads = self.reader.filled(nbytes) if self.into_frame else self.reader.feed(self.buffer[:nbytes])
-        for payload in payloads:
-            if not self.welcomed.done():
-                self.welcomed.set_result(None)
-            self.client._arrived(payload)
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        if not self.welcomed.done():
-            self.welcomed.set_exception(ConnectionError("the engine closed the connection"))
-        self.client._went_away(self.generation)
-
-
-class _Requests(asyncio.Protocol):
-    def __init__(self, client: EngineClient, generation: int):
-        self.client, self.generation = client, generation
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        self.client._went_away(self.generation)
-
-
-async def _open_connection(loop: asyncio.AbstractEventLoop, address: str, protocol: Callable[[], asyncio.Protocol]):
-    family, target = frames.family_and_target(address)
-    if family == socket.AF_UNIX:
-        transport, made = await loop.create_unix_connection(protocol, target)
-        frames.prepare(transport.get_extra_info("socket"))
-        return transport, made
-    return await loop.create_connection(protocol, *target)  # TCP_NODELAY: asyncio's and uvloop's default
+    return links.LinkLimits.of(Settings.model_construct())
 
 
 class LocalEngineClient(BaseClient):

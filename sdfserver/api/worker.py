@@ -16,6 +16,7 @@ from sdfserver.api.counts import SharedCounts
 from sdfserver.api.engine_client import EngineClient
 from sdfserver.api.hot import HotRoutes
 from sdfserver.api.port import Listener
+from sdfserver.engine.links import LinkLimits
 from sdfserver.engine.proc import EngineAddress, die_with_parent
 from sdfserver.errors import NotReady
 from sdfserver.settings import Settings, worker_count
@@ -70,7 +71,8 @@ def worker_main(settings: Settings, sock: socket.socket, engines: Sequence[Engin
     ``counts``: this process's row of the API processes' shared connection counts."""
     counts = counts if counts is not None else SharedCounts()
     die_with_parent()
-    clients = [EngineClient(e.input, e.output) for e in engines]
+    limits = LinkLimits.of(settings)
+    clients = [EngineClient(e.input, e.output, e.credential, limits) for e in engines]
     app = create_app(settings, clients=clients, freeze_gc=True, addresses_file=addresses_file, counts=counts)
     config = uvicorn.Config(HotRoutes(app), log_config=log_config, log_level=settings.log_level,
                             access_log=settings.access_log, timeout_graceful_shutdown=GRACEFUL_STOP_S, lifespan="on",

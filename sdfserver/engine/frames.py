@@ -3,16 +3,21 @@ stream back into frames.
 
 An engine listens at two addresses (``ipc:///path``: a Unix socket on this machine;
 ``tcp://host:port``: TCP, for engines on other machines). Every message is one frame: a 4-byte
-little-endian length, then that many bytes (a msgspec-encoded message). The first frame on a
-connection is the connecting API process's identity. A plain stream socket is one thread wake
-per hop where a ZeroMQ socket is three (its I/O thread on each side, then the reader), and that
-hop sits twice in every request.
+little-endian length, then that many bytes (a msgspec-encoded message). The first frames on a
+connection are the connecting API process's proof and identity (``links.py``). A plain
+stream socket is one thread wake per hop where a ZeroMQ socket is three (its I/O thread on each
+side, then the reader), and that hop sits twice in every request.
+
+A reader takes frames up to a limit its owner sets (``links.LinkLimits``): a header announcing
+more ends the connection before a byte of buffer is set aside for it, so a peer cannot make
+either end hold memory for a frame it never sends.
 """
 
 from __future__ import annotations
 
 import os
 import socket
+import stat
 from typing import Any, Callable
 from urllib.parse import urlsplit
 
@@ -24,20 +29,27 @@ MAX_FRAME = 2**32 - 1
 UNIX_SEND_BUFFER = 4 << 20
 
 
+class FrameTooLarge(ValueError):
+    """A frame past a link's limit: announced by a header (the connection must end) or about to
+    be sent."""
+
+
 def frame(payload: bytes) -> bytes:
     if len(payload) > MAX_FRAME:
-        raise OverflowError(f"a message of {len(payload)} bytes passes the {MAX_FRAME}-byte frame limit")
+        raise FrameTooLarge(f"a message of {len(payload)} bytes passes the {MAX_FRAME}-byte frame limit")
     return len(payload).to_bytes(HEADER, "little") + payload
 
 
-def encode_frame(encode_into: Callable[[Any, bytearray, int], None], message: Any) -> bytearray:
+def encode_frame(encode_into: Callable[[Any, bytearray, int], None], message: Any,
+                 limit: int = MAX_FRAME) -> bytearray:
     """``message`` encoded straight after its frame's header (``encode_into``: a msgspec
-    encoder's): a megabyte message is copied once, not again to put the header before it."""
+    encoder's): a megabyte message is copied once, not again to put the header before it.
+    FrameTooLarge when it passes ``limit`` bytes (at most MAX_FRAME)."""
     data = bytearray(HEADER)
     encode_into(message, data, HEADER)
     size = len(data) - HEADER
-    if size > MAX_FRAME:
-        raise OverflowError(f"a message of {size} bytes passes the {MAX_FRAME}-byte frame limit")
+    if size > min(limit, MAX_FRAME):
+        raise FrameTooLarge(f"a message of {size} bytes passes the link's limit of {min(limit, MAX_FRAME)} bytes")
     data[:HEADER] = size.to_bytes(HEADER, "little")
     return data
 
@@ -51,8 +63,20 @@ def family_and_target(address: str) -> tuple[int, str | tuple[str, int]]:
     raise ValueError(f"an engine address is ipc:///path or tcp://host:port, got {address!r}")
 
 
+def check_private(directory: str) -> None:
+    """A Unix socket's connections prove nothing (``links.py``): only its directory's permissions
+    keep other users out, so the directory must be this user's and closed to everyone else."""
+    info = os.stat(directory)
+    if info.st_uid != os.getuid() or info.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise PermissionError(f"an engine's Unix socket must live in a directory only this user can open "
+                              f"(mode 0700, owned by uid {os.getuid()}); {directory} has mode "
+                              f"{stat.S_IMODE(info.st_mode):04o} and owner {info.st_uid}")
+
+
 def listen(address: str) -> socket.socket:
     family, target = family_and_target(address)
+    if family == socket.AF_UNIX:
+        check_private(os.path.dirname(target) or ".")
     sock = socket.socket(family, socket.SOCK_STREAM)
     if family == socket.AF_UNIX:
         try:
@@ -79,11 +103,17 @@ class FrameReader:
     """Bytes in, whole frames out, in order; a large frame is gathered in one buffer of its
     size rather than by growing and cutting one. While one is, ``space()`` is the rest of that
     buffer, for a socket to read into directly (``filled`` then says how much it read): the
-    frame's bytes are not copied again and come in reads of any size, not the caller's buffer's."""
+    frame's bytes are not copied again and come in reads of any size, not the caller's buffer's.
 
-    __slots__ = ("_buffer", "_large", "_filled")
+    ``limit`` is the largest frame taken: ``feed`` raises FrameTooLarge for a header announcing
+    more, before anything is allocated for it. Its owner may change it between frames (a link
+    that has proven itself may send larger ones). Every link sets its own (``links.py``); the
+    default is only the wire format's bound."""
 
-    def __init__(self) -> None:
+    __slots__ = ("_buffer", "_large", "_filled", "limit")
+
+    def __init__(self, limit: int = MAX_FRAME) -> None:
+        self.limit = limit
         self._buffer = bytearray()
         self._large: bytearray | None = None  # a frame larger than what has come, being filled
         self._filled = 0
@@ -100,7 +130,9 @@ class FrameReader:
         frame, self._large = self._large, None
         return [frame]
 
-    def feed(self, data: bytes) -> list[bytes | bytearray]:
+    def feed(self, data: bytes, most: int | None = None) -> list[bytes | bytearray]:
+        """The frames ``data`` completes; with ``most``, no more than that many, the rest kept
+        for the next call (its limit may have changed by then)."""
         frames: list[bytes | bytearray] = []
         view = memoryview(data)
         if self._large is not None:
@@ -115,8 +147,10 @@ class FrameReader:
         buffer = self._buffer
         buffer += view
         start = 0
-        while len(buffer) - start >= HEADER:
+        while len(buffer) - start >= HEADER and (most is None or len(frames) < most):
             size = int.from_bytes(buffer[start:start + HEADER], "little")
+            if size > self.limit:
+                raise FrameTooLarge(f"a frame of {size} bytes was announced; this link takes at most {self.limit}")
             end = start + HEADER + size
             if end <= len(buffer):
                 frames.append(bytes(buffer[start + HEADER:end]))

@@ -19,13 +19,14 @@ import logging
 import signal
 import sys
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from sdfserver.engine.access import Doorkeeper, RateLimiter
 from sdfserver.engine.commands import EngineLimits
 from sdfserver.engine.core import Engine
+from sdfserver.engine.links import LinkLimits
 from sdfserver.engine.metrics import EngineMetrics
 from sdfserver.engine.service import EngineService
 from sdfserver.engine.transport import EngineTransport
@@ -39,12 +40,15 @@ DEVICE_ADVICE = "`sdfserver devices` lists the usable OpenCL devices and --devic
 @dataclass(frozen=True)
 class EngineAddress:
     """Where one engine listens (``ipc:///path`` or ``tcp://host:port``): API processes send
-    requests to ``input`` and take answers from ``output``."""
+    requests to ``input`` and take answers from ``output``. ``credential``: the secret every
+    connection to it proves it holds (``links.py``; required on TCP), None on Unix sockets,
+    whose directory only the server's user can open."""
 
     index: int
     device: str  # the device spec this engine runs on ("" chooses)
     input: str
     output: str
+    credential: bytes | None = field(default=None, repr=False)  # never printed
 
 
 def engine_limits(settings: Settings) -> EngineLimits:
@@ -150,7 +154,8 @@ def serve_engine(settings: Settings, address: EngineAddress, engines: int, conn:
 
         transport = EngineTransport(lambda send: EngineService(
             engine, doorkeeper, send, writes_failure=writes_failure, data_dir_of=peer_dir if engines > 1 else None,
-            epoch=journal.storage.epoch if journal is not None else 0), address)
+            epoch=journal.storage.epoch if journal is not None else 0), address, LinkLimits.of(settings),
+            registry=engine.metrics.registry)
         engine.answering = transport.holding
         if journal is not None:
             journal.storage.committer.completing = transport.holding

@@ -1,20 +1,26 @@
 """The input and output threads of one engine process, on stream sockets (``frames.py``).
 
-- The input thread accepts API processes' request connections and reads them: each one's first
-  frame is its identity, every later frame a request, handed to ``EngineService.handle`` in
-  the order it came.
-- The output thread accepts their answer connections (the first frame, again, the identity;
-  the engine welcomes it with an empty batch) and sends what the engine answered, from one
-  queue: all that waited for one API process leaves as one ``Outputs`` frame. Sockets are
-  non-blocking: what an API process does not take at once waits in its backlog while the
-  others are served.
+- The input thread accepts API processes' request connections and reads them: each one first
+  proves it holds the engine's credential and says its identity (``links.py``), and every later
+  frame is a request, handed to ``EngineService.handle`` in the order it came. Nothing a
+  connection sends is decoded before it has proven itself, so the ``Access`` a request carries
+  is only ever believed from an API process of this server.
+- The output thread accepts their answer connections (proof and identity again; the engine then
+  welcomes it with an empty batch) and sends what the engine answered, from one queue: all that
+  waited for one API process leaves as one ``Outputs`` frame, cut in several where it would pass
+  the link's limit. Sockets are non-blocking: what an API process does not take at once waits in
+  its backlog while the others are served.
+
+A connection that does not prove itself within ``links.PROOF_TIMEOUT_S``, fails its proof or
+announces a frame past the link's limit is closed at once, counted in
+``sdfserver_engine_links_refused_total`` and logged.
 
 A thread that completes several answers at once (the engine thread ending a step, the log's
 committer acknowledging a sync's batches) does it inside ``holding()``: its answers leave together
 as the block ends, from that thread itself when the output thread is idle and they are small
-(``DIRECT_SEND_BYTES``). The output thread, woken, would first wait for the GIL that the engine
-thread holds while it recomputes; the answering thread holds it already. Whoever sends holds
-``_sending``, so answers leave in the order they were queued.
+(``answer_frames.DIRECT_SEND_BYTES``). The output thread, woken, would first wait for the GIL that
+the engine thread holds while it recomputes; the answering thread holds it already. Whoever sends
+holds ``_sending``, so answers leave in the order they were queued.
 
 Answers for an API process that is not connected wait ``UNREACHABLE_GRACE_S`` (a restarted
 engine's API processes reconnecting); after that its subscriptions are dropped.
@@ -33,39 +39,34 @@ import time
 from typing import Any, Iterator
 
 import msgspec
+from prometheus_client import CollectorRegistry
 
-from sdfserver.engine import frames
+from sdfserver.engine import frames, links
 from sdfserver.engine import messages as msg
+from sdfserver.engine.answer_frames import framed, small
+from sdfserver.engine.gate import LinkGate, Peer
 from sdfserver.engine.service import EngineService, SubscriptionNews
 
 log = logging.getLogger("sdfserver.engine")
 IDLE_POLL_S = 0.05  # how often an idle thread looks at whether the transport is stopping
 UNREACHABLE_GRACE_S = 10.0  # how long answers wait for an API process that is not connected
 READ_BUFFER = 1 << 20
-# Answers up to this many bytes leave from the thread that completes them (holding()); larger
-# ones (whole fields, frames) go to the output thread: copying them into a socket would hold up
-# the engine thread's next step.
-DIRECT_SEND_BYTES = 1 << 16
-WELCOME = frames.frame(msg.REQUEST_ENCODER.encode(msg.Outputs([])))
-
-
-class Peer:
-    """One API process's connection, as one thread of the transport sees it."""
-
-    __slots__ = ("sock", "reader", "identity", "backlog")
-
-    def __init__(self, sock: socket.socket):
-        self.sock = sock
-        self.reader = frames.FrameReader()
-        self.identity: bytes | None = None  # its first frame
-        self.backlog = bytearray()  # answers the socket has not taken yet (output side)
+WELCOME = frames.frame(links.WELCOME)
 
 
 class EngineTransport:
-    def __init__(self, service_of, address: Any):
+    def __init__(self, service_of, address: Any, limits: links.LinkLimits,
+                 registry: CollectorRegistry | None = None):
+        """``address.credential``: what every connection must prove it holds (None: Unix
+        sockets only, which prove nothing). ``registry``: where the refused links are counted
+        (the engine's metrics)."""
+        if address.credential is None and not all(a.startswith("ipc://") for a in (address.input, address.output)):
+            raise ValueError("an engine listening on TCP needs a link credential (sdfserver/engine/links.py)")
         self.outputs: collections.deque = collections.deque()
         self.service: EngineService = service_of(self.send)
         self.address = address
+        self.limits = limits
+        self.gate = LinkGate(address.credential, address.index, registry)
         self._stopping = False
         self._wake = os.eventfd(0, os.EFD_NONBLOCK)
         self._waiting = False  # the output thread is (about to be) waiting in select
@@ -76,6 +77,7 @@ class EngineTransport:
         self._output = frames.listen(address.output)
         self._output.setblocking(False)
         self._answers: dict[bytes, Peer] = {}  # output thread only
+        self._unproven: set[Peer] = set()  # output thread only: answer connections not proven yet
         self._undelivered: dict[bytes, tuple[float, list[bytes]]] = {}  # client -> (since, frames)
         self._threads = [threading.Thread(target=self._read, name="sdfserver-engine-input", daemon=True),
                          threading.Thread(target=self._write, name="sdfserver-engine-output", daemon=True)]
@@ -137,14 +139,22 @@ class EngineTransport:
         buffer = bytearray(READ_BUFFER)
         view = memoryview(buffer)
         decode, handle = msg.REQUEST_DECODER.decode, self.service.handle
+        unproven: set[Peer] = set()
+
+        def close(peer: Peer) -> None:
+            selector.unregister(peer.sock)
+            peer.sock.close()
+            unproven.discard(peer)
+
         try:
             while not self._stopping:
                 for key, _ in selector.select(IDLE_POLL_S):
                     peer = key.data
                     if peer is None:
-                        sock, _ = self._input.accept()
-                        frames.prepare(sock)
-                        selector.register(sock, selectors.EVENT_READ, Peer(sock))
+                        peer = self.gate.greet(self._input, links.REQUESTS, blocking=True)
+                        if peer is not None:
+                            selector.register(peer.sock, selectors.EVENT_READ, peer)
+                            unproven.add(peer)
                         continue
                     space = peer.reader.space()  # the rest of a large request goes straight to its buffer
                     try:
@@ -152,20 +162,38 @@ class EngineTransport:
                     except OSError:
                         size = 0
                     if not size:  # the API process closed it (or went away)
-                        selector.unregister(peer.sock)
-                        peer.sock.close()
+                        close(peer)
                         continue
-                    payloads = peer.reader.feed(view[:size]) if space is None else peer.reader.filled(size)
+                    try:
+                        if space is not None:
+                            payloads = peer.reader.filled(size)
+                        elif peer.identity is not None:
+                            payloads = peer.reader.feed(view[:size])
+                        else:  # its proof alone; what follows it is read with the link's limit
+                            payloads = peer.reader.feed(view[:size], most=1)
+                            if payloads:
+                                if not self.gate.prove(peer, payloads.pop(), peer.sock.sendall):
+                                    close(peer)
+                                    continue
+                                unproven.discard(peer)
+                                peer.reader.limit = self.limits.request_bytes
+                                payloads = peer.reader.feed(b"")
+                    except frames.FrameTooLarge as exc:
+                        self.gate.refuse(peer, "too_large", str(exc))
+                        close(peer)
+                        continue
+                    except OSError:  # it went away while the engine sent its proof
+                        close(peer)
+                        continue
                     for payload in payloads:
-                        if peer.identity is None:
-                            peer.identity = payload
-                            continue
                         try:
                             request = decode(payload)
                         except (ValueError, msgspec.DecodeError) as exc:
                             log.warning("an undecodable request was dropped: %s", exc)
                             continue
                         handle(peer.identity, request)
+                for peer in self.gate.overdue(unproven):
+                    close(peer)
         finally:
             for key in list(selector.get_map().values()):
                 key.fileobj.close()
@@ -209,6 +237,8 @@ class EngineTransport:
                     self._flush(selector, key.data)
                 else:
                     self._hear(selector, key.data)
+            for peer in self.gate.overdue(self._unproven):
+                self._lost(selector, peer)
             if self._undelivered:
                 self._send_undelivered(selector)
             self._send_outputs()
@@ -229,19 +259,17 @@ class EngineTransport:
             else:
                 batches[client].append(out)
         for client, items in batches.items():
-            self._deliver(self._selector, client, framed(items))
+            for data in framed(items, self.limits.answer_bytes):
+                self._deliver(self._selector, client, data)
 
     def _accept(self, selector: selectors.BaseSelector) -> None:
-        try:
-            sock, _ = self._output.accept()
-        except BlockingIOError:
-            return
-        frames.prepare(sock)
-        sock.setblocking(False)
-        selector.register(sock, selectors.EVENT_READ, Peer(sock))
+        peer = self.gate.greet(self._output, links.ANSWERS, blocking=False)
+        if peer is not None:
+            selector.register(peer.sock, selectors.EVENT_READ, peer)
+            self._unproven.add(peer)
 
     def _hear(self, selector: selectors.BaseSelector, peer: Peer) -> None:
-        """An answer connection is read only for its identity, and for its end."""
+        """An answer connection is read only for its proof and identity, and for its end."""
         try:
             data = peer.sock.recv(1 << 16)
         except BlockingIOError:
@@ -253,14 +281,24 @@ class EngineTransport:
             return
         if peer.identity is not None:
             return
-        said = peer.reader.feed(data)
-        if said:
-            peer.identity = said[0]
-            old = self._answers.pop(peer.identity, None)
-            if old is not None:
-                self._lost(selector, old)
-            self._answers[peer.identity] = peer
-            self._deliver(selector, peer.identity, WELCOME, first=True)
+        try:
+            said = peer.reader.feed(data, most=1)
+        except frames.FrameTooLarge as exc:
+            self.gate.refuse(peer, "too_large", str(exc))
+            self._lost(selector, peer)
+            return
+        if not said:
+            return
+        proof: list[bytes] = []
+        if not self.gate.prove(peer, said[0], proof.append):
+            self._lost(selector, peer)
+            return
+        self._unproven.discard(peer)
+        old = self._answers.pop(peer.identity, None)
+        if old is not None:
+            self._lost(selector, old)
+        self._answers[peer.identity] = peer
+        self._deliver(selector, peer.identity, b"".join(proof) + WELCOME, first=True)
 
     def _lost(self, selector: selectors.BaseSelector, peer: Peer) -> None:
         """Its half-sent answers go with it: the API process failed its waiting requests. (An
@@ -268,6 +306,7 @@ class EngineTransport:
         with contextlib.suppress(KeyError, ValueError):
             selector.unregister(peer.sock)
         peer.sock.close()
+        self._unproven.discard(peer)
         if peer.identity is not None and self._answers.get(peer.identity) is peer:
             del self._answers[peer.identity]
 
@@ -318,48 +357,3 @@ class EngineTransport:
             elif time.monotonic() - since > UNREACHABLE_GRACE_S:
                 del self._undelivered[client]
                 self.service.forget(client)
-
-
-def small(outputs: list[tuple[bytes, Any]]) -> bool:
-    """Whether these answers carry at most DIRECT_SEND_BYTES of arrays and byte strings (a
-    subscription's news counts as large: its chunks are taken as it is sent)."""
-    carried = 0
-    for _, item in outputs:
-        if not isinstance(item, msg.Reply):
-            return False
-        result = item.result
-        if isinstance(result, msg.ReadResult):
-            carried += len(result.array.data)
-        elif isinstance(result, msg.Frame):
-            carried += len(result.pixels.data)
-        elif isinstance(result, msg.QueryResult):
-            carried += sum(len(a.data) for a in result.arrays.values())
-        elif isinstance(result, (bytes, str)):
-            carried += len(result)
-    return carried <= DIRECT_SEND_BYTES
-
-
-def framed(items: list[Any]) -> bytes | bytearray:
-    """One API process's batch of outputs as one frame (``encoded`` where one cannot be encoded)."""
-    try:
-        return frames.encode_frame(msg.REQUEST_ENCODER.encode_into, msg.Outputs(items))
-    except (TypeError, ValueError, OverflowError, msgspec.EncodeError):
-        return frames.frame(encoded(items))
-
-
-def encoded(items: list[Any]) -> bytes:
-    """One API process's batch of outputs; an answer that cannot be encoded (a bug) is replaced
-    by its failure, so that its request is answered and the others still go."""
-    try:
-        return msg.REQUEST_ENCODER.encode(msg.Outputs(items))
-    except (TypeError, ValueError, OverflowError, msgspec.EncodeError):
-        kept = []
-        for item in items:
-            try:
-                msg.REQUEST_ENCODER.encode(item)
-                kept.append(item)
-            except (TypeError, ValueError, OverflowError, msgspec.EncodeError) as exc:
-                log.exception("an engine answer could not be encoded", exc_info=exc)
-                if isinstance(item, msg.Reply):
-                    kept.append(msg.Reply(item.id, None, msg.failure_of(exc)))
-        return msg.REQUEST_ENCODER.encode(msg.Outputs(kept))

@@ -139,9 +139,11 @@ def test_a_subscription_told_it_ended_while_its_update_is_unsent_hears_it_when_t
 def test_an_answer_that_cannot_be_encoded_is_answered_with_its_failure():
     import numpy as np
 
-    from sdfserver.engine.transport import encoded
+    from sdfserver.engine.frames import HEADER
+    from sdfserver.engine.transport import framed
 
     items = [msg.Reply(1, {"n": np.int64(3)}), msg.Reply(2, 5)]  # a numpy integer: msgspec refuses it
-    replies = msg.OUTPUTS_DECODER.decode(encoded(items)).items
+    data, = framed(items, 1 << 20)
+    replies = msg.OUTPUTS_DECODER.decode(bytes(data[HEADER:])).items
     assert [r.id for r in replies] == [1, 2] and replies[1].result == 5
     assert replies[0].failure is not None and replies[0].failure.kind == "SdfServerError"

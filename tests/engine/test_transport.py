@@ -12,8 +12,9 @@ import time
 
 import pytest
 
-from sdfserver.api.engine_client import EngineClient
+from sdfserver.api.engine_client import EngineClient, default_limits
 from sdfserver.engine import frames
+from sdfserver.engine.answer_frames import DIRECT_SEND_BYTES
 from sdfserver.engine import messages as msg
 from sdfserver.engine import transport as transport_module
 from sdfserver.engine.proc import EngineAddress
@@ -84,7 +85,7 @@ def address():
 
 
 def _serve(address: EngineAddress) -> EngineTransport:
-    transport = EngineTransport(Service, address)
+    transport = EngineTransport(Service, address, default_limits())
     transport.start()
     return transport
 
@@ -178,9 +179,9 @@ def test_answers_held_by_a_thread_leave_from_it_while_the_output_thread_idles_an
     senders: list[str] = []
     encode = transport_module.framed
 
-    def recorded(items):
+    def recorded(items, limit):
         senders.append(threading.current_thread().name)
-        return encode(items)
+        return encode(items, limit)
 
     monkeypatch.setattr(transport_module, "framed", recorded)
     engine = _serve(address)
@@ -217,7 +218,7 @@ def test_answers_held_by_a_thread_leave_from_it_while_the_output_thread_idles_an
         def answer_large():
             with engine.holding():
                 client_id = engine.service.held[20][0]
-                engine.send(client_id, msg.Reply(41, b"y" * (transport_module.DIRECT_SEND_BYTES + 1)))
+                engine.send(client_id, msg.Reply(41, b"y" * (DIRECT_SEND_BYTES + 1)))
 
         await asyncio.to_thread(answer_large)
         large_answer = await asyncio.wait_for(large, 10)
@@ -235,5 +236,5 @@ def test_answers_held_by_a_thread_leave_from_it_while_the_output_thread_idles_an
     assert len(senders[sent_before:sent_small]) == 2  # each held block's answers in one frame, from its thread
     assert all(name.startswith("asyncio_") for name in senders[sent_before:sent_small]), senders
     # a large answer goes to the output thread: copying it would hold up the thread that completed it
-    assert len(large_answer) == transport_module.DIRECT_SEND_BYTES + 1
+    assert len(large_answer) == DIRECT_SEND_BYTES + 1
     assert senders[sent_small:] == ["sdfserver-engine-output"]

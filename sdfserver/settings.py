@@ -74,8 +74,13 @@ class Settings(BaseSettings):
                                        "is 5.")
     max_request_bytes: int = Field(
         16 << 20, ge=1024, description="Largest request body or WebSocket frame, in bytes (413 above it); an "
-                                       "import (POST /v1/worlds/import) may carry this many voxels plus its "
-                                       "file format's framing, so every export within it imports back.")
+                                       "import's body has a limit of its own, max_import_bytes.")
+    max_import_bytes: int = Field(
+        1 << 31, ge=1024, description="Largest body of an import (POST /v1/worlds/import), in bytes (413 above "
+                                      "it, before any world is made). The body is written to a temporary file as "
+                                      "it arrives (in data_dir's imports/, or the system's temporary directory "
+                                      "without persist), never held whole in memory; the voxels decoded from it "
+                                      "are bounded by max_world_voxels.")
     max_ops_per_batch: int = Field(1024, ge=1, description="Most operations in one edit batch (413 above it).")
     max_voxels_per_batch: int = Field(
         1 << 20, ge=1, description="Most explicit voxels in one edit batch (413 above it).")

@@ -9,14 +9,18 @@ from __future__ import annotations
 
 import io
 import math
+from typing import BinaryIO
 
 import numpy as np
 
 from sdfserver.errors import InvalidInput, TooLarge
 
 
-def load_npy(data: bytes, *, max_voxels: int | None = None) -> np.ndarray:
-    stream = io.BytesIO(data)
+def load_npy(data: bytes | BinaryIO, *, max_voxels: int | None = None) -> np.ndarray:
+    """``data``: the file's bytes, or the file open for reading from its start (an import's
+    spooled body: read once, straight into the array)."""
+    stream = data if hasattr(data, "read") else io.BytesIO(data)
+    start = stream.tell()
     try:
         major, _ = np.lib.format.read_magic(stream)
         read_header = (np.lib.format.read_array_header_1_0 if major == 1
@@ -31,7 +35,7 @@ def load_npy(data: bytes, *, max_voxels: int | None = None) -> np.ndarray:
         raise TooLarge(f".npy array of shape {shape} has {count} voxels; the limit is {max_voxels}")
     if dtype.kind not in "biu":
         raise InvalidInput(f".npy voxels must be uint8 (or integer 0..255, or bool), got {dtype}")
-    stream.seek(0)
+    stream.seek(start)
     try:
         array = np.load(stream, allow_pickle=False)
     except (ValueError, EOFError, OSError, TypeError) as exc:

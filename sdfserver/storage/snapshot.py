@@ -176,6 +176,16 @@ def decode_upload(data: bytes, max_voxels: int | None = None) -> Snapshot:
                            allow_sparse=False)
 
 
+def snapshot_version_of(data: bytes | memoryview) -> int:
+    """The world version a snapshot file holds, from its header alone (a file this server made:
+    an export's ``X-Sdf-Version``)."""
+    header, _ = _read_header(memoryview(data), lambda at, reason: CorruptData("snapshot", at, reason))
+    try:
+        return int(header["version"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CorruptData("snapshot", HEADER_AT, f"bad version: {type(exc).__name__}") from None
+
+
 def upload_config(data: bytes) -> tuple[bool, dict[str, Any]]:
     """(whether it is a sparse world's snapshot, its configuration), from the header alone: the
     body is checked where the world is made (``sparse_upload``, ``decode_upload``)."""

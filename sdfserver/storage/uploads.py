@@ -1,9 +1,9 @@
 """Uploaded world files: which format a file is, told by its first bytes, and how large a file
-of each format may be.
+of each format holding a number of voxels can be.
 
-The import limit counts voxels, not bytes: a file may carry up to ``max_voxels`` voxels in its
-format's own encoding, plus the largest framing a valid file of that format can have. So every
-export of a world within the limit imports back:
+An import's body is bounded in bytes (``max_import_bytes``, api/spool.py). ``upload_limit_bytes``
+gives the largest file of ``max_voxels`` voxels in a format's own encoding, plus the largest
+framing a valid file of that format can have, for whoever sizes a buffer for such a file:
 
     npy       the voxels (one byte each as exported) + a header numpy reads (at most 10,000
               bytes, numpy's own bound) + the 12-byte prefix

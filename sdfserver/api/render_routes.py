@@ -8,8 +8,10 @@
   pixel's centre is ``+0.5``) -> ``{hit, voxel, normal, place, field_version}``.
 - On ``/v1/worlds/{id}/stream``: ``{type: "camera", ...camera, max_fps?, format?, quality?}``
   sets the client's view; the server then pushes ``{type: "frame", world, version, format,
-  width, height, data, render_ms, field_ms, seq}`` whenever the view or the field changed,
-  at most ``max_fps`` a second. Frames are rendered by the engine between steps (one field
+  width, height, data, render_ms, field_ms, seq, view_id, latency_ms}`` whenever the view or the
+  field changed, at most ``max_fps`` a second (``view_id``: the ``id`` of the camera message
+  whose view it shows; ``latency_ms``: from the rendered frame's arrival here to its message
+  going to the socket). Frames are rendered by the engine between steps (one field
   version each; a ``Render`` request carries the view as plain data), encoded here, in this
   API process's thread pool, while the engine renders the next, and wait in a single slot: a
   client that reads slowly gets the newest frame, never a backlog.
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Awaitable, Callable
@@ -208,7 +211,7 @@ class FrameStream:
                 return
             if frame is not None:
                 last = (serial, frame.field_version)
-                self._hand_over((frame, view, loop.time()))
+                self._hand_over((frame, view, time.monotonic()))  # not loop.time(): uvloop's counts whole ms
             # At most max_fps frames a second, on a fixed schedule (a late frame does not push the
             # later ones back); a new view wakes the loop early only after that.
             period = 1.0 / view[4]
@@ -263,12 +266,12 @@ class FrameStream:
     async def _encoded(self, rendered: tuple | dict[str, Any]) -> list[tuple[dict[str, Any], float | None]]:
         if isinstance(rendered, dict):
             return [(rendered, None)]
-        frame, (camera, _, fmt, settings, max_fps), rendered_at = rendered
+        frame, (camera, view, fmt, settings, max_fps), rendered_at = rendered
         pixels = frame.pixels.numpy()
         self.seq += 1
         message = {"type": "frame", "world": self.world_id, "version": frame.field_version, "format": fmt,
                    "width": camera.width, "height": camera.height, "render_ms": frame.device_ms,
-                   "field_ms": frame.field_ms, "seq": self.seq}
+                   "field_ms": frame.field_ms, "seq": self.seq, "view_id": view.get("id")}
         if fmt not in VIDEO_FORMATS:
             message["data"] = await asyncio.get_running_loop().run_in_executor(
                 encode_pool(), encode_frame, pixels, fmt, settings)
@@ -280,7 +283,6 @@ class FrameStream:
         return messages + [(message, rendered_at)]
 
     async def _deliver(self) -> None:
-        loop = asyncio.get_running_loop()
         while True:
             await self.slot_filled.wait()
             self.slot_filled.clear()
@@ -288,7 +290,7 @@ class FrameStream:
             self.encoder_wake.set()  # a video chunk held back for this slot may be encoded now
             for message, rendered_at in messages or ():
                 if rendered_at is not None:  # the render's result came in; now its encoding leaves
-                    message["latency_ms"] = (loop.time() - rendered_at) * 1e3
+                    message["latency_ms"] = (time.monotonic() - rendered_at) * 1e3
                 await self.send(message)
 
 

@@ -17,6 +17,12 @@ description (H.264's VUI), so that a browser and FFmpeg convert it back alike.
 
 Per format the encoders are tried in order, hardware first: NVENC opens only on a GPU with an
 encoder unit and its driver library; whether it opened is remembered for the process.
+
+Rate: ``crf`` holds a quality, whatever the frame rate; ``bitrate`` is a rate at ``max_fps`` frames
+a second, capped over half a second. Frames come only when the view or the field changed, and all
+but VP9 give each frame a share of the rate as if frames came at ``max_fps`` (libx264 would follow
+the timestamps only a frame late), so a stream whose frames come slower spends less, not more per
+frame: a client that names a bitrate names the ``max_fps`` it expects to get.
 """
 
 from __future__ import annotations
@@ -313,8 +319,8 @@ class VideoStream:
 
     async def encode(self, rgba: np.ndarray, request: VideoRequest, fps: float,
                      now: float) -> tuple[VideoEncoder | None, EncodedChunk]:
-        """The chunk of one frame (rendered at loop time ``now``), and the encoder when this chunk
-        starts a new stream. An odd width or height loses its last column or row (4:2:0)."""
+        """The chunk of one frame (rendered at ``time.monotonic()`` ``now``), and the encoder when
+        this chunk starts a new stream. An odd width or height loses its last column or row (4:2:0)."""
         loop = asyncio.get_running_loop()
         height, width = rgba.shape[0] & ~1, rgba.shape[1] & ~1
         key = request.stream_key(width, height, fps)

@@ -78,10 +78,12 @@ async def _stream(base: str, world_id: str) -> None:
     url = base.replace("http", "ws") + f"/v1/worlds/{world_id}/stream"
     async with websockets.connect(url, max_size=1 << 24) as ws:
         stream = Receiver(ws)
-        await ws.send(msgpack.packb({"type": "camera", **CAMERA, "format": "h264", "crf": 18, "keyframe_s": 60}))
+        await ws.send(msgpack.packb({"type": "camera", "id": 1, **CAMERA, "format": "h264", "crf": 18,
+                                     "keyframe_s": 60}))
         message, picture = await stream.picture()
         assert stream.video["encoder"] in ("libx264", "h264_nvenc") and stream.video["codec"].startswith("avc1.")
         assert message["key"] and message["timestamp"] == 0 and message["latency_ms"] >= message["encode_ms"]
+        assert message["view_id"] == 1
         reference = raw_frame(base, world_id, CAMERA, message["version"])
         assert luma_psnr(picture, reference) >= MIN_LUMA_PSNR_DB
 
@@ -105,8 +107,9 @@ async def _stream(base: str, world_id: str) -> None:
 
         # A resize: a new stream (video message, keyframe, timestamps from 0) of the new size.
         resized = {**CAMERA, "width": 64, "height": 48}
-        await ws.send(msgpack.packb({"type": "camera", **resized, "format": "h264", "crf": 18}))
+        await ws.send(msgpack.packb({"type": "camera", "id": 2, **resized, "format": "h264", "crf": 18}))
         message, picture = await stream.picture()
         assert (stream.video["width"], stream.video["height"]) == (64, 48)
         assert message["key"] and message["timestamp"] == 0 and picture.shape == (48, 64, 3)
+        assert message["view_id"] == 2
         assert luma_psnr(picture, raw_frame(base, world_id, resized, message["version"])) >= MIN_LUMA_PSNR_DB

@@ -1,20 +1,27 @@
 """`sdfserver serve --cluster local`: engines as Ray actors on a local Ray cluster (one per
-module), on the CPU device; a real server on loopback, its engine actors killed under load."""
+module), on the CPU device; a real server on loopback, its engine actors killed under load,
+every link to them proven with the engines' credentials (engine/links.py), which a peer
+without them cannot pass."""
 
 from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import httpx
 import numpy as np
 import pytest
+from prometheus_client.parser import text_string_to_metric_families
 
 from references import apply_edits, oracle_distance
+from sdfserver.engine import frames
+from sdfserver.engine import messages as msg
 from server_process import ServerProcess
 
 pytest.importorskip("ray")
@@ -85,6 +92,54 @@ def test_worlds_spread_over_the_engine_actors_and_say_where_they_are(server):
         described = httpx.get(f"{server.url}/v1/worlds/{world}", timeout=30).json()
         assert described["engine"] == holders[world]
     assert {holders[w] for w in worlds} == {0, 1}  # new worlds go where most memory is free
+
+
+def refused_links(server, reason: str) -> float:
+    """sdfserver_engine_links_refused_total{reason} summed over the engines, from /metrics."""
+    r = httpx.get(server.url + "/metrics", timeout=30)
+    assert r.status_code == 200, r.text
+    return sum(sample.value for family in text_string_to_metric_families(r.text) for sample in family.samples
+               if sample.name == "sdfserver_engine_links_refused_total" and sample.labels["reason"] == reason)
+
+
+def test_a_forged_admin_delete_on_an_engine_actors_port_changes_nothing_and_is_counted(server):
+    """What a hostile peer on the engine's network sends: an identity and a DeleteWorld claiming
+    admin, with no proof. The engine closes the connection without reading the request."""
+    world = new_world(server)
+    holder = next(e for e in engines(server) if world in e["world_ids"])
+    before = refused_links(server, "credential")
+    _, target = frames.family_and_target(holder["address"])
+    forged = msg.REQUEST_ENCODER.encode(msg.DeleteWorld(1, world, msg.Access(None, True, "10.6.6.6")))
+    with socket.create_connection(target, timeout=10) as forger:
+        forger.sendall(frames.frame(b"api-forger") + frames.frame(forged))
+        closed = False
+        try:
+            while forger.recv(1 << 16):
+                pass
+            closed = True
+        except ConnectionResetError:
+            closed = True
+        except TimeoutError:
+            pass
+    time.sleep(0.5)  # a delete that got through would have been applied by now
+    assert httpx.get(f"{server.url}/v1/worlds/{world}", timeout=30).status_code == 200, "the forged delete was applied"
+    assert closed, "the engine kept a connection that proved nothing"
+    assert refused_links(server, "credential") == before + 1
+
+
+def test_engine_actors_listen_only_on_the_address_they_advertise(server):
+    """127.0.0.1 on a local cluster, not every interface (/proc/net/tcp: each listening socket's
+    local address, hex, little-endian)."""
+    listening = {}
+    for line in Path("/proc/net/tcp").read_text().splitlines()[1:]:
+        local, state = line.split()[1], line.split()[3]
+        if state == "0A":
+            address, port = local.split(":")
+            listening[int(port, 16)] = address
+    for engine in engines(server):
+        port = int(engine["address"].rsplit(":", 1)[1])
+        assert engine["address"].startswith("tcp://127.0.0.1:")
+        assert listening.get(port) == "0100007F", f"engine {engine['engine']} listens on {listening.get(port)}"
 
 
 def test_a_killed_engine_actor_comes_back_with_every_acknowledged_batch(server):

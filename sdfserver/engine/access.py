@@ -1,6 +1,11 @@
 """Who may do what, checked in the engine process for every API process at once: the
 per-key rate limit (one token bucket per key, or per client address on an open server) and
-the owner of a world (another tenant's world is NotFound, word for word as a missing one)."""
+the owner of a world (another tenant's world is NotFound, word for word as a missing one).
+
+An ``Access`` is believed as it is sent: the engine never sees API tokens, so it cannot check the
+key itself. That is safe only because every request reaches the engine from an API process that
+has proven it holds the engine's credential, or over a Unix socket only the server's user can
+open (``links.py``; ``docs/reliability.md``, "Links")."""
 
 from __future__ import annotations
 

@@ -11,7 +11,9 @@ accepted. ``encode`` turns NumPy arrays into blobs anywhere in a message;
 ``decode`` leaves blobs as maps and ``unpack_array``/``decode_arrays`` turn
 them back into arrays where the receiver expects them.
 
-This module needs only msgpack and NumPy, so clients can import it alone.
+This module needs only msgpack and NumPy. The Python client, a distribution of its own, carries
+it as ``clients/python/sdfclient/wire.py``: the same file, byte for byte
+(tests/clients/test_client_package.py), so the two sides cannot drift apart.
 """
 
 from __future__ import annotations

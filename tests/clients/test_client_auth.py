@@ -6,10 +6,12 @@ with a key."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -174,7 +176,7 @@ def test_imports_belong_to_the_importer(url, worlds):
 
 
 def test_rate_limited_carries_retry_after(url):
-    with Client(url, api_key=FLOOD) as client:
+    with Client(url, api_key=FLOOD, retries=0) as client:
         served = 0
         with pytest.raises(RateLimited) as caught:
             for _ in range(4 * BURST):
@@ -183,6 +185,18 @@ def test_rate_limited_carries_retry_after(url):
     assert BURST - 5 <= served <= 2 * BURST  # the burst went through first
     assert caught.value.status == 429 and caught.value.code == "rate_limited"
     assert caught.value.retry_after_s is not None and 1 <= caught.value.retry_after_s <= 5
+
+
+def test_a_refused_rate_is_waited_out_and_the_request_sent_again(url):
+    with Client(url, api_key=FLOOD, retries=0) as drain:  # the key's bucket empty, whatever ran before
+        with contextlib.suppress(RateLimited):
+            for _ in range(4 * BURST):
+                drain.list_worlds()
+    with Client(url, api_key=FLOOD) as client:  # retries by default: every call answered
+        started = time.monotonic()
+        for _ in range(3):
+            assert isinstance(client.list_worlds(), list)
+        assert time.monotonic() - started >= 0.9  # at least one Retry-After (1 s) waited out
 
 
 def _loadtest(url: str, tmp_path, key_env: str | None, *args: str) -> subprocess.CompletedProcess:

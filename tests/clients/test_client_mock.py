@@ -191,7 +191,7 @@ def test_api_key_goes_as_a_bearer_token_and_errors_map_by_code():
             503, json={"error": {"code": "writes_disabled", "message": "log failed"}}, headers={"retry-after": "1"}),
     }
     handler = Recorder(answers)
-    with sdfclient.Client("http://sdf.test", api_key="tok-0123456789abcdef",
+    with sdfclient.Client("http://sdf.test", api_key="tok-0123456789abcdef", retries=0,
                           transport=httpx.MockTransport(handler)) as client:
         with pytest.raises(Unauthorized) as unauthorized:
             client.list_worlds()

@@ -1,4 +1,4 @@
-"""The scripts in clients/examples run against a real server and print what they should."""
+"""The scripts in clients/python/examples run against a real server and print what they should."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from sdfclient import Client
 
 
 def _run(name: str, server_url: str, *args: str) -> str:
-    proc = subprocess.run([sys.executable, str(CLIENTS / "examples" / name), server_url, *args],
+    proc = subprocess.run([sys.executable, str(CLIENTS / "python" / "examples" / name), server_url, *args],
                           cwd=ROOT, env=env_with_paths(), capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     return proc.stdout

@@ -310,9 +310,14 @@ export class Client {
     return { format, version: intHeader(headers, "x-sdf-version"), data, filename };
   }
 
-  /** A new world (at version 1) from a file's bytes; the server tells the format by its content. */
+  /**
+   * A new world from a file's bytes; the server tells the format by its content. A dense world is
+   * at version 1; `storage: "sparse"` (npy and vox) writes its solid voxels as edit batches, its
+   * version their number, and `warnings` says where it costs more device memory than a dense one.
+   */
   async importWorld(data: Uint8Array, options: {
     format?: FileFormat; chunkSize?: number; maxDistance?: number; algorithm?: string; model?: number;
+    storage?: "dense" | "sparse";
   } = {}): Promise<WorldInfo> {
     const params: Record<string, string> = {};
     if (options.format !== undefined) params.format = options.format;
@@ -320,6 +325,12 @@ export class Client {
     if (options.maxDistance !== undefined) params.max_distance = String(options.maxDistance);
     if (options.algorithm !== undefined) params.algorithm = options.algorithm;
     if (options.model !== undefined) params.model = String(options.model);
+    if (options.storage !== undefined) {
+      if (options.storage !== "dense" && options.storage !== "sparse") {
+        throw new RangeError(`storage is dense or sparse, got ${JSON.stringify(options.storage)}`);
+      }
+      params.storage = options.storage;
+    }
     return parse.world(await this.send({ method: "POST", path: "/v1/worlds/import", params, content: data }));
   }
 

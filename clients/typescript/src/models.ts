@@ -73,6 +73,8 @@ export interface WorldInfo {
   lastRecomputeMs: number | null;
   deviceBytes: number;
   owner: string | null;
+  /** What the server says beside the world: an import's sparse world costing more than a dense one. */
+  warnings: string[];
   raw: Record<string, unknown>;
 }
 

@@ -64,6 +64,7 @@ export function world(value: unknown): WorldInfo {
       ? null : num(raw.last_recompute_ms, "world.last_recompute_ms"),
     deviceBytes: num(raw.device_bytes, "world.device_bytes", 0),
     owner: typeof raw.owner === "string" ? raw.owner : null,
+    warnings: Array.isArray(raw.warnings) ? raw.warnings.map(String) : [],
     raw,
   };
 }

@@ -273,6 +273,31 @@ describe("queries", () => {
       await client.deleteWorld(imported.id);
     }
   });
+
+  test("an imported array as a sparse world, exported with its version", async () => {
+    const exported = await client.exportWorld(worldId, "npy");
+    const sparse = await client.importWorld(exported.data, { storage: "sparse", maxDistance: 16 });
+    try {
+      assert.equal(sparse.storage, "sparse");
+      assert.ok(sparse.version >= 1);
+      assert.ok(Array.isArray(sparse.warnings));
+      const a = await client.readVoxels(worldId);
+      const b = await client.readVoxels(sparse.id, { minVersion: sparse.version });
+      assert.deepEqual(b.data, a.data);
+      const snapshot = await client.exportWorld(sparse.id, "snapshot");
+      assert.equal(snapshot.version, sparse.version);
+      const copy = await client.importWorld(snapshot.data);
+      try {
+        assert.equal(copy.storage, "sparse");
+        assert.deepEqual((await client.readVoxels(copy.id)).data, a.data);
+      } finally {
+        await client.deleteWorld(copy.id);
+      }
+    } finally {
+      await client.deleteWorld(sparse.id);
+    }
+    await assert.rejects(client.importWorld(exported.data, { storage: "bricks" as "sparse" }), RangeError);
+  });
 });
 
 describe("errors", () => {

@@ -11,9 +11,13 @@
 ``AsyncClient`` has the same methods, awaitable, and ``stream(world_id)``
 for the WebSocket stream (``sdfclient.stream.Stream``). Every failure raises
 an ``sdfclient.errors.SdfClientError``.
+
+A distribution of its own (``pip install ./clients/python``): it needs httpx,
+websockets, msgpack and NumPy, and carries the server's wire module as a copy.
 """
 
 from sdfclient import edits
+from sdfclient._version import __version__
 from sdfclient.client import AsyncClient, Client
 from sdfclient.errors import (
     DeviceMemoryExceeded, InternalServerError, InvalidEdit, InvalidInput, NotFound, NotReady, ProtocolError,
@@ -31,5 +35,5 @@ __all__ = [
     "Frame", "InternalServerError", "InvalidEdit", "InvalidInput", "NotFound", "NotReady", "Pick",
     "ProtocolError", "QueryResult", "RateLimited", "RayResult", "SdfClientError", "ServerError", "SphereResult",
     "Stream", "StreamClosed", "StreamMessage", "Timeout", "TooLarge", "TransportError", "Unauthorized",
-    "VersionNotReached", "WorldInfo", "WritesDisabled", "edits",
+    "VersionNotReached", "WorldInfo", "WritesDisabled", "__version__", "edits",
 ]

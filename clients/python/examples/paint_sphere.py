@@ -1,6 +1,6 @@
 """Paint a sphere into a new world and read its distance field back (read-your-writes).
 
-    python clients/examples/paint_sphere.py http://127.0.0.1:8000
+    python clients/python/examples/paint_sphere.py http://127.0.0.1:8000
 """
 
 import os

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import os
+import random
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -17,7 +18,7 @@ import numpy as np
 
 from sdfclient import _wire
 from sdfclient.edits import normalize
-from sdfclient.errors import ProtocolError, retry_after, server_error
+from sdfclient.errors import ProtocolError, WritesDisabled, error_class, retry_after, server_error
 from sdfclient.models import (
     Block, Camera, Exported, Focus, Frame, Pick, QueryResult, RayResult, SphereResult, WorldInfo,
 )
@@ -37,13 +38,18 @@ class Call:
     path: str
     parse: Callable[[httpx.Response], Any]
     params: dict[str, str] = field(default_factory=dict)
-    body: Any = None  # encoded with sdfserver.wire when not None
+    body: Any = None  # encoded with the wire module when not None
     timeout: float | None = None  # overrides the client's when the server may wait
     content: bytes | None = None  # a raw body (an uploaded file), sent as application/octet-stream
     accept: str = _wire.CONTENT_TYPE
+    # Sending it twice does what sending it once does, so a 503 may be answered by sending it
+    # again: false where a first attempt the server answered 503 might still have taken effect
+    # (a world created, an edit batch without an Idempotency-Key applied).
+    repeatable: bool = True
+    headers: dict[str, str] = field(default_factory=dict)
 
     def request_kwargs(self) -> dict:
-        headers = {"accept": self.accept}
+        headers = {"accept": self.accept, **self.headers}
         kwargs: dict[str, Any] = {"params": self.params or None, "headers": headers}
         if self.body is not None:
             headers["content-type"] = _wire.CONTENT_TYPE
@@ -84,6 +90,40 @@ def checked(response: httpx.Response) -> Any:
             body = response.text
         raise server_error(response.status_code, body, retry_after(response.headers.get("retry-after")))
     return decode(response)
+
+
+# -- retries --------------------------------------------------------------------------------------
+
+RETRIED_STATUSES = (429, 503)
+DEFAULT_RETRIES = 2
+DEFAULT_MAX_RETRY_WAIT_S = 30.0
+JITTER = 0.25  # each wait is stretched by up to this fraction, so that refused clients come back spread out
+
+
+def retry_delay(call: Call, response: httpx.Response, attempt: int, max_wait_s: float) -> float | None:
+    """Seconds to wait before sending ``call`` again after ``response`` (its ``attempt``-th
+    refusal, from 0), or None when it is not sent again: only 429 and 503 answers that carry a
+    ``Retry-After`` are, a 503 only for a repeatable call and never for ``writes_disabled`` (it
+    lasts until the server restarts). The wait is the server's ``Retry-After``, doubled at each
+    further attempt; one past ``max_wait_s`` is not waited for."""
+    if response.status_code not in RETRIED_STATUSES:
+        return None
+    after = retry_after(response.headers.get("retry-after"))
+    if after is None or (response.status_code == 503 and not call.repeatable):
+        return None
+    if response.status_code == 503 and error_class(503, _error_code(response)) is WritesDisabled:
+        return None
+    delay = after * 2 ** attempt * (1 + JITTER * random.random())
+    return delay if delay <= max_wait_s else None
+
+
+def _error_code(response: httpx.Response) -> str | None:
+    try:
+        body = decode(response)
+    except ProtocolError:
+        return None
+    error = body.get("error") if isinstance(body, dict) else None
+    return str(error.get("code")) if isinstance(error, dict) and error.get("code") else None
 
 
 def _expect_dict(body: Any, what: str) -> dict:
@@ -266,7 +306,7 @@ def create_world(size: Sequence[int], chunk_size: int, max_distance: int, algori
             raise ValueError(f"create_world has no option {name!r}; the options are {', '.join(CREATE_OPTIONS)}")
         if value is not None:
             body[name] = _option(name, value)
-    return Call("POST", "/v1/worlds", _world, body=body)
+    return Call("POST", "/v1/worlds", _world, body=body, repeatable=False)
 
 
 def list_worlds() -> Call:
@@ -297,14 +337,24 @@ def update_world(world_id: str, algorithm: Any, focus: Any, max_distance: Any,
 
 
 def delete_world(world_id: str) -> Call:
-    return Call("DELETE", _world_path(world_id), _nothing)
+    return Call("DELETE", _world_path(world_id), _nothing, repeatable=False)  # a second one: 404
 
 
-def edit(world_id: str, edits: Any) -> Call:
+MAX_IDEMPOTENCY_KEY_CHARS = 128
+
+
+def edit(world_id: str, edits: Any, idempotency_key: str | None = None) -> Call:
     batch = normalize(edits)
     if not batch:
         raise ValueError("an edit batch needs at least one edit")
-    return Call("POST", _world_path(world_id) + "/edits", _version, body={"edits": batch})
+    headers = {}
+    if idempotency_key is not None:
+        if (not isinstance(idempotency_key, str) or not 0 < len(idempotency_key) <= MAX_IDEMPOTENCY_KEY_CHARS
+                or not idempotency_key.isascii() or not idempotency_key.isprintable()):
+            raise ValueError(f"idempotency_key must be 1..{MAX_IDEMPOTENCY_KEY_CHARS} printable ASCII characters")
+        headers["idempotency-key"] = idempotency_key
+    return Call("POST", _world_path(world_id) + "/edits", _version, body={"edits": batch}, headers=headers,
+                repeatable=idempotency_key is not None)
 
 
 def _wait_timeout(min_version: int | None, timeout: float | None) -> float | None:
@@ -389,17 +439,20 @@ def import_source(source: Source, format: str | None) -> tuple[bytes, str | None
 
 
 def import_world(data: bytes, format: str | None, chunk_size: int | None, max_distance: int | None,  # noqa: A002
-                 algorithm: str | None, model: int | None) -> Call:
+                 algorithm: str | None, model: int | None, storage: str | None = None) -> Call:
     params = {} if format is None else {"format": format}
     kind = format or next((name for name, magic in FILE_MAGICS.items() if data.startswith(magic)), None)
-    given = {"chunk_size": chunk_size, "max_distance": max_distance, "algorithm": algorithm, "model": model}
+    if storage not in (None, "dense", "sparse"):
+        raise ValueError(f"storage is 'dense' or 'sparse', got {storage!r}")
+    given = {"chunk_size": chunk_size, "max_distance": max_distance, "algorithm": algorithm, "model": model,
+             "storage": storage}
     given = {k: v for k, v in given.items() if v is not None}
     if kind == "snapshot" and given:
         raise ValueError(f"a snapshot brings its own configuration; drop {', '.join(sorted(given))}")
     if "model" in given and kind != "vox":
         raise ValueError("model= picks a model of a .vox file")
     params.update({k: str(v) for k, v in given.items()})
-    return Call("POST", "/v1/worlds/import", _world, params=params, content=data)
+    return Call("POST", "/v1/worlds/import", _world, params=params, content=data, repeatable=False)
 
 
 def _view(camera: Camera | dict, options: dict[str, Any]) -> dict:

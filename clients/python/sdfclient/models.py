@@ -55,6 +55,11 @@ class WorldInfo:
     signed: bool = False
     voxel_size: float = 1.0
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    storage: str = "dense"  # or "sparse": only the bricks near surfaces on the device
+    device_bytes: int = 0
+    # What the server says about the answer besides the world: an import into a sparse world
+    # that holds more device memory than the dense one would, for one
+    warnings: tuple[str, ...] = ()
     raw: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
@@ -75,6 +80,9 @@ class WorldInfo:
             signed=bool(raw.get("signed", False)),
             voxel_size=float(raw.get("voxel_size", 1.0)),
             origin=tuple(float(v) for v in raw.get("origin", (0.0, 0.0, 0.0))),
+            storage=str(raw.get("storage", "dense")),
+            device_bytes=int(raw.get("device_bytes", 0) or 0),
+            warnings=tuple(str(w) for w in raw.get("warnings", ()) or ()),
             raw=dict(raw),
         )
 
@@ -240,7 +248,7 @@ class Frame:
         try:
             from PIL import Image
         except ImportError as exc:  # Pillow is optional for the client
-            raise RuntimeError("decoding png/jpeg frames needs Pillow (pip install pillow)") from exc
+            raise RuntimeError("decoding png/jpeg frames needs Pillow (pip install 'sdfclient[images]')") from exc
         with Image.open(io.BytesIO(self.data)) as image:
             return np.asarray(image.convert("RGBA"))
 

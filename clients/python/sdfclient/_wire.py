@@ -1,4 +1,5 @@
-"""The wire format, taken from the server's own module (``sdfserver.wire``).
+"""The wire format: ``sdfclient.wire``, the server's own module (``sdfserver/wire.py``) copied
+byte for byte, read with the client's limits.
 
 One codec for both sides: msgpack with arrays as ``{dtype, shape, data}``
 blobs, never nested lists, never pickle. The client trusts its server more
@@ -10,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from sdfserver import wire
+from sdfclient import wire
 
 CONTENT_TYPE = wire.CONTENT_TYPE
 CONTENT_TYPES = frozenset({wire.CONTENT_TYPE, "application/x-msgpack", "application/vnd.msgpack"})

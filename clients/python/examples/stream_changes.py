@@ -1,6 +1,6 @@
 """Subscribe to a world over the WebSocket stream, paint through it, and print the chunks that change.
 
-    python clients/examples/stream_changes.py http://127.0.0.1:8000
+    python clients/python/examples/stream_changes.py http://127.0.0.1:8000
 """
 
 import asyncio

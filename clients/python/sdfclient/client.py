@@ -8,7 +8,14 @@
         client.export_world(world.id, "npy").array                   # the voxels, (z, y, x)
 
 ``api_key`` is sent as ``Authorization: Bearer <key>`` on every request (and on
-the stream); without it the server must be an open one.
+the stream); without it the server must be an open one. Every request says
+``User-Agent: sdfclient/<version>``.
+
+A 429, or a 503 to a call that may be sent twice (not a world's creation, import
+or deletion, nor an edit batch without an ``idempotency_key``), is sent again
+after the server's ``Retry-After``, doubled at each further attempt, up to
+``retries`` times (0: never) and as long as the wait stays within
+``max_retry_wait_s``; then its error is raised, ``retry_after_s`` and all.
 
 Both take an injectable ``transport`` (``httpx.MockTransport``,
 ``httpx.ASGITransport``, ...) for tests; both are context managers. The two
@@ -19,12 +26,14 @@ is read live in ``_protocol``.
 from __future__ import annotations
 
 import asyncio
+import time
 from pathlib import Path
 from typing import Any, Sequence
 
 import httpx
 
 from sdfclient import _protocol as p
+from sdfclient._version import USER_AGENT
 from sdfclient.errors import Timeout, TransportError
 from sdfclient.models import Block, Camera, Exported, Frame, Pick, QueryResult, RayResult, SphereResult, WorldInfo
 
@@ -39,7 +48,15 @@ def _transport_error(exc: httpx.TransportError, call: p.Call) -> TransportError:
 def _options(base_url: str, timeout: float, headers: dict | None, api_key: str | None) -> dict:
     auth = {} if api_key is None else {"authorization": f"Bearer {_checked_key(api_key)}"}
     return {"base_url": base_url.rstrip("/"), "timeout": timeout,
-            "headers": {"user-agent": "sdfclient", **auth, **(headers or {})}}
+            "headers": {"user-agent": USER_AGENT, **auth, **(headers or {})}}
+
+
+def _checked_retries(retries: int, max_wait_s: float) -> tuple[int, float]:
+    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+        raise ValueError(f"retries must be an integer >= 0, got {retries!r}")
+    if not max_wait_s >= 0:
+        raise ValueError(f"max_retry_wait_s must be >= 0, got {max_wait_s!r}")
+    return retries, float(max_wait_s)
 
 
 def _checked_key(api_key: str) -> str:
@@ -53,9 +70,11 @@ class Client:
 
     def __init__(self, base_url: str = "http://127.0.0.1:8000", *, api_key: str | None = None,
                  timeout: float = DEFAULT_TIMEOUT_S, transport: httpx.BaseTransport | None = None,
-                 headers: dict | None = None):
+                 headers: dict | None = None, retries: int = p.DEFAULT_RETRIES,
+                 max_retry_wait_s: float = p.DEFAULT_MAX_RETRY_WAIT_S):
         self.base_url = base_url.rstrip("/")
         self.timeout = timeout
+        self.retries, self.max_retry_wait_s = _checked_retries(retries, max_retry_wait_s)
         self._http = httpx.Client(transport=transport, **_options(base_url, timeout, headers, api_key))
 
     def __enter__(self) -> "Client":
@@ -68,19 +87,28 @@ class Client:
         self._http.close()
 
     def _send(self, call: p.Call) -> Any:
-        try:
-            response = self._http.request(call.method, call.path, **call.request_kwargs())
-        except httpx.TransportError as exc:
-            raise _transport_error(exc, call) from exc
+        kwargs = call.request_kwargs()
+        for attempt in range(self.retries + 1):
+            try:
+                response = self._http.request(call.method, call.path, **kwargs)
+            except httpx.TransportError as exc:
+                raise _transport_error(exc, call) from exc
+            delay = p.retry_delay(call, response, attempt, self.max_retry_wait_s) if attempt < self.retries else None
+            if delay is None:
+                break
+            time.sleep(delay)
         return call.parse(response)
 
     # -- worlds ---------------------------------------------------------------------------------
 
     def create_world(self, size: Sequence[int], *, chunk_size: int = 16, max_distance: int = 255,
-                     algorithm: str = "exact", focus: Any = None, **options: Any) -> WorldInfo:
-        """``options``: any of ``lod_algorithm``, ``borders``, ``storage``, ``generate``, ``metric``,
-        ``signed``, ``voxel_size``, ``origin``, ``palette`` (docs/api.md); left out, the server's
-        default."""
+                     algorithm: str = "exact", focus: Any = None, storage: str | None = None,
+                     generate: dict | None = None, **options: Any) -> WorldInfo:
+        """``storage``: ``"dense"`` or ``"sparse"``; ``generate``: a sparse world's terrain
+        (``{"kind": "terrain", "seed": 7, ...}``). ``options``: any of ``lod_algorithm``,
+        ``borders``, ``metric``, ``signed``, ``voxel_size``, ``origin``, ``palette`` (docs/api.md).
+        Left out, the server's default."""
+        options = {"storage": storage, "generate": generate, **options}
         return self._send(p.create_world(size, chunk_size, max_distance, algorithm, focus, options))
 
     def list_worlds(self) -> list[WorldInfo]:
@@ -101,9 +129,11 @@ class Client:
 
     # -- edits and reads --------------------------------------------------------------------------
 
-    def edit(self, world_id: str, edits: Any) -> int:
-        """Send one atomic batch (see ``sdfclient.edits``); returns the world's new version."""
-        return self._send(p.edit(world_id, edits))
+    def edit(self, world_id: str, edits: Any, *, idempotency_key: str | None = None) -> int:
+        """Send one atomic batch (see ``sdfclient.edits``); returns the world's new version. With
+        ``idempotency_key`` (1..128 printable ASCII characters, unique per batch) a batch sent
+        again is applied once, so a 503 is retried too."""
+        return self._send(p.edit(world_id, edits, idempotency_key))
 
     def read_field(self, world_id: str, box: p.BoxArg = None, *, format: str = "distance",  # noqa: A002
                    min_version: int | None = None) -> Block:
@@ -141,12 +171,16 @@ class Client:
 
     def import_world(self, source: p.Source, format: str | None = None, *,  # noqa: A002
                      chunk_size: int | None = None, max_distance: int | None = None,
-                     algorithm: str | None = None, model: int | None = None) -> WorldInfo:
-        """A new world (at version 1) from a file: bytes, a path or a (z, y, x) uint8 array. The
-        server tells snapshot, ``.npy`` and ``.vox`` apart by content; ``format``, if given, must agree. ``npy``/``vox`` take the world's settings (server defaults
-        otherwise; the size is the file's, grown to whole chunks); a snapshot brings its own."""
+                     algorithm: str | None = None, model: int | None = None,
+                     storage: str | None = None) -> WorldInfo:
+        """A new world from a file: bytes, a path or a (z, y, x) uint8 array. The server tells
+        snapshot, ``.npy`` and ``.vox`` apart by content; ``format``, if given, must agree.
+        ``npy``/``vox`` take the world's settings (server defaults otherwise; the size is the
+        file's, grown to whole chunks), ``storage="sparse"`` among them; a snapshot brings its
+        own. ``WorldInfo.warnings`` says where a sparse world holds more device memory than the
+        dense one would."""
         data, fmt = p.import_source(source, format)
-        return self._send(p.import_world(data, fmt, chunk_size, max_distance, algorithm, model))
+        return self._send(p.import_world(data, fmt, chunk_size, max_distance, algorithm, model, storage))
 
     # -- frames ---------------------------------------------------------------------------------
 
@@ -175,9 +209,11 @@ class AsyncClient:
 
     def __init__(self, base_url: str = "http://127.0.0.1:8000", *, api_key: str | None = None,
                  timeout: float = DEFAULT_TIMEOUT_S, transport: httpx.AsyncBaseTransport | None = None,
-                 headers: dict | None = None, limits: httpx.Limits | None = None):
+                 headers: dict | None = None, limits: httpx.Limits | None = None,
+                 retries: int = p.DEFAULT_RETRIES, max_retry_wait_s: float = p.DEFAULT_MAX_RETRY_WAIT_S):
         self.base_url = base_url.rstrip("/")
         self.timeout = timeout
+        self.retries, self.max_retry_wait_s = _checked_retries(retries, max_retry_wait_s)
         self._api_key = api_key
         extra = {} if limits is None else {"limits": limits}
         self._http = httpx.AsyncClient(transport=transport, **_options(base_url, timeout, headers, api_key),
@@ -193,14 +229,22 @@ class AsyncClient:
         await self._http.aclose()
 
     async def _send(self, call: p.Call) -> Any:
-        try:
-            response = await self._http.request(call.method, call.path, **call.request_kwargs())
-        except httpx.TransportError as exc:
-            raise _transport_error(exc, call) from exc
+        kwargs = call.request_kwargs()
+        for attempt in range(self.retries + 1):
+            try:
+                response = await self._http.request(call.method, call.path, **kwargs)
+            except httpx.TransportError as exc:
+                raise _transport_error(exc, call) from exc
+            delay = p.retry_delay(call, response, attempt, self.max_retry_wait_s) if attempt < self.retries else None
+            if delay is None:
+                break
+            await asyncio.sleep(delay)
         return call.parse(response)
 
     async def create_world(self, size: Sequence[int], *, chunk_size: int = 16, max_distance: int = 255,
-                           algorithm: str = "exact", focus: Any = None, **options: Any) -> WorldInfo:
+                           algorithm: str = "exact", focus: Any = None, storage: str | None = None,
+                           generate: dict | None = None, **options: Any) -> WorldInfo:
+        options = {"storage": storage, "generate": generate, **options}
         return await self._send(p.create_world(size, chunk_size, max_distance, algorithm, focus, options))
 
     async def list_worlds(self) -> list[WorldInfo]:
@@ -216,8 +260,8 @@ class AsyncClient:
     async def delete_world(self, world_id: str) -> None:
         await self._send(p.delete_world(world_id))
 
-    async def edit(self, world_id: str, edits: Any) -> int:
-        return await self._send(p.edit(world_id, edits))
+    async def edit(self, world_id: str, edits: Any, *, idempotency_key: str | None = None) -> int:
+        return await self._send(p.edit(world_id, edits, idempotency_key))
 
     async def read_field(self, world_id: str, box: p.BoxArg = None, *, format: str = "distance",  # noqa: A002
                          min_version: int | None = None) -> Block:
@@ -245,9 +289,10 @@ class AsyncClient:
 
     async def import_world(self, source: p.Source, format: str | None = None, *,  # noqa: A002
                            chunk_size: int | None = None, max_distance: int | None = None,
-                           algorithm: str | None = None, model: int | None = None) -> WorldInfo:
+                           algorithm: str | None = None, model: int | None = None,
+                           storage: str | None = None) -> WorldInfo:
         data, fmt = await asyncio.to_thread(p.import_source, source, format)
-        return await self._send(p.import_world(data, fmt, chunk_size, max_distance, algorithm, model))
+        return await self._send(p.import_world(data, fmt, chunk_size, max_distance, algorithm, model, storage))
 
     async def render(self, world_id: str, camera: Camera | dict, *, format: str = "png",  # noqa: A002
                      quality: int | None = None, **options: Any) -> Frame:

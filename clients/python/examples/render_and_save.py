@@ -1,7 +1,7 @@
 """Paint a small scene, save a rendered PNG and a MagicaVoxel .vox of it, and load the .vox back
 as a second world.
 
-    python clients/examples/render_and_save.py http://127.0.0.1:8000 [output directory, made if missing]
+    python clients/python/examples/render_and_save.py http://127.0.0.1:8000 [output directory, made if missing]
 
 Against a server with API keys, set SDFSERVER_API_KEY.
 """

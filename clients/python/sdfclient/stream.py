@@ -12,7 +12,7 @@ a header keeps the token out of URLs and access logs). A refused key or
 another tenant's world closes the stream (4401, 4404): the first ``recv``,
 ``edit`` or ``subscribe`` raises ``Unauthorized`` or ``NotFound``.
 
-Frames are binary msgpack (``sdfserver.wire``) both ways. The stream is meant
+Frames are binary msgpack (``sdfclient.wire``) both ways. The stream is meant
 for one consumer task: ``edit`` and ``subscribe`` read until their answer and
 keep the messages they pass for the iterator, in order. A frame the server
 refuses answers an ``error`` message, raised here as its ServerError; the
@@ -30,6 +30,7 @@ import websockets
 from websockets.asyncio.client import ClientConnection, connect
 
 from sdfclient import _wire
+from sdfclient._version import USER_AGENT
 from sdfclient.edits import normalize
 from sdfclient.errors import ProtocolError, StreamClosed, server_error
 from sdfclient.models import ChunkUpdate, StreamMessage
@@ -118,17 +119,30 @@ class Stream:
         await self._request({"type": "ping"}, "pong")
 
     async def set_camera(self, camera: Any, *, max_fps: float | None = None, format: str | None = None,  # noqa: A002
-                         quality: int | None = None, **options: Any) -> None:
+                         quality: int | None = None, bitrate: int | None = None, crf: int | None = None,
+                         keyframe_s: float | None = None, encoder: str | None = None, preset: str | None = None,
+                         **options: Any) -> None:
         """Ask for rendered frames of this view: ``frame`` messages (``raw``: data, format, width,
         height, version, render_ms, seq) follow whenever the view or the field changes, at most
-        ``max_fps`` a second. ``camera`` is a ``sdfclient.Camera`` or its wire dict."""
+        ``max_fps`` a second. ``camera`` is a ``sdfclient.Camera`` or its wire dict.
+
+        ``format`` ``jpeg`` (``quality``), ``png`` or ``rgba`` sends pictures; ``h264``, ``vp9`` or
+        ``av1`` (``bitrate`` in bit/s or ``crf``, ``keyframe_s``, ``encoder``, ``preset``) sends
+        video: a ``video`` message, then one encoded chunk per ``frame``.
+        ``sdfclient.video.FrameDecoder`` turns either into pictures."""
         from sdfclient._protocol import RENDER_OPTIONS, _view
 
         unknown = sorted(set(options) - set(RENDER_OPTIONS))
         if unknown:
             raise TypeError(f"unknown render options {unknown}; known: {', '.join(RENDER_OPTIONS)}")
-        extra = {"max_fps": max_fps, "format": format, "quality": quality}
+        extra = {"max_fps": max_fps, "format": format, "quality": quality, "bitrate": bitrate, "crf": crf,
+                 "keyframe_s": keyframe_s, "encoder": encoder, "preset": preset}
         await self._send({**_view(camera, {**options, **extra}), "type": "camera", "id": next(self._ids)})
+
+    async def request_keyframe(self) -> None:
+        """The next video frame is a keyframe (after a chunk failed to decode; ``FrameDecoder``
+        says so with ``needs_keyframe``)."""
+        await self._send({"type": "keyframe", "id": next(self._ids)})
 
     async def send_edits(self, edits: Any) -> int:
         """Send a batch without waiting; its ``ack`` message carries the returned ``id``."""
@@ -205,7 +219,8 @@ class _Connecting:
     async def _open(self) -> Stream:
         try:
             ws = await connect(self._url, open_timeout=self._open_timeout, max_size=self._max,
-                               compression=None, additional_headers=self._headers or None)
+                               compression=None, additional_headers=self._headers or None,
+                               user_agent_header=USER_AGENT)
         except websockets.InvalidStatus as exc:
             status = exc.response.status_code
             body = exc.response.body or b""

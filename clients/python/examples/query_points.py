@@ -1,6 +1,6 @@
 """Build a floor and ask the server how far points above it are, and which way is away from it.
 
-    python clients/examples/query_points.py http://127.0.0.1:8000
+    python clients/python/examples/query_points.py http://127.0.0.1:8000
 """
 
 import os

@@ -19,7 +19,7 @@ import os
 import sys
 import time
 
-from service_overhead import children, cpu_seconds, fronts_cpu_seconds
+from service_overhead import children, cpu_seconds, children_cpu_seconds
 
 TICK = os.sysconf("SC_CLK_TCK")
 
@@ -30,8 +30,8 @@ def snap(pid: int) -> dict:
     idle = values[3] + values[4]  # idle + iowait
     kids = children(pid)
     return {"at": time.monotonic(), "host_busy_s": (sum(values[:8]) - idle) / TICK, "host_total_s": sum(values[:8]) / TICK,
-            "cpus": os.cpu_count(), "launcher_s": cpu_seconds(pid), "engine_s": fronts_cpu_seconds(kids[:1]),
-            "api_s": fronts_cpu_seconds(kids[1:])}
+            "cpus": os.cpu_count(), "launcher_s": cpu_seconds(pid), "engine_s": children_cpu_seconds(kids[:1]),
+            "api_s": children_cpu_seconds(kids[1:])}
 
 
 def diff(before: dict, after: dict, requests: int) -> None:

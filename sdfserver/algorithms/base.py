@@ -131,8 +131,31 @@ class RegionJob:
 @dataclass
 class AlgorithmRun:
     events: list[cl.Event] = field(default_factory=list)
-    iterations: int = 0  # FIM passes that changed something; JFA passes
+    counted: int = 0  # the iterations known on the host (``iterations`` adds those still arriving)
     bytes_moved: int = 0  # device memory traffic the algorithm counts (exact only; see exact.py)
+    # Counts the device is still copying back (an int32 host array each, and its copy's event):
+    # a count made on the device (one-launch fim) is read when asked for, so that enqueueing
+    # the run does not wait for it.
+    arriving: list[tuple[np.ndarray, cl.Event]] = field(default_factory=list)
+
+    @property
+    def iterations(self) -> int:
+        """FIM passes that changed something; JFA passes. Waits for counts still arriving."""
+        while self.arriving:
+            counts, copied = self.arriving.pop()
+            copied.wait()
+            self.counted += int(counts[0])
+        return self.counted
+
+    @iterations.setter
+    def iterations(self, n: int) -> None:
+        self.arriving.clear()
+        self.counted = n
+
+    def count_later(self, gpu: GpuContext, buffer: cl.Buffer) -> None:
+        """Add the int32 at the start of ``buffer`` to the iterations once the queue gets there."""
+        counts = np.empty(1, np.int32)
+        self.arriving.append((counts, cl.enqueue_copy(gpu.queue, counts, buffer, is_blocking=False)))
 
 
 class Algorithm(Protocol):

@@ -26,6 +26,7 @@ from sdfserver import bulk
 from sdfserver.algorithms.base import (
     AlgorithmRun, Pieces, RegionJob, SlabPace, grid, init_work, int4, pack_region, run_whole, slabs,
 )
+from sdfserver.algorithms.one_launch import OneLaunch
 from sdfserver.gpu import GpuContext
 
 MAX_BATCH = 64
@@ -75,12 +76,21 @@ class Fim:
     exact = True
     supports_padding = True
 
+    def __init__(self, one_launch: bool = True) -> None:
+        """``one_launch``: boxes that fit a work-group's local memory run in one launch
+        (one_launch.py); False keeps a launch a pass everywhere."""
+        self.small = OneLaunch(flood=False, relax=True) if one_launch else None
+
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         run = AlgorithmRun()
         run_whole(self.pieces(gpu, job, run))
         return run
 
     def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, piece_s: float | None = None) -> Pieces:
+        plan = self.small and self.small.plan(gpu, job)
+        if plan:
+            yield from self.small.pieces(gpu, job, run, plan, piece_s)
+            return
         run.events.append(init_work(gpu, job, job.buffers.work))
         yield
         yield from relax_pieces(gpu, job, run, piece_s=piece_s)

@@ -32,6 +32,7 @@ import pyopencl as cl
 from sdfserver.algorithms.base import (
     AlgorithmRun, Pieces, RegionJob, SlabPace, grid, init_work, int4, pack_region, run_whole, slabs,
 )
+from sdfserver.algorithms.one_launch import OneLaunch, Plan
 from sdfserver.gpu import GpuContext
 
 EXTRA_STEPS = {0: (), 1: (1,), 2: (2, 1)}  # Rong & Tan's JFA, JFA+1, JFA+2
@@ -82,14 +83,27 @@ def flood(gpu: GpuContext, job: RegionJob, run: AlgorithmRun, out: cl.Buffer, ex
     run.events.append(kernel("jfa.cl", "jfa_resolve")(gpu.queue, gsize, lsize, b.work, src, out, w_n, cap))
 
 
+def flood_in_one_launch(small: OneLaunch, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, plan: Plan,
+                        piece_s: float | None, extra_passes: int = 0) -> Pieces:
+    """``small``'s one launch with the passes ``flood`` would run (``step_sizes``)."""
+    steps = step_sizes(job, extra_passes)
+    main = steps[:len(steps) - extra_passes]
+    yield from small.pieces(gpu, job, run, plan, piece_s, main[0] if main else 0, extra_passes)
+    if not small.relax:
+        run.iterations += len(steps)
+
+
 class Jfa:
     exact = False
     supports_padding = True
     seed_scratch = True
 
-    def __init__(self, extra_passes: int = 0) -> None:
+    def __init__(self, extra_passes: int = 0, one_launch: bool = True) -> None:
+        """``one_launch``: boxes that fit a work-group's local memory run in one launch
+        (one_launch.py); False keeps a launch a pass everywhere."""
         self.extra_passes = extra_passes
         self.name = "jfa" if extra_passes == 0 else f"jfa+{extra_passes}"
+        self.small = OneLaunch(flood=True, relax=False) if one_launch else None
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         run = AlgorithmRun()
@@ -97,6 +111,10 @@ class Jfa:
         return run
 
     def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, piece_s: float | None = None) -> Pieces:
+        plan = self.small and self.small.plan(gpu, job)
+        if plan:
+            yield from flood_in_one_launch(self.small, gpu, job, run, plan, piece_s, self.extra_passes)
+            return
         run.events.append(init_work(gpu, job, job.buffers.work))
         yield from flood(gpu, job, run, job.buffers.work2, self.extra_passes, piece_s)
         run.events.append(pack_region(gpu, job, job.buffers.work2))

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 from sdfserver.algorithms.base import AlgorithmRun, Pieces, RegionJob, init_work, pack_region, run_whole
 from sdfserver.algorithms.fim import relax_pieces
-from sdfserver.algorithms.jfa import flood
+from sdfserver.algorithms.jfa import flood, flood_in_one_launch
+from sdfserver.algorithms.one_launch import OneLaunch
 from sdfserver.gpu import GpuContext
 
 
@@ -25,12 +26,21 @@ class JfaFim:
     supports_padding = True
     seed_scratch = True
 
+    def __init__(self, one_launch: bool = True) -> None:
+        """``one_launch``: boxes that fit a work-group's local memory run in one launch
+        (one_launch.py); False keeps a launch a pass everywhere."""
+        self.small = OneLaunch(flood=True, relax=True) if one_launch else None
+
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
         run = AlgorithmRun()
         run_whole(self.pieces(gpu, job, run))
         return run
 
     def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, piece_s: float | None = None) -> Pieces:
+        plan = self.small and self.small.plan(gpu, job)
+        if plan:  # iterations: the FIM passes the device counts, as below
+            yield from flood_in_one_launch(self.small, gpu, job, run, plan, piece_s)
+            return
         b = job.buffers
         run.events.append(init_work(gpu, job, b.work))
         yield from flood(gpu, job, run, b.work2, piece_s=piece_s)

@@ -1,0 +1,287 @@
+/* Small boxes in one launch: a work-group loads a whole box into local memory,
+ * runs every pass of its algorithm there, barriers between passes, and writes
+ * the result, so a small region costs one launch instead of one per pass (and,
+ * for FIM, no host round trip to learn that a pass changed nothing).
+ *
+ * A box is the job's whole work box (one work-group), or with padding
+ * (chunk > 0) one chunk of the region, one work-group per chunk: padded chunks
+ * are computed alone, so work-groups never read each other's voxels. Groups
+ * are numbered x fastest over the region's chunks, from `first_group`.
+ *
+ * Built with:
+ *   ONE_LAUNCH_FLOOD  1: jump flooding (jfa.cl's passes, candidate order and
+ *                     strict ties, so the same nearest seeds), then its resolve.
+ *   ONE_LAUNCH_RELAX  1: FIM passes (fim.cl) until one changes nothing, on the
+ *                     initial distances or on the flood's result.
+ * The initial distances are init_work's and the write-back pack_region's
+ * (region.cl), so the results are the multi-launch algorithms'.
+ *
+ * Work-items own column segments: item u of a box's `units` takes column
+ * u % (n.x * n.y) and z-segment u / (n.x * n.y), and walks its segment in z.
+ * FIM relaxes in place and alternates the walk's direction pass by pass, so a
+ * distance travels a whole segment in one pass; any order of in-place
+ * relaxation reaches the same least fixed point.
+ *
+ * A seed is its box coordinates packed into a ushort, ceil(log2(side)) bits
+ * per axis; SEED_NONE when none is known (the host sees that no seed packs to
+ * it: one_launch.py's SEED_BITS). */
+#include "sdf_common.h"
+#include "chunk_padding.h"
+
+#define SEED_NONE 0xffffu
+
+typedef struct {
+    int4 n;        /* the box's extent */
+    int nxy;       /* columns */
+    int seg_len;   /* z-planes a work-item walks per column segment */
+    int units;     /* column segments */
+    int bx, bxy;   /* seed packing: bits for x, for x and y */
+} Box;
+
+inline Box make_box(int4 n)
+{
+    Box b;
+    b.n = n;
+    b.nxy = n.x * n.y;
+    const int items = (int)get_local_size(0);
+    const int segments = items >= b.nxy ? min(n.z, items / b.nxy) : 1;
+    b.seg_len = (n.z + segments - 1) / segments;
+    b.units = b.nxy * segments;
+    b.bx = n.x > 1 ? 32 - clz(n.x - 1) : 0;
+    b.bxy = b.bx + (n.y > 1 ? 32 - clz(n.y - 1) : 0);
+    return b;
+}
+
+inline int local_index(int x, int y, int z, const Box *b)
+{
+    return (z * b->n.y + y) * b->n.x + x;
+}
+
+/* Work-item's unit u: its column (x, y) and z-planes [z0, z1). */
+inline void unit_span(int u, const Box *b, int *x, int *y, int *z0, int *z1)
+{
+    const int c = u % b->nxy;
+    *x = c % b->n.x;
+    *y = c / b->n.x;
+    *z0 = (u / b->nxy) * b->seg_len;
+    *z1 = min(b->n.z, *z0 + b->seg_len);
+}
+
+#if ONE_LAUNCH_FLOOD
+inline ushort pack_seed(int x, int y, int z, const Box *b)
+{
+    return (ushort)(x | (y << b->bx) | (z << b->bxy));
+}
+
+/* What voxel (x, y, z) pays for seed s: the seed's weight plus the way there. */
+inline uint seed_cost(__local const uchar *dist, int x, int y, int z, ushort s, const Box *b)
+{
+    const int sx = s & ((1 << b->bx) - 1), sy = (s >> b->bx) & ((1 << (b->bxy - b->bx)) - 1), sz = s >> b->bxy;
+    return (uint)dist[local_index(sx, sy, sz, b)] + (uint)(abs(sx - x) + abs(sy - y) + abs(sz - z));
+}
+
+/* One jfa_seed_pass over the box: src's seeds offered `step` away, into dst. */
+inline void flood_pass(__local const uchar *dist, __local const ushort *src, __local ushort *dst,
+                       int step, int cap, const Box *b)
+{
+    for (int u = get_local_id(0); u < b->units; u += get_local_size(0)) {
+        int x, y, z0, z1;
+        unit_span(u, b, &x, &y, &z0, &z1);
+        for (int z = z0; z < z1; ++z) {
+            const int i = local_index(x, y, z, b);
+            ushort best = src[i];
+            uint best_cost = (uint)cap;
+            if (best != SEED_NONE)
+                best_cost = seed_cost(dist, x, y, z, best, b);
+            if (best_cost > 0u) {
+                for (int dz = -1; dz <= 1; ++dz) {
+                    const int nz = z + dz * step;
+                    if (nz < 0 || nz >= b->n.z)
+                        continue;
+                    for (int dy = -1; dy <= 1; ++dy) {
+                        const int ny = y + dy * step;
+                        if (ny < 0 || ny >= b->n.y)
+                            continue;
+                        for (int dx = -1; dx <= 1; ++dx) {
+                            const int nx = x + dx * step;
+                            if ((dx | dy | dz) == 0 || nx < 0 || nx >= b->n.x)
+                                continue;
+                            const ushort s = src[local_index(nx, ny, nz, b)];
+                            if (s == SEED_NONE)
+                                continue;
+                            const int sx = s & ((1 << b->bx) - 1);
+                            const int sy = (s >> b->bx) & ((1 << (b->bxy - b->bx)) - 1), sz = s >> b->bxy;
+                            const uint way = (uint)(abs(sx - x) + abs(sy - y) + abs(sz - z));
+                            if (way >= best_cost)
+                                continue;  /* weights are never negative */
+                            const uint cost = (uint)dist[local_index(sx, sy, sz, b)] + way;
+                            if (cost < best_cost) {
+                                best_cost = cost;
+                                best = s;
+                            }
+                        }
+                    }
+                }
+            }
+            dst[i] = best;
+        }
+    }
+}
+
+/* jfa_seed_init, every pass of jfa.py's step_sizes (first_step halving to 1,
+ * then the extra passes' steps), and jfa_resolve, whose distances replace
+ * `dist`. `a` and `b2` are the ping-pong pair. */
+inline void flood(__local uchar *dist, __local ushort *a, __local ushort *b2, int first_step,
+                  int extra_passes, int cap, int chunk, const Box *b)
+{
+    for (int u = get_local_id(0); u < b->units; u += get_local_size(0)) {
+        int x, y, z0, z1;
+        unit_span(u, b, &x, &y, &z0, &z1);
+        for (int z = z0; z < z1; ++z) {
+            const uint w = dist[local_index(x, y, z, b)];
+            a[local_index(x, y, z, b)] = (chunk > 0 ? w == 0u : w < (uint)cap) ? pack_seed(x, y, z, b) : SEED_NONE;
+        }
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    __local ushort *src = a, *dst = b2;
+    const int halvings = first_step > 0 ? 32 - clz(first_step) : 0;
+    for (int k = 0; k < halvings + extra_passes; ++k) {
+        const int step = k < halvings ? first_step >> k : extra_passes - (k - halvings);
+        flood_pass(dist, src, dst, step, cap, b);
+        barrier(CLK_LOCAL_MEM_FENCE);
+        __local ushort *t = src;
+        src = dst;
+        dst = t;
+    }
+    /* Resolve into dst (free now), then copy: every seed's weight is read from dist until all are done. */
+    for (int u = get_local_id(0); u < b->units; u += get_local_size(0)) {
+        int x, y, z0, z1;
+        unit_span(u, b, &x, &y, &z0, &z1);
+        for (int z = z0; z < z1; ++z) {
+            const int i = local_index(x, y, z, b);
+            uint d = min((uint)dist[i], (uint)cap);
+            if (src[i] != SEED_NONE)
+                d = min(d, seed_cost(dist, x, y, z, src[i], b));
+            dst[i] = (ushort)d;
+        }
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (int u = get_local_id(0); u < b->units; u += get_local_size(0)) {
+        int x, y, z0, z1;
+        unit_span(u, b, &x, &y, &z0, &z1);
+        for (int z = z0; z < z1; ++z)
+            dist[local_index(x, y, z, b)] = (uchar)dst[local_index(x, y, z, b)];
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+}
+#endif
+
+#if ONE_LAUNCH_RELAX
+/* fim_pass over the box until a pass changes nothing; returns the passes that
+ * changed something. `flags` holds three pass flags in rotation: pass p sets
+ * flags[p % 3] and clears flags[(p + 1) % 3], which every work-item read
+ * before the barrier that ended pass p - 1, so one barrier a pass suffices. */
+inline int relax(__local uchar *dist, __local volatile int *flags, const Box *b)
+{
+    if (get_local_id(0) < 3)
+        flags[get_local_id(0)] = 0;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const int sy = b->n.x, sz = b->nxy;
+    int pass = 0;
+    for (;;) {
+        int changed = 0;
+        const int up = (pass & 1) == 0;
+        for (int u = get_local_id(0); u < b->units; u += get_local_size(0)) {
+            int x, y, z0, z1;
+            unit_span(u, b, &x, &y, &z0, &z1);
+            for (int k = 0; k < z1 - z0; ++k) {
+                const int z = up ? z0 + k : z1 - 1 - k;
+                const int i = local_index(x, y, z, b);
+                const uint here = dist[i];
+                if (here == 0u)
+                    continue;
+                uint best = here;
+                if (x > 0) best = min(best, (uint)dist[i - 1] + 1u);
+                if (x + 1 < b->n.x) best = min(best, (uint)dist[i + 1] + 1u);
+                if (y > 0) best = min(best, (uint)dist[i - sy] + 1u);
+                if (y + 1 < b->n.y) best = min(best, (uint)dist[i + sy] + 1u);
+                if (z > 0) best = min(best, (uint)dist[i - sz] + 1u);
+                if (z + 1 < b->n.z) best = min(best, (uint)dist[i + sz] + 1u);
+                if (best < here) {
+                    dist[i] = (uchar)best;
+                    changed = 1;
+                }
+            }
+        }
+        if (changed)
+            flags[pass % 3] = 1;
+        if (get_local_id(0) == 0)
+            flags[(pass + 1) % 3] = 0;
+        barrier(CLK_LOCAL_MEM_FENCE);
+        const int any = flags[pass % 3];
+        ++pass;
+        if (!any)
+            return pass - 1;
+    }
+}
+#endif
+
+/* `n`: a box's extent (the work box, or the chunk when padded). `to_work`: write
+ * the distances into `work` at work-box coordinates (pack_region writes the
+ * field later: a run in pieces), else the field over R. `passes`: the FIM
+ * passes that changed something, the most of any group (atomic_max over a
+ * zeroed int where `accumulate`, else written). */
+__kernel void one_launch(__global const uchar *voxels, __global ushort *field, __global uchar *work,
+                         int4 dims, int4 w_lo, int4 w_n, int4 r_lo, int4 r_hi, int4 n,
+                         int seeded, int cap, int chunk, int first_group, int to_work,
+                         int first_step, int extra_passes, __global int *passes, int accumulate,
+                         __local uchar *dist, __local ushort *seeds_a, __local ushort *seeds_b)
+{
+    __local volatile int flags[3];
+    const Box b = make_box(n);
+    const int group = first_group + (int)get_group_id(0);
+    const int gx = w_n.x / n.x, gy = w_n.y / n.y;
+    const int4 o = (int4)(group % gx * n.x, group / gx % gy * n.y, group / (gx * gy) * n.z, 0);
+
+    for (int u = get_local_id(0); u < b.units; u += get_local_size(0)) {
+        int x, y, z0, z1;
+        unit_span(u, &b, &x, &y, &z0, &z1);
+        const int wx = w_lo.x + o.x + x, wy = w_lo.y + o.y + y;
+        for (int z = z0; z < z1; ++z) {
+            const int wz = w_lo.z + o.z + z;
+            uint d = init_distance(voxels, field, wx, wy, wz, dims, r_lo, r_hi, seeded, cap);
+            if (chunk > 0)
+                d = min(d, frame_distance(wx, wy, wz, chunk));
+            dist[local_index(x, y, z, &b)] = (uchar)d;
+        }
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+#if ONE_LAUNCH_FLOOD
+    flood(dist, seeds_a, seeds_b, first_step, extra_passes, cap, chunk, &b);
+#endif
+#if ONE_LAUNCH_RELAX
+    const int changed_passes = relax(dist, flags, &b);
+    if (get_local_id(0) == 0) {
+        if (accumulate)
+            atomic_max(passes, changed_passes);
+        else
+            *passes = changed_passes;
+    }
+#endif
+
+    for (int u = get_local_id(0); u < b.units; u += get_local_size(0)) {
+        int x, y, z0, z1;
+        unit_span(u, &b, &x, &y, &z0, &z1);
+        const int wx = w_lo.x + o.x + x, wy = w_lo.y + o.y + y;
+        for (int z = z0; z < z1; ++z) {
+            const int wz = w_lo.z + o.z + z;
+            const uint d = dist[local_index(x, y, z, &b)];
+            if (to_work) {
+                work[box_index(o.x + x, o.y + y, o.z + z, w_n)] = (uchar)d;
+            } else if (in_box(wx, wy, wz, r_lo, r_hi)) {
+                const size_t i = world_index(wx, wy, wz, dims);
+                field[i] = pack_field(min(d, (uint)cap), voxels[i]);
+            }
+        }
+    }
+}

@@ -1,0 +1,152 @@
+"""One launch for small boxes: fim, jfa and jfa_fim whole in local memory (kernels/one_launch.cl).
+
+Computes: what fim (Algorithms 4 and 5), jfa (Algorithm 6) and jfa_fim (§4.5) compute, with
+the same initial distances, passes and write-back, in one launch: one work-group holds a box in
+local memory and runs every pass there. A box is the job's whole work box, or with padded
+borders each chunk of the region (one work-group a chunk, the dissertation's chunked set-up,
+§4.2.1). FIM decides convergence inside the work-group, so a run costs no host round trip per
+pass; its count of passes comes back after the launch, read only when someone asks for it.
+Source: Fedor 2025 §4.3–4.5; the kernel reuses region.cl's initial distances and packing.
+Results: fim and jfa_fim reach the same least fixed point (the exact field), so they equal the
+multi-launch field voxel for voxel. Jump flooding keeps jfa.cl's passes, candidate order and
+strict ties, so it finds the same nearest seeds and the same (approximate) field. FIM's pass
+count is its own: it relaxes in place along z-segments, so it converges in fewer passes.
+Units: voxels. Halo: the job's (seed shell, ``cap`` voxels, or none with padding).
+Limits: a box fits when its distances (1 byte a voxel; with jump flooding 4 more for two packed
+seed buffers, each seed ``ceil(log2(side))`` bits an axis, 16 at most) fit the device's local
+memory beside the kernel's own, checked at run time; otherwise the algorithms run as before, a
+launch a pass. A box is also at most ``MAX_BOX_VOXELS``: one work-group runs on one compute unit,
+so a single large box would leave the rest of the device idle, and it could not be cut into
+pieces (``base.Pieces``); padded regions of any size are cut between their chunks' groups.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+import pyopencl as cl
+
+from sdfserver import bulk
+from sdfserver.algorithms.base import AlgorithmRun, Pieces, RegionJob, SlabPace, int4, pack_region, slabs
+from sdfserver.gpu import GpuContext
+
+MAX_ITEMS = 1024  # work-items a group: a GPU's usual maximum, and enough for a 32^2 column layer
+# The largest box one work-group takes, whatever local memory allows: a larger one would keep one
+# compute unit busy for long, which neither beats a launch a pass nor can be cut into pieces.
+MAX_BOX_VOXELS = 32 ** 3
+# A packed seed's bits. All ones is SEED_NONE: with 16 bits in all, some side is not a power of two
+# (a box of powers of two has at most MAX_BOX_VOXELS = 2^15 voxels: 15 bits), so no seed is all ones.
+SEED_BITS = 16
+
+
+@dataclass(frozen=True)
+class Plan:
+    """How one job runs in one launch."""
+
+    box_n: tuple[int, int, int]  # a work-group's box: the work box, or the chunk when padded
+    groups: int
+    items: int  # work-items a group
+    dist_bytes: int
+    seed_bytes: int  # each of the two seed buffers (a placeholder without jump flooding)
+
+
+class _DeviceState:
+    """What one context keeps for the path: each kernel variant's limits, and the int the FIM
+    passes are counted in (one is enough: the queue is in order, and each count is copied out
+    before the next launch writes it)."""
+
+    def __init__(self, gpu: GpuContext):
+        self.limits: dict[tuple[bool, bool], tuple[int, int]] = {}
+        self.count = cl.Buffer(gpu.context, cl.mem_flags.READ_WRITE, size=4)
+
+
+_STATES: "weakref.WeakKeyDictionary[GpuContext, _DeviceState]" = weakref.WeakKeyDictionary()
+
+
+def _state(gpu: GpuContext) -> _DeviceState:
+    state = _STATES.get(gpu)
+    if state is None:
+        state = _STATES[gpu] = _DeviceState(gpu)
+    return state
+
+
+def _bits(side: int) -> int:
+    return (side - 1).bit_length()
+
+
+class OneLaunch:
+    """The one-launch form of one algorithm: ``flood`` (jump flooding first) and ``relax`` (FIM
+    passes to convergence, last)."""
+
+    def __init__(self, flood: bool, relax: bool):
+        self.flood, self.relax = flood, relax
+        self.defines = {"ONE_LAUNCH_FLOOD": int(flood), "ONE_LAUNCH_RELAX": int(relax)}
+
+    def kernel(self, gpu: GpuContext) -> cl.Kernel:
+        return gpu.programs.kernel("one_launch.cl", "one_launch", **self.defines)
+
+    def _limits(self, gpu: GpuContext) -> tuple[int, int]:
+        """(the most work-items a group, the local bytes left for the boxes)."""
+        state = _state(gpu)
+        key = (self.flood, self.relax)
+        found = state.limits.get(key)
+        if found is None:
+            kernel, device = self.kernel(gpu), gpu.device
+            items = min(MAX_ITEMS, device.max_work_group_size,
+                        kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device))
+            static = kernel.get_work_group_info(cl.kernel_work_group_info.LOCAL_MEM_SIZE, device)
+            found = state.limits[key] = (int(items), int(device.local_mem_size) - int(static))
+        return found
+
+    def plan(self, gpu: GpuContext, job: RegionJob) -> Plan | None:
+        """How ``job`` runs in one launch, or None where a box does not fit the device."""
+        if job.invert or job.signed:
+            return None
+        if job.chunk:
+            box_n = (job.chunk,) * 3
+            groups = math.prod(w // job.chunk for w in job.work_box.shape_xyz)
+        else:
+            box_n, groups = job.work_box.shape_xyz, 1
+        voxels = math.prod(box_n)
+        if not 0 < voxels <= MAX_BOX_VOXELS:
+            return None
+        seed_bytes = 2 * voxels if self.flood else 4
+        if self.flood and sum(_bits(n) for n in box_n) > SEED_BITS:
+            return None
+        items_max, local_bytes = self._limits(gpu)
+        if voxels + 2 * seed_bytes > local_bytes:
+            return None
+        columns = box_n[0] * box_n[1]
+        items = columns * min(box_n[2], items_max // columns) if columns <= items_max else items_max
+        return Plan(box_n, groups, items, voxels, seed_bytes)
+
+    def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, plan: Plan, piece_s: float | None,
+               first_step: int = 0, extra_passes: int = 0) -> Pieces:
+        """The job in one launch; with ``piece_s`` and several groups (padded chunks), launches of
+        a run of groups each, paced like ``slabs``, writing scratch until pack_region at the end."""
+        b, state = job.buffers, _state(gpu)
+        kernel = self.kernel(gpu)
+        cut = piece_s is not None and plan.groups > 1
+        accumulate = plan.groups > 1
+        if self.relax and accumulate:
+            run.events.append(bulk.fill(gpu, state.count, np.int32, 0, 1))
+        fixed = (b.voxels, b.field, b.work, int4(b.dims), int4(job.work_box.lo), int4(job.work_box.shape_xyz),
+                 int4(job.region.lo), int4(job.region.hi), int4(plan.box_n), np.int32(job.seeded),
+                 np.int32(job.cap), np.int32(job.chunk))
+        tail = (np.int32(first_step), np.int32(extra_passes), state.count, np.int32(accumulate),
+                cl.LocalMemory(plan.dist_bytes), cl.LocalMemory(plan.seed_bytes), cl.LocalMemory(plan.seed_bytes))
+
+        def launch(first_group: int, groups: int) -> cl.Event:
+            return kernel(gpu.queue, (groups * plan.items,), (plan.items,), *fixed, np.int32(first_group),
+                          np.int32(cut), *tail)
+
+        if cut:
+            yield from slabs(run, launch, plan.groups, SlabPace(piece_s, 1))
+            run.events.append(pack_region(gpu, job, b.work))
+        else:
+            run.events.append(launch(0, plan.groups))
+        if self.relax:
+            run.count_later(gpu, state.count)

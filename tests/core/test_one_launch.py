@@ -1,0 +1,225 @@
+"""Small boxes in one launch (sdfserver/algorithms/one_launch.py): fim, jump flooding and jfa_fim
+give the multi-launch algorithms' field voxel for voxel (and the oracle's where they are exact),
+in one or two launches instead of one a pass; a box that does not fit falls back to a launch a
+pass, and padded regions in pieces are cut between their chunks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sdfserver import world as world_module
+from sdfserver.algorithms import ALGORITHMS
+from sdfserver.algorithms import one_launch
+from sdfserver.algorithms.base import RegionJob
+from sdfserver.algorithms.fim import Fim
+from sdfserver.algorithms.jfa import Jfa, step_sizes
+from sdfserver.algorithms.jfa_fim import JfaFim
+from sdfserver.edits import SphereEdit
+from sdfserver.geometry import Box
+from sdfserver.world import Focus, World, WorldConfig
+
+from .conftest import oracle, random_voxels
+from .test_padded import padded_oracle
+
+ONE = {"fim": Fim(), "jfa": Jfa(0), "jfa+1": Jfa(1), "jfa+2": Jfa(2), "jfa_fim": JfaFim()}
+MULTI = {"fim": Fim(one_launch=False), "jfa": Jfa(0, one_launch=False), "jfa+1": Jfa(1, one_launch=False),
+         "jfa+2": Jfa(2, one_launch=False), "jfa_fim": JfaFim(one_launch=False)}
+EXACT = {"fim", "jfa_fim"}
+
+
+def spheres(rng: np.random.Generator, size, n: int) -> list[SphereEdit]:
+    """Brushes that add and remove (colour 0), some reaching past the world's faces."""
+    return [SphereEdit(tuple(map(float, rng.uniform(-2, np.array(size) + 2))), float(rng.uniform(0.5, 3)),
+                       int(rng.integers(0, 256)) if rng.random() < 0.7 else 0) for _ in range(n)]
+
+
+def inside(rng: np.random.Generator, size) -> list[SphereEdit]:
+    """One brush that adds solids inside the world (a radius of 1 holds a voxel centre), so that
+    something is recomputed."""
+    return [SphereEdit(tuple(map(float, rng.uniform(0, size))), float(rng.uniform(1, 3)), int(rng.integers(1, 256)))]
+
+
+def run_both(gpu, monkeypatch, config: WorldConfig, voxels: np.ndarray, batches=()):
+    """The fields and recompute results of the world under the one-launch algorithms and under the
+    multi-launch ones: after the load, then after each batch of edits (seeded regions)."""
+    out = {}
+    for name, variant in (("one", ONE), ("multi", MULTI)):
+        for algorithm in {config.algorithm, config.lod_algorithm} & set(variant):
+            monkeypatch.setitem(ALGORITHMS, algorithm, variant[algorithm])
+        world = World(gpu, config)
+        try:
+            world.load_voxels(voxels)
+            steps = [(world.recompute(), world.read_field())]
+            for batch in batches:
+                world.apply_edits(batch)
+                steps.append((world.recompute(), world.read_field()))
+            out[name] = steps, world.read_voxels()
+        finally:
+            world.release()
+    return out
+
+
+def assert_same(out, cap: int, exact_oracle=None) -> None:
+    (one, voxels), (multi, _) = out["one"], out["multi"]
+    for i, ((_, a), (_, b)) in enumerate(zip(one, multi)):
+        differ = np.argwhere(a != b)
+        assert differ.size == 0, (f"step {i}: {len(differ)} voxels differ from the multi-launch field; first at zyx "
+                                  f"{differ[0].tolist()}: {a[tuple(differ[0])] >> 8} against {b[tuple(differ[0])] >> 8}")
+    if exact_oracle is not None:
+        assert np.array_equal((one[-1][1] >> 8).astype(np.uint8), exact_oracle(voxels, cap))
+
+
+@pytest.mark.parametrize("algorithm", list(ONE))
+@pytest.mark.parametrize("chunk", [8, 16, 32])
+@pytest.mark.parametrize("cap", [3, 11, 255])
+def test_one_chunk_world_equals_multi_launch(gpu, rng, monkeypatch, algorithm, chunk, cap):
+    """The dissertation's Tables 4.4–4.6 set-up: a world of one chunk, regenerated, then edited."""
+    size = (chunk,) * 3
+    out = run_both(gpu, monkeypatch, WorldConfig(size, chunk, cap, algorithm),
+                   random_voxels(rng, size[::-1], rng.uniform(0.002, 0.05)),
+                   [spheres(rng, size, 2), spheres(rng, size, 3)])
+    assert_same(out, cap, oracle if algorithm in EXACT else None)
+
+
+@pytest.mark.parametrize("algorithm", list(ONE))
+@pytest.mark.parametrize("chunk,size", [(8, (24, 16, 32)), (16, (32, 48, 32)), (32, (64, 32, 64))])
+@pytest.mark.parametrize("cap", [5, 255])
+def test_padded_chunks_equal_multi_launch(gpu, rng, monkeypatch, algorithm, chunk, size, cap):
+    """Padded borders: one work-group a chunk, all in one launch."""
+    out = run_both(gpu, monkeypatch, WorldConfig(size, chunk, cap, algorithm, borders="padded"),
+                   random_voxels(rng, size[::-1], rng.uniform(0.002, 0.05)), [spheres(rng, size, 3)])
+    assert_same(out, cap, (lambda v, c: padded_oracle(v, chunk, c)) if algorithm in EXACT else None)
+
+
+@pytest.mark.parametrize("algorithm", list(ONE))
+def test_seeded_regions_in_a_larger_world_equal_multi_launch(gpu, rng, monkeypatch, algorithm):
+    """Edits under a small cap: regions of a few chunks, computed from their seed shell."""
+    size, cap = (48, 40, 32), 3
+    out = run_both(gpu, monkeypatch, WorldConfig(size, 8, cap, algorithm), random_voxels(rng, size[::-1], 0.01),
+                   [inside(rng, size) for _ in range(4)])
+    assert_same(out, cap, oracle if algorithm in EXACT else None)
+    for result, _ in out["one"][0][1:]:  # regions of at most 3^3 chunks: boxes that fit in one launch
+        assert len(result.regions) == 1 and result.regions[0].volume <= 24 ** 3, result.regions
+        assert len(result.kernel_ms) == 1
+
+
+@pytest.mark.parametrize("algorithm", ["fim", "jfa_fim"])
+def test_focus_halo_jobs_equal_multi_launch(gpu, rng, monkeypatch, algorithm):
+    """The focus: jump flooding over the region, then the world's algorithm from voxels alone
+    inside the focus, over a halo of ``cap`` voxels."""
+    size, cap = (48, 32, 32), 4
+    config = WorldConfig(size, 8, cap, algorithm, focus=Focus((3, 2, 2), (2, 2, 2)), lod_algorithm="jfa")
+    out = run_both(gpu, monkeypatch, config, random_voxels(rng, size[::-1], 0.01),
+                   [spheres(rng, size, 1) for _ in range(3)])
+    assert_same(out, cap)
+
+
+@pytest.mark.parametrize("algorithm", list(ONE))
+@pytest.mark.parametrize("borders,size,chunk", [("exact", (16, 16, 16), 16), ("exact", (8, 8, 8), 8),
+                                                ("padded", (32, 32, 48), 16)])
+def test_one_launch_is_taken(gpu, rng, monkeypatch, algorithm, borders, size, chunk):
+    """One launch a run (two for padded fim and jfa_fim: the pass counter is zeroed first), against
+    one a pass; the iterations are the multi-launch's kind of count (jfa: its passes)."""
+    out = run_both(gpu, monkeypatch, WorldConfig(size, chunk, 255, algorithm, borders=borders),
+                   random_voxels(rng, size[::-1], 0.01), [inside(rng, size)])
+    for (one, _), (multi, _) in zip(out["one"][0], out["multi"][0]):
+        assert len(one.kernel_ms) <= (2 if borders == "padded" and algorithm in EXACT else 1) < 6 <= len(multi.kernel_ms)
+        if algorithm == "fim":  # solids are certain to be there, so some pass changes something
+            assert 0 < one.iterations <= 3 * 255
+        elif algorithm == "jfa_fim":  # FIM passes after the same flood: none where it was exact
+            assert (one.iterations == 0) == (multi.iterations == 0)
+        else:
+            assert one.iterations == multi.iterations
+
+
+def test_fim_counts_its_passes_on_the_device(gpu, monkeypatch):
+    """A single solid in a corner of 16^3: the farthest voxel is 45 steps away, so at least one
+    pass changes something; an empty world converges at once."""
+    from sdfserver.edits import VoxelsEdit
+
+    monkeypatch.setitem(ALGORITHMS, "fim", ONE["fim"])
+    world = World(gpu, WorldConfig((16, 16, 16), 16, 255, "fim"))
+    try:
+        world.mark_all_dirty()
+        assert world.recompute().iterations == 0
+        world.apply_edits([VoxelsEdit(np.array([[0, 0, 0, 9]]))])
+        result = world.recompute()
+        assert 1 <= result.iterations <= 45 and len(result.kernel_ms) == 1
+        z, y, x = np.indices((16, 16, 16))
+        assert np.array_equal(world.read_distance(), x + y + z)
+    finally:
+        world.release()
+
+
+@pytest.mark.parametrize("algorithm", list(ONE))
+def test_boxes_that_do_not_fit_fall_back(gpu, rng, monkeypatch, algorithm):
+    """Too little local memory, a box past MAX_BOX_VOXELS, or (jump flooding) seeds past 16 bits:
+    a launch a pass, and still the same field."""
+    size = (16, 16, 16)
+    monkeypatch.setattr(one_launch.OneLaunch, "_limits", lambda self, gpu: (1024, 4095))
+    out = run_both(gpu, monkeypatch, WorldConfig(size, 16, 255, algorithm), random_voxels(rng, size[::-1], 0.01))
+    assert len(out["one"][0][0][0].kernel_ms) >= 6
+    assert_same(out, 255)
+    monkeypatch.undo()
+
+    size = (40, 40, 24)  # 38,400 voxels, above 32^3
+    out = run_both(gpu, monkeypatch, WorldConfig(size, 8, 255, algorithm), random_voxels(rng, size[::-1], 0.01))
+    assert len(out["one"][0][0][0].kernel_ms) >= 6
+    assert_same(out, 255)
+
+    world = World(gpu, WorldConfig((64, 64, 64), 8, 255, algorithm))
+    try:  # 40 x 34 x 18 = 24,480 voxels, but seeds of 6 + 6 + 5 bits
+        job = RegionJob.seeded_region(world.buffers, Box((8, 8, 8), (32, 40, 24)), 255)
+        assert job.work_box.shape_xyz == (40, 34, 18)
+        assert (ONE[algorithm].small.plan(gpu, job) is None) == (algorithm != "fim")
+    finally:
+        world.release()
+
+
+@pytest.mark.parametrize("algorithm", list(ONE))
+def test_padded_region_in_pieces_is_cut_between_chunks(gpu, rng, monkeypatch, algorithm):
+    """In pieces, a padded region runs a launch per run of chunks, writing scratch until the last
+    piece: between pieces the field is the old one, and the end equals one run whole."""
+    monkeypatch.setattr(world_module, "SLICE_ABOVE_VISITS", 0)
+    monkeypatch.setitem(ALGORITHMS, algorithm, ONE[algorithm])
+    size, chunk = (24, 16, 32), 8
+    voxels = random_voxels(rng, size[::-1], 0.02)
+    config = WorldConfig(size, chunk, 255, algorithm, borders="padded")
+    cut, whole = World(gpu, config), World(gpu, config)
+    try:
+        for world in (cut, whole):
+            world.load_voxels(voxels)
+        before = cut.read_field()
+        pending = cut.begin_recompute(piece_s=1e-6)
+        assert pending.in_pieces
+        while not pending.advance(0.0):
+            assert np.array_equal(cut.read_field(), before)
+        result = pending.finish(device_done=True)
+        assert pending.pieces_run == 3 * 2 * 4, "one piece a chunk"
+        whole.recompute()
+        assert np.array_equal(cut.read_field(), whole.read_field())
+        if algorithm in EXACT:
+            assert np.array_equal(cut.read_distance(), padded_oracle(voxels, chunk, 255))
+            if algorithm == "fim":
+                assert result.iterations > 0  # the most of any chunk's, counted across the launches
+        else:
+            job = RegionJob.padded_region(cut.buffers, cut.world_box, 255, chunk)
+            assert result.iterations == len(step_sizes(job, ONE[algorithm].extra_passes))
+    finally:
+        cut.release()
+        whole.release()
+
+
+def test_jfa_one_launch_is_an_upper_bound(gpu, rng):
+    """Jump flooding in one launch, against scipy: never below the truth, solids 0."""
+    size = (16, 16, 16)
+    world = World(gpu, WorldConfig(size, 16, 255, "jfa"))
+    try:
+        voxels = random_voxels(rng, size[::-1], 0.01)
+        world.load_voxels(voxels)
+        assert len(world.recompute().kernel_ms) == 1
+        error = world.read_distance().astype(int) - oracle(voxels, 255).astype(int)
+        assert (error >= 0).all() and (error[voxels > 0] == 0).all()
+    finally:
+        world.release()

@@ -169,6 +169,8 @@ class FrameStream:
         if isinstance(max_fps, bool) or not isinstance(max_fps, (int, float)) or not 0 < max_fps <= MAX_FPS:
             raise InvalidInput(f"max_fps must be a number in (0, {MAX_FPS:g}], got {max_fps!r}")
         self.view = (camera, view, fmt, settings, float(max_fps))
+        if fmt not in VIDEO_FORMATS:
+            self.video.release()  # an encoder holds frames of its own: none waits idle for video to resume
         self.view_serial += 1
         self.view_changed.set()
         if not self._tasks:

@@ -338,11 +338,15 @@ class VideoStream:
             self._last_key_at = now
         return started, chunk
 
-    def close(self) -> None:
-        """Ends the encoder after any encode in flight, on its thread, without waiting for it."""
+    def release(self) -> None:
+        """Ends the encoder (after any encode in flight, on its thread, without waiting for it);
+        the next ``encode`` starts a new stream."""
         encoder, self._encoder = self._encoder, None
         if encoder is not None:
             self._thread.submit(encoder.close)
+
+    def close(self) -> None:
+        self.release()
         self._thread.shutdown(wait=False)
 
 

@@ -175,6 +175,23 @@ def test_a_resize_starts_a_new_stream_with_a_keyframe():
         assert (fresh.feed(message) is None) == (message["type"] == "video")
 
 
+def test_pictures_between_video_streams_release_the_encoder_and_video_resumes_with_a_new_stream():
+    engine = ChangingEngine()
+    released: list[bool] = []
+
+    async def check(stream: FrameStream) -> None:
+        released.append(stream.video._encoder is None)
+
+    sent = asyncio.run(stream_for(engine, 0.3, VIEW, {**VIEW, "format": "png"}, VIEW, between=check))
+    assert released == [False, True, False]
+    kinds = [m["type"] if m["type"] == "video" else m["format"] for m in sent]
+    first_png, last_png = kinds.index("png"), len(kinds) - 1 - kinds[::-1].index("png")
+    assert kinds[0] == "video" and kinds[last_png + 1] == "video" and "video" not in kinds[first_png:last_png]
+    resumed = sent[last_png + 2]
+    assert resumed["key"] and resumed["timestamp"] == 0
+    decode_all(sent[last_png + 1:], engine)
+
+
 def test_a_slow_reader_loses_frames_not_chunks_and_nothing_gathers():
     engine = ChangingEngine(render_s=0.001)
     reading = asyncio.Event()

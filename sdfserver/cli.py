@@ -1,4 +1,5 @@
-"""The `sdfserver` command: `serve` runs the server, `bench` the benchmark.
+"""The `sdfserver` command: `serve` runs the server, `bench` the benchmark, `devices` lists the
+OpenCL devices; `sdfserver --version` prints the version.
 
 Each subcommand parses its own arguments, so `sdfserver serve --help` and
 `sdfserver bench --help` list them.
@@ -16,8 +17,13 @@ def main(argv: list[str] | None = None) -> int:
         "bench": "sdfserver.bench.cli",
         "devices": None,
     }
+    if argv[:1] in (["--version"], ["-V"]):
+        from sdfserver import __version__
+
+        print(f"sdfserver {__version__}")
+        return 0
     if not argv or argv[0] in ("-h", "--help") or argv[0] not in commands:
-        print("usage: sdfserver {serve,bench,devices} [options]\n"
+        print("usage: sdfserver {serve,bench,devices} [options] | sdfserver --version\n"
               "  serve    run the HTTP/WebSocket server\n"
               "  bench    run the benchmark tables\n"
               "  devices  list the OpenCL devices, each usable or not and why", file=sys.stderr)

@@ -12,6 +12,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import os
 from pathlib import Path
 from typing import Any, AsyncIterator, Sequence
 
@@ -24,6 +25,7 @@ from sdfserver.api import auth, bodies, errors, health, models, render_routes, r
 from sdfserver.api.counts import CountsCollector, SharedCounts
 from sdfserver.api.engine_client import BaseClient, LocalEngineClient
 from sdfserver.api.engines import Engines, LocalPlacement
+from sdfserver.api.process_metrics import ApiProcessesCollector
 from sdfserver.gcpauses import GcPauses, freeze_startup_objects
 from sdfserver.heap import keep_freed_memory
 from sdfserver.settings import Settings
@@ -35,12 +37,15 @@ REPORT_EVERY_S = 0.5  # how often an API process reports the bytes it sent to th
 class ApiMetrics:
     """What only an API process sees: counted here, reported to the first engine (so that
     /metrics, from any API process, shows every process's counts); what happens to connections
-    below the app is in ``counts``, shared by the API processes (``counts.py``); GC pauses stay local."""
+    below the app, and each API process's pid and GC pauses, are in ``counts``, shared by the API
+    processes (``counts.py``), which any of them shows (``process_metrics.py``)."""
 
     def __init__(self, counts: SharedCounts | None = None) -> None:
-        self.registry = CollectorRegistry()  # this process's own: its GC pauses, and the shared counts
+        self.registry = CollectorRegistry()  # what the API processes share, shown by whichever answers
         self.counts = counts if counts is not None else SharedCounts()
+        self.counts.claim(os.getpid())
         self.registry.register(CountsCollector(self.counts))
+        self.registry.register(ApiProcessesCollector(self.counts))
         self.engines: Engines | None = None
         self.bytes_out = _Accumulator()
         self.ws_clients = _WebSocketGauge(self)
@@ -157,7 +162,7 @@ def create_app(settings: Settings, engine: Any = None, *, clients: Sequence[Base
                 RebalanceLeader(Path(settings.data_dir) / "rebalance.lock")))
         if freeze_gc:  # here, once uvicorn has imported all it serves with
             log.info("%d start-up objects exempted from garbage collection", freeze_startup_objects())
-            GcPauses(app.state.metrics.registry)
+            GcPauses(None, publish=app.state.metrics.counts.set)  # /metrics sums every API process's
             keep_freed_memory()
         try:
             yield

@@ -38,6 +38,10 @@ async def readyz(request: Request) -> JSONResponse:
 
 @router.get("/metrics", summary="Prometheus metrics", response_class=PlainTextResponse)
 async def metrics(request: Request) -> Response:
+    """The engines' registries (fetched from each), then what the API processes share: the counts
+    below the app (counts.py), every API process's process_* and their GC pauses, and the build
+    (process_metrics.py). Whichever API process answers, the text is the same but for what
+    changed between two scrapes."""
     api = request.app.state.metrics
     api.report()  # this process's counts, before the engine's text is taken
     engines = await request.app.state.engine.metrics_text()

@@ -138,7 +138,8 @@ class Stream:
                     self.latency.append(message.get("latency_ms", float("nan")))
                     self.encode.append(message.get("encode_ms", float("nan")))
                     self.keys += bool(message.get("key"))
-                    if decode and picture is not None and now - start >= next_sample:
+                    # A server older than view_id cannot say which camera a frame shows: no PSNR then.
+                    if decode and picture is not None and message.get("view_id") and now - start >= next_sample:
                         self.samples.append((message["version"], message["view_id"], picture))
                         next_sample += sample_every
             finally:

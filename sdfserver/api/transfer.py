@@ -198,8 +198,8 @@ def solid_voxel_batches(voxels: np.ndarray, per_batch: int) -> Iterator[np.ndarr
 
 def memory_warning(config: WorldConfig, described: dict[str, Any]) -> str | None:
     """What to say when a sparse world holds more device memory than the dense world of its size
-    would: at a high cap most bricks lie within the cap of a surface, and a stored brick costs
-    more than its voxels would densely (its field beside them, its pool's free slots)."""
+    would: a stored brick costs more than its voxels would densely (its field beside them, its
+    pool's free slots), and at a high cap most bricks lie within the cap of a surface."""
     if described.get("storage") != "sparse":
         return None
     try:
@@ -210,8 +210,9 @@ def memory_warning(config: WorldConfig, described: dict[str, Any]) -> str | None
     if held <= dense:
         return None
     return (f"this sparse world holds {held / 2**20:.1f} MiB of device memory, more than the {dense / 2**20:.1f} MiB "
-            f"a dense world of its size would: at max_distance {config.max_distance} most of its bricks lie within "
-            f"the cap of a surface and are stored; import it with storage=dense, or with a smaller max_distance")
+            f"a dense world of its size would (its stored bricks, each with its field, and its pools' free slots); "
+            f"import it with storage=dense, or with a max_distance below {config.max_distance}, which stores fewer "
+            f"bricks")
 
 
 __all__ = ["router"]

@@ -6,9 +6,9 @@ A scrape of ``/metrics`` reaches one API process, so these live in shared memory
 makes one table before it forks the API processes, each process adds to its own row (a replaced
 process takes over the row of the one it replaces, so nothing counted is lost), and any process
 reads the sum of the rows, or every row's values (``process_metrics.py``). A row has one writer,
-so no lock is needed. ``CountsCollector`` shows the counts in an API process's Prometheus registry. Log lines about the same events go
-through ``ThrottledLog``: an attack makes thousands of them, and one line every few seconds with
-how many were left out says as much.
+so no lock is needed. ``CountsCollector`` shows the counts in an API process's Prometheus
+registry. Log lines about the same events go through ``ThrottledLog``: an attack makes thousands
+of them, and one line every few seconds with how many were left out says as much.
 """
 
 from __future__ import annotations

@@ -7,7 +7,8 @@ Source: Fedor 2025 §4.3; Jeong & Whitaker's FIM.
 Kernel: kernels/fim.cl (+ region.cl). Convergence is read back from the
 device in growing batches of passes (1, 2, 4, … 64), each pass flagging
 changes in its own slot, so the count is exact while host round trips stay
-few.
+few. A box that fits one work-group's local memory runs in one launch instead,
+convergence decided on the device (one_launch.py).
 Units: voxels. Halo: seed shell or ``cap`` voxels; none with padded borders
 (each chunk alone, its outside solid: §4.2.1). Exact: yes (padded: exactly the
 per-chunk field).

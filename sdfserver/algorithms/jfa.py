@@ -13,6 +13,8 @@ Source: Rong & Tan, "Jump flooding in GPU with applications to Voronoi diagram
 and distance transform", I3D 2006; Fedor 2025 §4.4.
 Kernel: kernels/jfa.cl (+ region.cl). Scratch: two uint nearest-seed buffers
 (WorldBuffers.seeds/seeds2, 8 bytes per voxel), held only by worlds that flood.
+A box that fits one work-group's local memory floods there in one launch, with
+the same passes and ties (one_launch.py).
 Units: voxels. Halo: seed shell or ``cap`` voxels; none with padded borders
 (each chunk floods alone, its outside solid: §4.2.1).
 Exact: no. Every candidate is the length of a real path, so the field is never

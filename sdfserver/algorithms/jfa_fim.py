@@ -8,6 +8,8 @@ no higher than the initial distances ends at the least fixed point.
 Source: Fedor 2025 §4.5. Kernels: jfa.cl, fim.cl, region.cl.
 Units: voxels. Halo: seed shell or ``cap`` voxels; none with padded borders.
 Exact: yes (padded: exactly the per-chunk field). Scratch: jfa's seed buffers.
+A box that fits one work-group's local memory runs both in one launch
+(one_launch.py).
 Failure modes: as fim, with far fewer passes.
 """
 

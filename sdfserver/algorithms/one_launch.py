@@ -139,9 +139,13 @@ class OneLaunch:
         tail = (np.int32(first_step), np.int32(extra_passes), state.count, np.int32(accumulate),
                 cl.LocalMemory(plan.dist_bytes), cl.LocalMemory(plan.seed_bytes), cl.LocalMemory(plan.seed_bytes))
 
+        own = b.kernels  # a dense world's copy sets only the arguments that changed since its last launch
+
         def launch(first_group: int, groups: int) -> cl.Event:
-            return kernel(gpu.queue, (groups * plan.items,), (plan.items,), *fixed, np.int32(first_group),
-                          np.int32(cut), *tail)
+            args = (*fixed, np.int32(first_group), np.int32(cut), *tail)
+            if own is not None:
+                return own.enqueue(gpu.queue, kernel, (groups * plan.items,), (plan.items,), args)
+            return kernel(gpu.queue, (groups * plan.items,), (plan.items,), *args)
 
         if cut:
             yield from slabs(run, launch, plan.groups, SlabPace(piece_s, 1))

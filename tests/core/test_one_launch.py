@@ -5,13 +5,16 @@ pass, and padded regions in pieces are cut between their chunks."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+from sdfserver import bulk
 from sdfserver import world as world_module
 from sdfserver.algorithms import ALGORITHMS
 from sdfserver.algorithms import one_launch
-from sdfserver.algorithms.base import RegionJob
+from sdfserver.algorithms.base import AlgorithmRun, RegionJob
 from sdfserver.algorithms.fim import Fim
 from sdfserver.algorithms.jfa import Jfa, step_sizes
 from sdfserver.algorithms.jfa_fim import JfaFim
@@ -221,5 +224,80 @@ def test_jfa_one_launch_is_an_upper_bound(gpu, rng):
         assert len(world.recompute().kernel_ms) == 1
         error = world.read_distance().astype(int) - oracle(voxels, 255).astype(int)
         assert (error >= 0).all() and (error[voxels > 0] == 0).all()
+    finally:
+        world.release()
+
+
+@pytest.mark.parametrize("algorithm", list(ONE))
+@pytest.mark.parametrize("region_lo,region_hi", [((8, 8, 8), (16, 16, 16)), ((0, 8, 8), (24, 16, 16))])
+def test_arbitrary_shell_weights_equal_multi_launch(gpu, rng, algorithm, region_lo, region_hi):
+    """Seeded jobs whose seed shell holds arbitrary distances (seeds weighted unevenly): the same
+    field in one launch as in a launch a pass, and for the exact algorithms the min-plus
+    transform of the job's initial distances (jump flooding: never below it)."""
+    size, cap = (32, 24, 24), 40
+    world = World(gpu, WorldConfig(size, 8, cap, algorithm))
+    try:
+        voxels = random_voxels(rng, size[::-1], 0.002)
+        weights = rng.integers(0, cap + 1, size[::-1]).astype(np.uint16)
+        start = (np.where(voxels > 0, 0, weights) << 8 | voxels).astype(np.uint16)
+        world.load_voxels(voxels)
+        job = RegionJob.seeded_region(world.buffers, Box(region_lo, region_hi), cap)
+        fields, wrong = [], 0
+        for variant in (ONE, MULTI):
+            bulk.write(gpu, world.buffers.field, start)
+            run = variant[algorithm].run(gpu, job)
+            assert (len(run.events) == 1) == (variant is ONE)
+            fields.append(world.read_field())
+        assert np.array_equal(fields[0], fields[1])
+        # the oracle of this job: the min-plus transform of the initial distances over the work box
+        initial = np.where(voxels > 0, 0, cap).astype(np.int32)
+        w = job.work_box
+        inner = np.zeros(size[::-1], bool)
+        inner[job.region.slices_zyx()] = True
+        initial = np.where(inner, initial, np.minimum(weights, cap).astype(np.int32) * (voxels == 0))
+        box = initial[w.slices_zyx()]
+        truth = _min_plus(box, cap)[job.region.slices_zyx(w.lo)]
+        got = (fields[0][job.region.slices_zyx()] >> 8).astype(np.int32)
+        assert (got >= truth).all()
+        if algorithm in EXACT:
+            assert np.array_equal(got, truth)
+    finally:
+        world.release()
+
+
+def _min_plus(initial: np.ndarray, cap: int) -> np.ndarray:
+    """d(p) = min over q of initial(q) + |p - q|_1, capped: relaxed to the fixed point in NumPy."""
+    d = initial.copy()
+    while True:
+        before = d.copy()
+        for axis in range(3):
+            for shift in (1, -1):
+                moved = np.roll(d, shift, axis=axis) + 1
+                edge = [slice(None)] * 3
+                edge[axis] = 0 if shift == 1 else -1
+                moved[tuple(edge)] = np.iinfo(np.int32).max
+                d = np.minimum(d, moved)
+        if np.array_equal(d, before):
+            return np.minimum(d, cap)
+
+
+@pytest.mark.parametrize("chunk", [8, 16, 32])
+def test_the_hybrids_relaxation_alone_is_exact(gpu, rng, chunk):
+    """jfa_fim's kernel with no jump-flooding pass: its FIM passes alone reach the oracle's field
+    (jump flooding is exact on such worlds, so the whole hybrid would hide a relaxation that
+    stopped early)."""
+    size = (chunk,) * 3
+    world = World(gpu, WorldConfig(size, chunk, 255, "jfa_fim"))
+    try:
+        voxels = random_voxels(rng, size[::-1], rng.uniform(0.002, 0.02))
+        world.load_voxels(voxels)
+        # without the world's own kernel copies, as a sparse world's scratch views have none
+        job = RegionJob.halo_region(replace(world.buffers, kernels=None), world.world_box, 255)
+        small = ONE["jfa_fim"].small
+        run = AlgorithmRun()
+        for _ in small.pieces(gpu, job, run, small.plan(gpu, job), None, first_step=0, extra_passes=0):
+            pass
+        assert len(run.events) == 1 and run.iterations > 0
+        assert np.array_equal(world.read_distance(), oracle(voxels, 255))
     finally:
         world.release()

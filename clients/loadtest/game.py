@@ -109,7 +109,8 @@ async def game_client(index: int, cfg: LoadConfig, tally: Tally, budget: Budget,
         if cfg.http in LEAN_CLIENTS:
             client = LEAN_CLIENTS[cfg.http](cfg.url, api_key=cfg.api_key, timeout=cfg.timeout_s)
         else:
-            client = AsyncClient(cfg.url, api_key=cfg.api_key, timeout=cfg.timeout_s,
+            # retries=0: a refusal is counted as the server gave it, not waited out inside the client
+            client = AsyncClient(cfg.url, api_key=cfg.api_key, timeout=cfg.timeout_s, retries=0,
                                  limits=httpx.Limits(max_connections=1))
         await stack.enter_async_context(client)
         if cfg.edits_over == "ws":  # what AsyncClient.stream opens, whichever HTTP client reads

@@ -10,7 +10,7 @@ Source: Fedor 2025 §4.3–4.5; the kernel reuses region.cl's initial distances 
 Results: fim and jfa_fim reach the same least fixed point (the exact field), so they equal the
 multi-launch field voxel for voxel. Jump flooding keeps jfa.cl's passes, candidate order and
 strict ties, so it finds the same nearest seeds and the same (approximate) field. FIM's pass
-count is its own: it relaxes in place along z-segments, so it converges in fewer passes.
+count is its own: it relaxes in place along z-segments, so the count can differ.
 Units: voxels. Halo: the job's (seed shell, ``cap`` voxels, or none with padding).
 Limits: a box fits when its distances (1 byte a voxel; with jump flooding 4 more for two packed
 seed buffers, each seed ``ceil(log2(side))`` bits an axis, 16 at most) fit the device's local
@@ -55,8 +55,8 @@ class Plan:
 
 class _DeviceState:
     """What one context keeps for the path: each kernel variant's limits, and the int the FIM
-    passes are counted in (one is enough: the queue is in order, and each count is copied out
-    before the next launch writes it)."""
+    passes are counted in by runs that are enqueued whole (one is enough: the queue is in order,
+    and each count is copied out before another run's launch writes it)."""
 
     def __init__(self, gpu: GpuContext):
         self.limits: dict[tuple[bool, bool], tuple[int, int]] = {}
@@ -131,12 +131,14 @@ class OneLaunch:
         kernel = self.kernel(gpu)
         cut = piece_s is not None and plan.groups > 1
         accumulate = plan.groups > 1
+        # A run in pieces counts in an int of its own: other runs are enqueued between its pieces.
+        count = cl.Buffer(gpu.context, cl.mem_flags.READ_WRITE, size=4) if cut and self.relax else state.count
         if self.relax and accumulate:
-            run.events.append(bulk.fill(gpu, state.count, np.int32, 0, 1))
+            run.events.append(bulk.fill(gpu, count, np.int32, 0, 1))
         fixed = (b.voxels, b.field, b.work, int4(b.dims), int4(job.work_box.lo), int4(job.work_box.shape_xyz),
                  int4(job.region.lo), int4(job.region.hi), int4(plan.box_n), np.int32(job.seeded),
                  np.int32(job.cap), np.int32(job.chunk))
-        tail = (np.int32(first_step), np.int32(extra_passes), state.count, np.int32(accumulate),
+        tail = (np.int32(first_step), np.int32(extra_passes), count, np.int32(accumulate),
                 cl.LocalMemory(plan.dist_bytes), cl.LocalMemory(plan.seed_bytes), cl.LocalMemory(plan.seed_bytes))
 
         own = b.kernels  # a dense world's copy sets only the arguments that changed since its last launch
@@ -153,4 +155,4 @@ class OneLaunch:
         else:
             run.events.append(launch(0, plan.groups))
         if self.relax:
-            run.count_later(gpu, state.count)
+            run.count_later(gpu, count)

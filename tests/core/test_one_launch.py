@@ -301,3 +301,26 @@ def test_the_hybrids_relaxation_alone_is_exact(gpu, rng, chunk):
         assert np.array_equal(world.read_distance(), oracle(voxels, 255))
     finally:
         world.release()
+
+
+def test_a_run_in_pieces_keeps_its_own_pass_count(gpu):
+    """Other runs are enqueued between a run's pieces: a padded fim over empty chunks (frame
+    distances only: no pass changes anything) keeps its count of 0 while a fim of one solid,
+    run whole in between, counts its own passes."""
+    from sdfserver.edits import VoxelsEdit
+
+    fim = ONE["fim"]
+    empty = World(gpu, WorldConfig((16, 16, 32), 8, 255, "fim", borders="padded"))
+    solid = World(gpu, WorldConfig((16, 16, 16), 16, 255, "fim"))
+    try:
+        solid.apply_edits([VoxelsEdit(np.array([[0, 0, 0, 9]]))])
+        cut_run, pieces = AlgorithmRun(), 0
+        whole_runs = []
+        for _ in fim.pieces(gpu, RegionJob.padded_region(empty.buffers, empty.world_box, 255, 8), cut_run, 1e-6):
+            pieces += 1
+            whole_runs.append(fim.run(gpu, RegionJob.halo_region(solid.buffers, solid.world_box, 255)))
+        assert pieces == 2 * 2 * 4 and cut_run.iterations == 0
+        assert all(r.iterations > 0 for r in whole_runs)
+    finally:
+        empty.release()
+        solid.release()

@@ -21,12 +21,16 @@ class DirtySet:
     def __init__(self) -> None:
         self.boxes: list[Box] = []
         self.all = False
+        # an edit since the last recompute erased (wrote air): distances may rise, not only fall
+        self.erased = False
 
     def __bool__(self) -> bool:
         return self.all or bool(self.boxes)
 
-    def add(self, boxes: list[Box]) -> None:
+    def add(self, boxes: list[Box], erases: bool = True) -> None:
+        """``erases``: whether the edit that changed ``boxes`` may have written air."""
         self.boxes.extend(boxes)
+        self.erased |= erases and bool(boxes)
 
     def mark_all(self) -> None:
         self.all = True
@@ -34,6 +38,7 @@ class DirtySet:
     def clear(self) -> None:
         self.boxes.clear()
         self.all = False
+        self.erased = False
 
     def regions(self, config: WorldConfig, max_regions: int = 32) -> list[Box]:
         """The regions a recompute rewrites: each box grown by the cap, snapped to chunks,

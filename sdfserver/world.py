@@ -33,6 +33,7 @@ from sdfserver.brushes import enqueue_brushes, enqueue_voxels
 from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, RegionJob, WorldBuffers, get_algorithm
 from sdfserver.algorithms.base import WORK_PLANE_PAD, Pieces, int4, prepared, run_pieces
 from sdfserver.algorithms.euclidean import EUCLIDEAN_EXACT, StageBoxes
+from sdfserver.algorithms.lower import lower, lowering_boxes
 from sdfserver.algorithms.stats import summarize
 from sdfserver.recompute import PendingRecompute, RecomputeResult
 from sdfserver.recompute_cost import visits_per_voxel
@@ -86,6 +87,13 @@ def optional_sizes(config: WorldConfig) -> dict[str, int]:
 def field_defines(config: WorldConfig) -> dict[str, int]:
     """The build defines that tell field_source.h what a world's field values mean."""
     return {"FIELD_EUCLID": int(config.euclidean), "FIELD_SIGNED": int(config.signed)}
+
+
+def erases(edit: Edit) -> bool:
+    """Whether ``edit`` may write air (colour 0) anywhere."""
+    if isinstance(edit, VoxelsEdit):
+        return bool((edit.voxels[:, 3] == 0).any())
+    return edit.colour == 0
 
 
 class World:
@@ -189,7 +197,7 @@ class World:
                         brushes, volume = [], 0
                     brushes.append((edit, box))
                     volume += box_volume
-                self.dirty.add(boxes)
+                self.dirty.add(boxes, erases(edit))
             self.version += 1
             versions.append(self.version)
         self._enqueue_brushes(brushes)
@@ -294,14 +302,26 @@ class World:
         regions = self.dirty_regions() if self.dirty else []
         runs: list[tuple[str, AlgorithmRun]] = []
         pieces = None
+        lowering = self._lowering_boxes() if regions else None
         if self.config.euclidean and regions:
             runs.append(("exact", self._compute_euclidean(regions)))
+        elif lowering is not None:
+            runs.append(("exact", lower(self.gpu, self.buffers, lowering, self.config.max_distance)))
         elif regions and piece_s is not None and self._runs_long(regions):
             pieces = self._pieces(regions, runs, piece_s)
         elif regions:
             runs = [(name, launch()) for name, launch in self._launches(regions)]
         self.dirty.clear()
         return PendingRecompute(self, regions, runs, start, self.version, pieces)
+
+    def _lowering_boxes(self) -> list[Box] | None:
+        """The edited boxes, where their recompute is lowering the field around them
+        (``algorithms/lower.py``: only solids added, a plain Manhattan exact world); else None."""
+        cfg, dirty = self.config, self.dirty
+        if dirty.all or dirty.erased or cfg.algorithm != "exact" or cfg.euclidean or cfg.signed \
+                or cfg.focus is not None or cfg.borders != "exact":
+            return None
+        return lowering_boxes(dirty.boxes)
 
     def _runs_long(self, regions: list[Box]) -> bool:
         """Whether recomputing ``regions`` is work worth cutting into pieces: an algorithm that

@@ -1,0 +1,84 @@
+"""Edits that only add solids lower the field around them (algorithms/lower.py, kernels/lower.cl):
+the field equals a full recompute and scipy's taxicab transform, across chunk borders and world
+faces, under small and large caps; an erasing edit, or a world the lowering is not for, takes the
+full transform."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sdfserver.edits import parse_edits
+from sdfserver.field_values import distances
+from sdfserver.world import World, WorldConfig
+from sdfserver.world_config import Focus
+
+from references import apply_edits as apply_reference
+from references import oracle_distance
+
+
+def adding_batch(rng, size, colour_low: int = 1) -> list[dict]:
+    lo = [int(rng.integers(-3, s)) for s in size]
+    return [
+        {"op": "sphere", "center": [float(rng.uniform(-4, s + 4)) for s in size],
+         "radius": float(rng.uniform(0.5, 7)), "colour": int(rng.integers(colour_low, 256))},
+        {"op": "box", "min": lo, "max": [v + int(rng.integers(0, 10)) for v in lo],
+         "colour": int(rng.integers(colour_low, 256))},
+        # on chunk faces and the world's faces
+        {"op": "voxels", "voxels": np.column_stack([
+            rng.choice([0, 7, 8, 15, 16, size[0] - 1], 6), rng.integers(0, size[1], 6),
+            rng.choice([0, 8, size[2] - 1], 6), rng.integers(colour_low, 256, 6)])},
+    ]
+
+
+@pytest.mark.parametrize("cap", [2, 9, 40, 255])
+def test_adding_solids_lowers_the_field_exactly(gpu, cap):
+    rng = np.random.default_rng()
+    size = tuple(int(v) * 8 for v in rng.integers(3, 8, 3))
+    world = World(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap))
+    try:
+        expected = np.zeros(size[::-1], np.uint8)
+        first = [{"op": "voxels", "voxels": np.column_stack([rng.integers(0, min(size), (40, 3)),
+                                                             rng.integers(1, 256, 40)])}]
+        world.apply_edits(parse_edits(first))
+        apply_reference(expected, first)
+        world.recompute()
+        for _ in range(4):
+            batch = adding_batch(rng, size)
+            world.apply_edits(parse_edits(batch))
+            apply_reference(expected, batch)
+            assert world._lowering_boxes() is not None, "an adding batch of small boxes is lowered"
+            world.recompute()
+            field = world.read_field()
+            assert np.array_equal(field & 0xFF, expected), "each voxel's own colour"
+            assert np.array_equal(distances(field, world.config, expected), oracle_distance(expected, cap))
+    finally:
+        world.release()
+
+
+def test_an_erasing_edit_takes_the_full_transform(gpu):
+    rng = np.random.default_rng()
+    size, cap = (32, 24, 40), 12
+    world = World(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap))
+    try:
+        expected = np.zeros(size[::-1], np.uint8)
+        for batch in (adding_batch(rng, size), adding_batch(rng, size, colour_low=0)
+                      + [{"op": "sphere", "center": [16.0, 12.0, 20.0], "radius": 5.0, "colour": 0}]):
+            world.apply_edits(parse_edits(batch))
+            apply_reference(expected, batch)
+        assert world._lowering_boxes() is None
+        world.recompute()
+        assert np.array_equal(distances(world.read_field(), world.config, expected), oracle_distance(expected, cap))
+    finally:
+        world.release()
+
+
+@pytest.mark.parametrize("config", [dict(algorithm="fim"), dict(metric="euclidean"), dict(signed=True),
+                                    dict(focus=Focus((1, 1, 1), (2, 2, 2)))])
+def test_worlds_the_lowering_is_not_for_take_their_own_path(gpu, config):
+    world = World(gpu, WorldConfig(size=(32, 24, 40), chunk_size=8, max_distance=12, **config))
+    try:
+        world.apply_edits(parse_edits(adding_batch(np.random.default_rng(), (32, 24, 40))))
+        assert world._lowering_boxes() is None
+    finally:
+        world.release()

@@ -8,20 +8,32 @@
  *
  * Bodies travel as msgpack (arrays as typed-array blobs); `apiKey` is sent as
  * `Authorization: Bearer <key>` on every request and on the stream. Requests use the global
- * `fetch` (or the one given, for tests).
+ * `fetch` (or the one given, for tests) and say `User-Agent: sdfclient-ts/<version>` (browsers
+ * keep their own).
+ *
+ * A 429, or a 503 to a call that may be sent twice (not a world's creation, import or deletion,
+ * nor an edit batch without an `idempotencyKey`), is sent again after the server's `Retry-After`,
+ * doubled at each further attempt and stretched by up to 25% so that refused clients come back
+ * spread out, up to `retries` times (0: never) and as long as the wait stays within
+ * `maxRetryWaitS`; then its error is thrown, `retryAfterS` and all. A 503 `writes_disabled` is
+ * never retried: it lasts until the server restarts.
  */
 
 import type { Edit } from "./edits.js";
-import { ProtocolError, Timeout, TransportError, retryAfter, serverError } from "./errors.js";
+import { ProtocolError, Timeout, TransportError, WritesDisabled, errorClass, isRecord, retryAfter, serverError } from "./errors.js";
 import type {
   Block, Box, Camera, Exported, FileFormat, Frame, FrameFormat, Pick, QueryResult, RayResult, RenderOptions,
   SphereResult, Vec3, WorldInfo, WorldOptions, WorldUpdate,
 } from "./models.js";
 import * as parse from "./parse.js";
 import { Stream, type StreamOptions } from "./stream.js";
+import { USER_AGENT } from "./version.js";
 import { CONTENT_TYPE, CONTENT_TYPES, blob, decode, encode } from "./wire.js";
 
 export const DEFAULT_TIMEOUT_MS = 30_000;
+export const DEFAULT_RETRIES = 2;
+export const DEFAULT_MAX_RETRY_WAIT_S = 30;
+const RETRY_JITTER = 0.25;
 const OCTET = "application/octet-stream";
 const FRAME_TYPES: Record<FrameFormat, string> = { png: "image/png", jpeg: "image/jpeg", rgba: OCTET };
 
@@ -50,6 +62,10 @@ export interface ClientOptions {
   headers?: Record<string, string>;
   /** A `fetch` to use instead of the global one. */
   fetch?: typeof fetch;
+  /** How many times a refused call is sent again (429, or 503 where safe); 0: never. Default 2. */
+  retries?: number;
+  /** The longest wait before sending again, in seconds; a longer one throws instead. Default 30. */
+  maxRetryWaitS?: number;
 }
 
 export interface ReadOptions {
@@ -70,6 +86,12 @@ interface Call {
   content?: Uint8Array; // a raw body (an uploaded file)
   accept?: string;
   headers?: Record<string, string>;
+  /**
+   * Sending it twice does what sending it once does, so a 503 may be answered by sending it again:
+   * false where a first attempt the server answered 503 might still have taken effect (a world
+   * created, an edit batch without an Idempotency-Key applied). Left out: true.
+   */
+  repeatable?: boolean;
 }
 
 function worldPath(worldId: string): string {
@@ -118,6 +140,42 @@ function rowsBlob(kind: string, rows: Rows, width: number) {
   return blob(flat, [flat.length / width, width]);
 }
 
+/**
+ * Seconds to wait before sending `call` again after `response` (its `attempt`-th refusal, from 0),
+ * or null when it is not sent again: only 429 and 503 answers that carry a `Retry-After` are, a 503
+ * only for a repeatable call and never for `writes_disabled`; one past `maxWaitS` is not waited for.
+ */
+async function retryDelay(call: Call, response: Response, attempt: number, maxWaitS: number): Promise<number | null> {
+  if (response.status !== 429 && response.status !== 503) return null;
+  const after = retryAfter(response.headers.get("retry-after"));
+  if (after === null) return null;
+  if (response.status === 503) {
+    if (call.repeatable === false) return null;
+    if (errorClass(503, await errorCode(response.clone())) === WritesDisabled) return null;
+  }
+  const delay = after * 2 ** attempt * (1 + RETRY_JITTER * Math.random());
+  return delay <= maxWaitS ? delay : null;
+}
+
+/** The `error.code` of an error body, or null where there is none to read. */
+async function errorCode(response: Response): Promise<string | null> {
+  try {
+    const bytes = new Uint8Array(await response.arrayBuffer());
+    const ctype = (response.headers.get("content-type") ?? "").split(";")[0].trim().toLowerCase();
+    const body = CONTENT_TYPES.has(ctype) ? decode(bytes) : JSON.parse(new TextDecoder().decode(bytes));
+    const error = isRecord(body) ? body.error : null;
+    return isRecord(error) && error.code ? String(error.code) : null;
+  } catch {
+    return null;
+  }
+}
+
+function checkedRetries(retries: number, maxWaitS: number): [number, number] {
+  if (!Number.isInteger(retries) || retries < 0) throw new RangeError(`retries must be an integer >= 0, got ${retries}`);
+  if (!(maxWaitS >= 0)) throw new RangeError(`maxRetryWaitS must be >= 0, got ${maxWaitS}`);
+  return [retries, maxWaitS];
+}
+
 function checkedKey(apiKey: string): string {
   if (typeof apiKey !== "string" || apiKey.trim() === "" || /\s/.test(apiKey)) {
     throw new TypeError("apiKey must be a non-empty token without spaces");
@@ -129,6 +187,8 @@ export class Client {
   readonly baseUrl: string;
   readonly timeoutMs: number;
   readonly apiKey: string | undefined;
+  readonly retries: number;
+  readonly maxRetryWaitS: number;
   private readonly headers: Record<string, string>;
   private readonly fetch: typeof fetch;
 
@@ -136,8 +196,10 @@ export class Client {
     this.baseUrl = baseUrl.replace(/\/+$/, "");
     this.timeoutMs = options.timeoutMs ?? DEFAULT_TIMEOUT_MS;
     this.apiKey = options.apiKey === undefined ? undefined : checkedKey(options.apiKey);
+    [this.retries, this.maxRetryWaitS] = checkedRetries(
+      options.retries ?? DEFAULT_RETRIES, options.maxRetryWaitS ?? DEFAULT_MAX_RETRY_WAIT_S);
     this.headers = {
-      "user-agent": "sdfclient-ts",
+      "user-agent": USER_AGENT,
       ...(this.apiKey === undefined ? {} : { authorization: `Bearer ${this.apiKey}` }),
       ...options.headers,
     };
@@ -146,7 +208,18 @@ export class Client {
 
   // -- sending ----------------------------------------------------------------------------------
 
+  /** The answer to `call`, sent again while the server refuses it for a while (see the banner). */
   private async request(call: Call): Promise<Response> {
+    for (let attempt = 0; ; attempt++) {
+      const response = await this.fetchOnce(call);
+      const delay = attempt < this.retries ? await retryDelay(call, response, attempt, this.maxRetryWaitS) : null;
+      if (delay === null) return response;
+      await response.arrayBuffer().catch(() => undefined); // frees the connection for the next attempt
+      await new Promise((resolve) => setTimeout(resolve, delay * 1000));
+    }
+  }
+
+  private async fetchOnce(call: Call): Promise<Response> {
     const url = new URL(this.baseUrl + call.path);
     for (const [key, value] of Object.entries(call.params ?? {})) url.searchParams.set(key, value);
     const headers: Record<string, string> = { ...this.headers, accept: call.accept ?? CONTENT_TYPE, ...call.headers };
@@ -227,7 +300,7 @@ export class Client {
   /** A new world of `size` voxels (x, y, z); every creation option of docs/api.md, "Worlds". */
   async createWorld(size: Vec3, options: WorldOptions = {}): Promise<WorldInfo> {
     const body = { size: [...size], ...wireOptions(options) };
-    return parse.world(await this.send({ method: "POST", path: "/v1/worlds", body }));
+    return parse.world(await this.send({ method: "POST", path: "/v1/worlds", body, repeatable: false }));
   }
 
   async listWorlds(): Promise<WorldInfo[]> {
@@ -246,7 +319,7 @@ export class Client {
   }
 
   async deleteWorld(worldId: string): Promise<void> {
-    await this.send({ method: "DELETE", path: worldPath(worldId) });
+    await this.send({ method: "DELETE", path: worldPath(worldId), repeatable: false }); // a second one: 404
   }
 
   // -- edits and reads --------------------------------------------------------------------------
@@ -260,6 +333,7 @@ export class Client {
     const headers = options.idempotencyKey === undefined ? undefined : { "idempotency-key": options.idempotencyKey };
     const answer = parse.record(await this.send({
       method: "POST", path: worldPath(worldId) + "/edits", body: { edits }, headers,
+      repeatable: options.idempotencyKey !== undefined,
     }), "edits");
     if (typeof answer.version !== "number") throw new ProtocolError("edits: no version in the answer");
     return answer.version;
@@ -331,7 +405,7 @@ export class Client {
       }
       params.storage = options.storage;
     }
-    return parse.world(await this.send({ method: "POST", path: "/v1/worlds/import", params, content: data }));
+    return parse.world(await this.send({ method: "POST", path: "/v1/worlds/import", params, content: data, repeatable: false }));
   }
 
   // -- frames -----------------------------------------------------------------------------------

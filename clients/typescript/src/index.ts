@@ -1,9 +1,13 @@
 /** sdfclient: the TypeScript client of sdfserver (docs/clients.md, "TypeScript"). */
 
 export { colours, distances } from "./blocks.js";
-export { Client, DEFAULT_TIMEOUT_MS, type ClientOptions, type ReadOptions, type Rows } from "./client.js";
+export { Client, DEFAULT_MAX_RETRY_WAIT_S, DEFAULT_RETRIES, DEFAULT_TIMEOUT_MS, type ClientOptions, type ReadOptions, type Rows } from "./client.js";
 export { box, eraseBox, eraseSphere, sphere, voxels, type Edit } from "./edits.js";
 export * from "./errors.js";
 export type * from "./models.js";
-export { DEFAULT_MAX_FRAME_BYTES, Stream, closedError, streamUrl, type SocketLike, type StreamOptions, type WebSocketClass } from "./stream.js";
+export {
+  DEFAULT_MAX_FRAME_BYTES, DEFAULT_MAX_RECONNECT_ATTEMPTS, DEFAULT_MAX_RECONNECT_DELAY_MS, DEFAULT_RECONNECT_DELAY_MS, Stream,
+  closedError, streamUrl, type Reconnected, type SocketLike, type StreamOptions, type WebSocketClass,
+} from "./stream.js";
+export { USER_AGENT, VERSION } from "./version.js";
 export { DTYPES, blob, decode, encode, toArray, type Blob, type Dtype, type TypedArray } from "./wire.js";

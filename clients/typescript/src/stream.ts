@@ -20,16 +20,44 @@
  * for `recv` and the iterator, in order. A frame the server refuses answers an `error` message,
  * thrown here as its ServerError; the connection stays open. A refused stream closes with
  * 4000 + an HTTP status (4401, 4404), thrown as Unauthorized or NotFound.
+ *
+ * When the connection drops (closed abnormally, or the server going away or restarting), the
+ * stream reconnects after a wait that doubles at each failed attempt (`reconnectDelayMs` up to
+ * `maxReconnectDelayMs`, stretched by up to 25%), up to `maxReconnectAttempts` times in a row,
+ * and sends its subscription and camera again. The reader then sees a `reconnected` message
+ * (`raw`: attempts, code, reason; `onReconnected` is called with the same), followed by
+ * `subscribed` and every chunk of the region as after a first subscribe, so no change is missed.
+ * Edits are not sent again: an `edit` whose ack the drop lost throws TransportError (the batch
+ * may or may not have been applied); `subscribe`, `unsubscribe` and `ping` answer from the new
+ * connection. `resume: false` ends the stream at the first drop, as a closed one.
  */
 
 import type { Edit } from "./edits.js";
-import { ProtocolError, StreamClosed, Timeout, TransportError, isRecord, serverError } from "./errors.js";
+import {
+  NotReady, ProtocolError, RateLimited, StreamClosed, Timeout, TransportError, isRecord, serverError,
+} from "./errors.js";
 import type { Box, Camera, FrameFormat, RenderOptions, StreamMessage } from "./models.js";
 import { cameraWire, streamMessage } from "./parse.js";
 import { decode, encode } from "./wire.js";
 
 export const DEFAULT_MAX_FRAME_BYTES = 64 << 20;
+export const DEFAULT_RECONNECT_DELAY_MS = 250;
+export const DEFAULT_MAX_RECONNECT_DELAY_MS = 5_000;
+export const DEFAULT_MAX_RECONNECT_ATTEMPTS = 10;
+const RECONNECT_JITTER = 0.25;
 const OPEN = 1;
+/** Ends a connection may come back from: dropped (1005, 1006), the server going away, failing or
+ * restarting. A normal close (1000), a refusal (4xxx) or a protocol fault would end the same way again. */
+const RESUMED_CLOSE_CODES = new Set([1001, 1005, 1006, 1011, 1012, 1013, 1014]);
+
+/** What `onReconnected` and a `reconnected` message's `raw` tell. */
+export interface Reconnected {
+  /** Connection attempts it took. */
+  attempts: number;
+  /** How the dropped connection closed. */
+  code: number | null;
+  reason: string;
+}
 
 /** What the stream needs of a WebSocket: the browser's interface, which `ws` also has. */
 export interface SocketLike {
@@ -50,6 +78,16 @@ export interface StreamOptions {
   maxFrameBytes?: number;
   /** A browser-style WebSocket class to use instead of the global one or `ws`. */
   WebSocket?: WebSocketClass;
+  /** Reconnect when the connection drops, and subscribe again (see the banner). Default true. */
+  resume?: boolean;
+  /** The first wait before reconnecting; doubled at each failed attempt. Default 250. */
+  reconnectDelayMs?: number;
+  /** The longest wait between attempts. Default 5000. */
+  maxReconnectDelayMs?: number;
+  /** Failed attempts in a row before the stream ends with the last one's error. Default 10. */
+  maxReconnectAttempts?: number;
+  /** Called after each reconnection, when the `reconnected` message is queued. */
+  onReconnected?: (info: Reconnected) => void;
 }
 
 export function streamUrl(baseUrl: string, worldId: string): string {
@@ -94,6 +132,38 @@ async function open(url: string, options: StreamOptions): Promise<SocketLike> {
   return ws as unknown as SocketLike;
 }
 
+/** A socket to `url`, open, or the error its opening failed with. */
+async function connectSocket(url: string, options: StreamOptions): Promise<SocketLike> {
+  const socket = await open(url, options);
+  const timeoutMs = options.openTimeoutMs ?? 10_000;
+  await new Promise<void>((resolve, reject) => {
+    const timer = setTimeout(() => {
+      reject(new Timeout(`connect ${url}: not open after ${timeoutMs} ms`));
+      socket.close();
+    }, timeoutMs);
+    const settle = (error?: Error) => {
+      clearTimeout(timer);
+      if (error === undefined) resolve();
+      else reject(error);
+    };
+    socket.addEventListener("open", () => settle());
+    (socket as { on?: (type: string, listener: (error: Error) => void) => void }).on?.("refused", settle);
+    socket.addEventListener("error", (event: { message?: string; error?: Error }) => {
+      const cause = event.error?.message ?? event.message ?? "error";
+      if (!/Unexpected server response/.test(cause)) settle(new TransportError(`connect ${url}: ${cause}`));
+    });
+    socket.addEventListener("close", (event: { code?: number; reason?: string }) =>
+      settle(closedError(event.code ?? null, event.reason ?? "")));
+  });
+  return socket;
+}
+
+/** A failed reconnection worth trying again: unreachable, or refused for a while. */
+function passing(error: unknown): boolean {
+  return error instanceof TransportError || error instanceof NotReady || error instanceof RateLimited
+    || (error instanceof StreamClosed && (error.code === null || RESUMED_CLOSE_CODES.has(error.code)));
+}
+
 type Item = StreamMessage | Error;
 
 export class Stream {
@@ -101,63 +171,133 @@ export class Stream {
   private readonly held: Item[] = []; // read by a request while it waited for its answer
   private wake: (() => void) | null = null;
   private closedWith: Error | null = null;
-  private closing: Promise<void>;
+  private readonly closing: Promise<void>;
+  private finished!: () => void;
   private nextId = 1;
+  private socket!: SocketLike;
+  private generation = 0; // connections made after the first
+  private subscription: Record<string, unknown> | null = null; // the last subscribe frame, sent again on reconnecting
+  private resubscribedId: number | null = null;
+  private camera: Record<string, unknown> | null = null; // the last camera frame, likewise
+  private reconnecting: Promise<void> | null = null;
+  private closedByUs = false;
+  private wakePause: (() => void) | null = null;
+  private changed: (() => void)[] = []; // senders waiting for the connection to reopen or end
 
-  private constructor(private readonly socket: SocketLike) {
-    socket.binaryType = "arraybuffer";
-    socket.addEventListener("message", (event: { data: unknown }) => this.arrive(event.data));
-    this.closing = new Promise((resolve) => {
-      socket.addEventListener("close", (event: { code?: number; reason?: string }) => {
-        this.closedWith ??= closedError(event.code ?? null, event.reason ?? "");
-        this.notify();
-        resolve();
-      });
-    });
+  private constructor(socket: SocketLike, private readonly url: string, private readonly options: StreamOptions) {
+    this.closing = new Promise((resolve) => (this.finished = resolve));
+    this.attach(socket);
   }
 
   /** Open a world's stream (`Client.stream` passes the client's key). */
   static async connect(baseUrl: string, worldId: string, options: StreamOptions = {}): Promise<Stream> {
     const url = streamUrl(baseUrl, worldId);
-    const socket = await open(url, options);
-    const timeoutMs = options.openTimeoutMs ?? 10_000;
-    await new Promise<void>((resolve, reject) => {
-      const timer = setTimeout(() => {
-        reject(new Timeout(`connect ${url}: not open after ${timeoutMs} ms`));
-        socket.close();
-      }, timeoutMs);
-      const settle = (error?: Error) => {
-        clearTimeout(timer);
-        if (error === undefined) resolve();
-        else reject(error);
-      };
-      socket.addEventListener("open", () => settle());
-      (socket as { on?: (type: string, listener: (error: Error) => void) => void }).on?.("refused", settle);
-      socket.addEventListener("error", (event: { message?: string; error?: Error }) => {
-        const cause = event.error?.message ?? event.message ?? "error";
-        if (!/Unexpected server response/.test(cause)) settle(new TransportError(`connect ${url}: ${cause}`));
-      });
-      socket.addEventListener("close", (event: { code?: number; reason?: string }) =>
-        settle(closedError(event.code ?? null, event.reason ?? "")));
-    });
-    return new Stream(socket);
+    return new Stream(await connectSocket(url, options), url, options);
   }
 
-  /** Close the socket and wait until it is closed. */
+  /** Close the socket and wait until it is closed; a reconnection under way stops. */
   async close(): Promise<void> {
+    this.closedByUs = true;
+    this.wakePause?.();
     if (this.socket.readyState <= OPEN) this.socket.close(1000);
     await this.closing;
   }
 
+  // -- the connection ---------------------------------------------------------------------------
+
+  private attach(socket: SocketLike): void {
+    this.socket = socket;
+    socket.binaryType = "arraybuffer";
+    socket.addEventListener("message", (event: { data: unknown }) => this.arrive(event.data));
+    socket.addEventListener("close", (event: { code?: number; reason?: string }) =>
+      this.dropped(event.code ?? null, event.reason ?? ""));
+  }
+
+  private dropped(code: number | null, reason: string): void {
+    if (!this.closedByUs && (this.options.resume ?? true) && (code === null || RESUMED_CLOSE_CODES.has(code))) {
+      this.reconnecting = this.reconnect(code, reason);
+    } else {
+      this.end(closedError(code, reason));
+    }
+    this.stateChanged();
+  }
+
+  private end(error: Error): void {
+    this.closedWith ??= error;
+    this.reconnecting = null;
+    this.notify();
+    this.stateChanged();
+    this.finished();
+  }
+
+  private stateChanged(): void {
+    for (const resolve of this.changed.splice(0)) resolve();
+  }
+
+  private async reconnect(code: number | null, reason: string): Promise<void> {
+    const { reconnectDelayMs = DEFAULT_RECONNECT_DELAY_MS, maxReconnectDelayMs = DEFAULT_MAX_RECONNECT_DELAY_MS } = this.options;
+    const maxAttempts = this.options.maxReconnectAttempts ?? DEFAULT_MAX_RECONNECT_ATTEMPTS;
+    let failure: Error = closedError(code, reason);
+    for (let attempt = 0; attempt < maxAttempts && !this.closedByUs; attempt++) {
+      const delayMs = Math.min(reconnectDelayMs * 2 ** attempt, maxReconnectDelayMs) * (1 + RECONNECT_JITTER * Math.random());
+      await new Promise<void>((resolve) => {
+        const timer = setTimeout(resolve, delayMs);
+        this.wakePause = () => {
+          clearTimeout(timer);
+          resolve();
+        };
+      });
+      if (this.closedByUs) break;
+      let socket: SocketLike;
+      try {
+        socket = await connectSocket(this.url, this.options);
+      } catch (error) {
+        failure = error as Error;
+        if (!passing(error)) break;
+        continue;
+      }
+      if (this.closedByUs) {
+        socket.close(1000);
+        break;
+      }
+      this.attach(socket);
+      this.generation++;
+      const info: Reconnected = { attempts: attempt + 1, code, reason };
+      this.inbox.push({ type: "reconnected", id: null, version: null, chunks: [], raw: { ...info } });
+      this.reconnecting = null;
+      // The server answers a subscribe with the region's current chunks, so nothing is missed.
+      this.resubscribedId = null;
+      if (this.subscription !== null) {
+        this.resubscribedId = this.nextId++;
+        socket.send(encode({ ...this.subscription, id: this.resubscribedId }));
+      }
+      if (this.camera !== null) socket.send(encode({ ...this.camera, id: this.nextId++ }));
+      this.notify();
+      this.stateChanged();
+      this.options.onReconnected?.(info);
+      return;
+    }
+    this.end(this.closedByUs ? new StreamClosed(1000, "closed by the client") : failure);
+  }
+
   // -- sending ----------------------------------------------------------------------------------
 
-  /** Sends, or throws why the stream closed (a refused key or world closes it right after opening). */
+  /**
+   * Sends on the open connection, waiting for a reconnection under way; or throws why the stream
+   * closed (a refused key or world closes it right after opening).
+   */
   private async send(message: Record<string, unknown>): Promise<void> {
-    if (this.socket.readyState !== OPEN) {
-      await this.closing;
-      throw this.closedWith;
+    for (;;) {
+      if (this.closedWith !== null) throw this.closedWith;
+      if (this.reconnecting !== null) {
+        await this.reconnecting;
+      } else if (this.socket.readyState === OPEN) {
+        this.socket.send(encode(message));
+        return;
+      } else {
+        await new Promise<void>((resolve) => this.changed.push(resolve)); // its close event is on its way
+      }
     }
-    this.socket.send(encode(message));
   }
 
   /**
@@ -167,10 +307,12 @@ export class Stream {
    */
   subscribe(box: Box, options: { format?: "distance" | "packed" } = {}): Promise<StreamMessage> {
     const [min, max] = box;
-    return this.request({ type: "subscribe", min: [...min], max: [...max], format: options.format ?? "distance" }, "subscribed");
+    this.subscription = { type: "subscribe", min: [...min], max: [...max], format: options.format ?? "distance" };
+    return this.request(this.subscription, "subscribed");
   }
 
   async unsubscribe(): Promise<void> {
+    this.subscription = null;
     await this.request({ type: "unsubscribe" }, "unsubscribed");
   }
 
@@ -185,7 +327,8 @@ export class Stream {
   async setCamera(camera: Camera, options: RenderOptions & { maxFps?: number; format?: FrameFormat; quality?: number } = {}): Promise<void> {
     const { maxFps, ...rest } = options;
     const extra = maxFps === undefined ? {} : { max_fps: maxFps };
-    await this.send({ ...cameraWire(camera), ...rest, ...extra, type: "camera", id: this.nextId++ });
+    this.camera = { ...cameraWire(camera), ...rest, ...extra, type: "camera" };
+    await this.send({ ...this.camera, id: this.nextId++ });
   }
 
   /** Send a batch without waiting; its `ack` message carries the returned id. */
@@ -202,15 +345,30 @@ export class Stream {
     return ack.version;
   }
 
+  /** Send `message` and read until its answer; across a reconnection see the banner. */
   private async request(message: Record<string, unknown>, answer: string): Promise<StreamMessage> {
-    const id = this.nextId++;
+    let id = this.nextId++;
     await this.send({ ...message, id });
+    let generation = this.generation;
     for (;;) {
       const item = await this.next();
       if (!(item instanceof Error) && item.id === id && (item.type === answer || item.type === "error")) {
         return raiseIfError(item);
       }
       this.held.push(item);
+      if (item instanceof Error || item.type !== "reconnected" || this.generation === generation) continue;
+      // The connection it was sent on dropped before its answer.
+      generation = this.generation;
+      if (message.type === "edits") {
+        throw new TransportError(`the connection dropped before edit ${id}'s ack (${String(item.raw.code)}); `
+          + "the stream reconnected, and the batch may or may not have been applied");
+      }
+      if (message.type === "subscribe" && this.resubscribedId !== null) {
+        id = this.resubscribedId; // the reconnection sent this subscription again
+      } else {
+        id = this.nextId++;
+        await this.send({ ...message, id });
+      }
     }
   }
 

@@ -88,7 +88,7 @@ class Fim:
         return run
 
     def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, piece_s: float | None = None) -> Pieces:
-        plan = self.small and self.small.plan(gpu, job)
+        plan = self.small and self.small.chosen(gpu, job)
         if plan:
             yield from self.small.pieces(gpu, job, run, plan, piece_s)
             return

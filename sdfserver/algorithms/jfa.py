@@ -113,7 +113,7 @@ class Jfa:
         return run
 
     def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, piece_s: float | None = None) -> Pieces:
-        plan = self.small and self.small.plan(gpu, job)
+        plan = self.small and self.small.chosen(gpu, job)
         if plan:
             yield from flood_in_one_launch(self.small, gpu, job, run, plan, piece_s, self.extra_passes)
             return

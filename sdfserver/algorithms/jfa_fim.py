@@ -39,7 +39,7 @@ class JfaFim:
         return run
 
     def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, piece_s: float | None = None) -> Pieces:
-        plan = self.small and self.small.plan(gpu, job)
+        plan = self.small and self.small.chosen(gpu, job)
         if plan:  # iterations: the FIM passes the device counts, as below
             yield from flood_in_one_launch(self.small, gpu, job, run, plan, piece_s)
             return

@@ -40,6 +40,8 @@ MAX_BOX_VOXELS = 32 ** 3
 # A packed seed's bits. All ones is SEED_NONE: with 16 bits in all, some side is not a power of two
 # (a box of powers of two has at most MAX_BOX_VOXELS = 2^15 voxels: 15 bits), so no seed is all ones.
 SEED_BITS = 16
+# The largest box a lone work-group (one box, not padded chunks) takes, by whether it floods.
+LONE_GROUP_VOXELS = {False: MAX_BOX_VOXELS, True: 1024}
 
 
 @dataclass(frozen=True)
@@ -100,6 +102,15 @@ class OneLaunch:
             static = kernel.get_work_group_info(cl.kernel_work_group_info.LOCAL_MEM_SIZE, device)
             found = state.limits[key] = (int(items), int(device.local_mem_size) - int(static))
         return found
+
+    def chosen(self, gpu: GpuContext, job: RegionJob) -> Plan | None:
+        """``plan``, where one launch is also the faster way: a lone work-group runs on one compute
+        unit, so past ``LONE_GROUP_VOXELS`` a launch a pass over the whole device wins
+        (docs/benchmarks.md, "Every algorithm"); many chunks in one launch fill the device."""
+        plan = self.plan(gpu, job)
+        if plan is None or plan.groups > 1:
+            return plan
+        return plan if math.prod(plan.box_n) <= LONE_GROUP_VOXELS[self.flood] else None
 
     def plan(self, gpu: GpuContext, job: RegionJob) -> Plan | None:
         """How ``job`` runs in one launch, or None where a box does not fit the device."""

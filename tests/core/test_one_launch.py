@@ -31,6 +31,15 @@ MULTI = {"fim": Fim(one_launch=False), "jfa": Jfa(0, one_launch=False), "jfa+1":
 EXACT = {"fim", "jfa_fim"}
 
 
+@pytest.fixture(autouse=True)
+def every_box_that_fits(request, monkeypatch):
+    """The kernels are tried on every box that fits a work-group, not only those where one launch
+    is also the faster way (``test_a_lone_group_floods_only_small_boxes`` checks that choice)."""
+    if "lone_group" not in request.node.name:
+        monkeypatch.setattr(one_launch, "LONE_GROUP_VOXELS",
+                            dict.fromkeys((False, True), one_launch.MAX_BOX_VOXELS))
+
+
 def spheres(rng: np.random.Generator, size, n: int) -> list[SphereEdit]:
     """Brushes that add and remove (colour 0), some reaching past the world's faces."""
     return [SphereEdit(tuple(map(float, rng.uniform(-2, np.array(size) + 2))), float(rng.uniform(0.5, 3)),
@@ -326,3 +335,24 @@ def test_a_run_in_pieces_keeps_its_own_pass_count(gpu):
     finally:
         empty.release()
         solid.release()
+
+
+@pytest.mark.parametrize("algorithm", ["jfa", "jfa_fim"])
+def test_a_lone_group_floods_only_small_boxes(gpu, rng, algorithm):
+    """One work-group runs on one compute unit: a lone box that floods runs in one launch up to
+    LONE_GROUP_VOXELS and a launch a pass beyond it, while padded chunks, many work-groups of one
+    launch, take one launch at any chunk size; fim's lone boxes take it up to MAX_BOX_VOXELS."""
+    def launches(name, size, chunk, borders="exact"):
+        world = World(gpu, WorldConfig(size, chunk, 255, name, borders=borders))
+        try:
+            world.load_voxels(random_voxels(rng, size[::-1], 0.02))
+            return len(world.recompute().kernel_ms)
+        finally:
+            world.release()
+
+    assert (8 ** 3 <= one_launch.LONE_GROUP_VOXELS[True] < 16 ** 3
+            and one_launch.LONE_GROUP_VOXELS[False] == one_launch.MAX_BOX_VOXELS)
+    assert launches(algorithm, (8, 8, 8), 8) == 1
+    assert launches(algorithm, (16, 16, 16), 16) >= 6
+    assert launches(algorithm, (32, 32, 16), 16, "padded") <= 2
+    assert launches("fim", (16, 16, 16), 16) == 1

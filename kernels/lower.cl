@@ -6,7 +6,8 @@
  * separable like any L1 transform, and its seeds lie in D, so each stage is small:
  *   lower_x   lines along x through D's (y, z) footprint, x over G = D grown by the cap:  t1
  *   lower_y   (x, y) over G's footprint, z over D's z-range:                            t2
- *   lower_z   each (x, y) column of G, z only where the column is within the cap of D:
+ *   lower_z   each (x, y) column of G, z only where the column is within the cap of D (a column
+ *             shared by the launch's z work-items):
  *             field = pack(min(old, T), voxel), written where it is lower or inside D
  *             (where a voxel's colour may have changed).
  * Each output reads the seeds' side of D along its axis (D's extent there), so D is kept small
@@ -60,7 +61,11 @@ __kernel void lower_z(__global const uchar *t2, __global const uchar *voxels, __
     if (dxy >= cap)
         return;
     const int reach = cap - dxy;
-    const int z0 = max(d_lo.z - reach, 0), z1 = min(d_hi.z + reach, dims.z);
+    /* the column's z-range, shared by the launch's z work-items (latency, not bandwidth, bounds
+     * a thread walking a long column alone) */
+    const int c0 = max(d_lo.z - reach, 0), c1 = min(d_hi.z + reach, dims.z);
+    const int share = (c1 - c0 + (int)get_global_size(2) - 1) / (int)get_global_size(2);
+    const int z0 = c0 + (int)get_global_id(2) * share, z1 = min(z0 + share, c1);
     const bool in_footprint = dxy == 0;
     /* T below D's z-range is min(t2[k] + k') - z, above it min(t2[k] - k') + z (k' = d_lo.z + k) */
     int below = 1 << 20, above = 1 << 20;

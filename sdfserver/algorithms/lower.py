@@ -22,6 +22,8 @@ from sdfserver.gpu import GpuContext
 # whole-region transform is cheaper.
 MAX_BOX_VOXELS = 64 ** 3
 MAX_BOXES = 16
+# Work-items sharing one (x, y) column of the last stage: up to 2·cap + D's depth voxels each.
+COLUMN_SHARES = 16
 
 
 def lowering_boxes(boxes: list[Box]) -> list[Box] | None:
@@ -51,6 +53,6 @@ def lower(gpu: GpuContext, buffers: WorldBuffers, boxes: list[Box], cap: int) ->
         run.events.append(kernel("lower.cl", "lower_y")(
             gpu.queue, *grid((gx, gy, dz)), buffers.work2, buffers.work, d_lo, d_n, g_lo, g_n, cap_arg))
         run.events.append(kernel("lower.cl", "lower_z")(
-            gpu.queue, *grid((gx, gy, 1), (32, 8, 1)), buffers.work, buffers.voxels, buffers.field, dims,
+            gpu.queue, *grid((gx, gy, COLUMN_SHARES), (32, 4, 2)), buffers.work, buffers.voxels, buffers.field, dims,
             d_lo, d_n, g_lo, g_n, cap_arg))
     return run

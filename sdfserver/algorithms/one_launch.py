@@ -41,7 +41,7 @@ MAX_BOX_VOXELS = 32 ** 3
 # (a box of powers of two has at most MAX_BOX_VOXELS = 2^15 voxels: 15 bits), so no seed is all ones.
 SEED_BITS = 16
 # The largest box a lone work-group (one box, not padded chunks) takes, by whether it floods.
-LONE_GROUP_VOXELS = {False: MAX_BOX_VOXELS, True: 1024}
+LONE_GROUP_VOXELS = {False: 16 ** 3, True: 1024}
 
 
 @dataclass(frozen=True)

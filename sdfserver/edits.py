@@ -274,3 +274,10 @@ def edit_bounds(edit: Edit, dims: Vec3, chunk_size_vox: int) -> list[Box]:
     np.minimum.at(lo, group, xyz)
     np.maximum.at(hi, group, xyz + 1)
     return [Box(tuple(map(int, a)), tuple(map(int, b))) for a, b in zip(lo, hi)]
+
+
+def erases(edit: Edit) -> bool:
+    """Whether ``edit`` may write air (colour 0) anywhere."""
+    if isinstance(edit, VoxelsEdit):
+        return bool((edit.voxels[:, 3] == 0).any())
+    return edit.colour == 0

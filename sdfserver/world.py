@@ -30,15 +30,16 @@ import pyopencl as cl
 
 from sdfserver import bulk
 from sdfserver.brushes import enqueue_brushes, enqueue_voxels
-from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, RegionJob, WorldBuffers, get_algorithm
+from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, WorldBuffers
 from sdfserver.algorithms.base import WORK_PLANE_PAD, Pieces, int4, prepared, run_pieces
 from sdfserver.algorithms.euclidean import EUCLIDEAN_EXACT, StageBoxes
 from sdfserver.algorithms.lower import lower, lowering_boxes
+from sdfserver.algorithms.region_jobs import region_jobs
 from sdfserver.algorithms.stats import summarize
 from sdfserver.recompute import PendingRecompute, RecomputeResult
 from sdfserver.recompute_cost import visits_per_voxel
 from sdfserver.dirty import SMALL_DIRTY_CHUNKS, DirtySet  # noqa: F401  (SMALL_DIRTY_CHUNKS: read by tests)
-from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, validate_batch
+from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, erases, validate_batch
 from sdfserver.errors import InvalidInput
 from sdfserver.field_values import distances, needs_voxels
 from sdfserver.geometry import Box
@@ -87,13 +88,6 @@ def optional_sizes(config: WorldConfig) -> dict[str, int]:
 def field_defines(config: WorldConfig) -> dict[str, int]:
     """The build defines that tell field_source.h what a world's field values mean."""
     return {"FIELD_EUCLID": int(config.euclidean), "FIELD_SIGNED": int(config.signed)}
-
-
-def erases(edit: Edit) -> bool:
-    """Whether ``edit`` may write air (colour 0) anywhere."""
-    if isinstance(edit, VoxelsEdit):
-        return bool((edit.voxels[:, 3] == 0).any())
-    return edit.colour == 0
 
 
 class World:
@@ -335,7 +329,7 @@ class World:
 
     def _pieces(self, regions: list[Box], runs: list[tuple[str, AlgorithmRun]], piece_s: float) -> Pieces:
         for region in regions:
-            for algorithm, job in self._region_jobs(region):
+            for algorithm, job in region_jobs(self.config, self.buffers, self.world_box, region):
                 run = AlgorithmRun()
                 runs.append((algorithm.name, run))
                 yield from run_pieces(algorithm, self.gpu, job, run, piece_s)
@@ -350,7 +344,7 @@ class World:
             if len(self._prepared) >= PREPARED_PER_WORLD:
                 self._prepared.clear()
             found = self._prepared[key] = [(algorithm.name, prepared(algorithm, self.gpu, job))
-                                           for region in regions for algorithm, job in self._region_jobs(region)]
+                                           for region in regions for algorithm, job in region_jobs(self.config, self.buffers, self.world_box, region)]
         return found
 
     def _finish_recompute(self, pending: "PendingRecompute", device_done: bool) -> RecomputeResult:
@@ -369,40 +363,6 @@ class World:
             StageBoxes.of_edits(self.dirty.boxes, regions, cfg.size, cfg.max_distance)
         return EUCLIDEAN_EXACT.run_stages(self.gpu, self.buffers, self.buffers.field, stages, cfg.max_distance,
                                           cfg.signed)
-
-    def _region_jobs(self, region: Box):
-        """The algorithm runs that recompute ``region``, in order: (algorithm, job) pairs."""
-        cfg, b = self.config, self.buffers
-        focus = None
-        if cfg.focus is not None:
-            focus = Box(*(tuple(c * cfg.chunk_size for c in v) for v in
-                          (cfg.focus.chunk_box().lo, cfg.focus.chunk_box().hi))).intersect(self.world_box)
-            if focus.contains(self.world_box):
-                focus = None
-        algorithm, cap = get_algorithm(cfg.algorithm), cfg.max_distance
-        if cfg.borders == "padded":  # chunks alone: no shell, no halo; the focus only picks the algorithm
-            seeded = halo = lambda r: RegionJob.padded_region(b, r, cap, cfg.chunk_size)  # noqa: E731
-        else:
-            seeded = lambda r: RegionJob.seeded_region(b, r, cap)  # noqa: E731
-            halo = lambda r: RegionJob.halo_region(b, r, cap)  # noqa: E731
-        if focus is None:
-            if not cfg.signed:
-                yield algorithm, seeded(region)
-                return
-            job = replace(seeded(region), signed=True)
-            yield algorithm, job
-            # inside the solids: distances to air, after the plain run wrote R
-            yield algorithm, replace(job, invert=True)
-            return
-        # Level of detail (the dissertation's Algorithm 7): the cheap algorithm everywhere,
-        # then the world's algorithm inside the focus, from voxels alone so that the
-        # approximate field around it cannot leak in. Outside the focus the field is the
-        # cheap algorithm's: with jump flooding an overestimate, which a ray can step past.
-        lod = get_algorithm(cfg.lod_algorithm)
-        yield lod, seeded(region)
-        inner = region.intersect(focus)
-        if not inner.empty:
-            yield algorithm, halo(inner)
 
     # -- reads ------------------------------------------------------------------------------------
 

@@ -92,3 +92,80 @@ __kernel void lower_z(__global const uchar *t2, __global const uchar *voxels, __
             field[i] = pack_field(min((uint)t, old), voxels[i]);
     }
 }
+
+/* The same for a Euclidean world, whose field is the last of three stages the world keeps
+ * (kernels/edt.cl): the line (1-D distance along x, uchar, in `work`), the plane (min over z of
+ * line^2 + dz^2, ushort, in `edt_plane`) and the field (min over y of plane + dy^2), each capped
+ * (cap, cap^2). Every stage is a minimum, so with solids only added each becomes min(old, the
+ * stage of S alone), written where lower: the stages the next recompute reads stay current.
+ *   elower_x  the line of S over G's x for D's (y, z) footprint:            t1, and `line`
+ *   elower_z  the plane of S for D's y-range, z over G:                     t2 (ushort), and `plane`
+ *   elower_y  the field, each (x, z) column of G within the cap of D.
+ * Layouts: t1 as lower_x's; t2[(z * d_n.y + y) * g_n.x + x] (z in G, y in D, x in G). */
+__kernel void elower_x(__global const uchar *voxels, __global uchar *t1, __global uchar *line, int4 dims,
+                       int4 d_lo, int4 d_n, int4 g_lo, int4 g_n, int cap)
+{
+    const int x = get_global_id(0), y = get_global_id(1), z = get_global_id(2);
+    if (x >= g_n.x || y >= d_n.y || z >= d_n.z)
+        return;
+    const int wx = g_lo.x + x;
+    const size_t row = world_index(d_lo.x, d_lo.y + y, d_lo.z + z, dims);
+    int best = cap;
+    for (int i = 0; i < d_n.x; ++i)
+        if (voxels[row + i])
+            best = min(best, gap(wx, d_lo.x + i));
+    t1[((size_t)z * d_n.y + y) * g_n.x + x] = (uchar)best;
+    const size_t at = world_index(wx, d_lo.y + y, d_lo.z + z, dims);
+    if (best < (int)line[at])
+        line[at] = (uchar)best;
+}
+
+__kernel void elower_z(__global const uchar *t1, __global ushort *t2, __global ushort *plane, int4 dims,
+                       int4 d_lo, int4 d_n, int4 g_lo, int4 g_n, int cap)
+{
+    const int x = get_global_id(0), y = get_global_id(1), z = get_global_id(2);
+    if (x >= g_n.x || y >= d_n.y || z >= g_n.z)
+        return;
+    const int wz = g_lo.z + z, cap2 = cap * cap;
+    int best = cap2;
+    for (int k = 0; k < d_n.z; ++k) {
+        const int t = t1[((size_t)k * d_n.y + y) * g_n.x + x];
+        if (t < cap) {
+            const int dz = wz - (d_lo.z + k);
+            best = min(best, t * t + dz * dz);
+        }
+    }
+    t2[((size_t)z * d_n.y + y) * g_n.x + x] = (ushort)best;
+    const size_t at = world_index(g_lo.x + x, d_lo.y + y, wz, dims);
+    if (best < (int)plane[at])
+        plane[at] = (ushort)best;
+}
+
+__kernel void elower_y(__global const ushort *t2, __global ushort *field, int4 dims, int4 d_lo, int4 d_n,
+                       int4 g_lo, int4 g_n, int cap)
+{
+    const int x = get_global_id(0), z = get_global_id(1);
+    if (x >= g_n.x || z >= g_n.z)
+        return;
+    const int wx = g_lo.x + x, wz = g_lo.z + z, cap2 = cap * cap;
+    const int4 d_hi = d_lo + d_n;
+    const int dx = max(max(d_lo.x - wx, wx - (d_hi.x - 1)), 0), dz = max(max(d_lo.z - wz, wz - (d_hi.z - 1)), 0);
+    const int dxz2 = dx * dx + dz * dz;
+    if (dxz2 >= cap2)
+        return;
+    /* past `reach` along y the distance to D alone reaches the cap */
+    const int reach = (int)sqrt((float)(cap2 - dxz2)) + 1;
+    const int c0 = max(d_lo.y - reach, 0), c1 = min(d_hi.y + reach, dims.y);
+    const int share = (c1 - c0 + (int)get_global_size(2) - 1) / (int)get_global_size(2);
+    const int y0 = c0 + (int)get_global_id(2) * share, y1 = min(y0 + share, c1);
+    for (int wy = y0; wy < y1; ++wy) {
+        int best = cap2;
+        for (int k = 0; k < d_n.y; ++k) {
+            const int dy = wy - (d_lo.y + k);
+            best = min(best, (int)t2[((size_t)z * d_n.y + k) * g_n.x + x] + dy * dy);
+        }
+        const size_t at = world_index(wx, wy, wz, dims);
+        if (best < (int)field[at])
+            field[at] = (ushort)best;
+    }
+}

@@ -33,7 +33,7 @@ from sdfserver.brushes import enqueue_brushes, enqueue_voxels
 from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, WorldBuffers
 from sdfserver.algorithms.base import WORK_PLANE_PAD, Pieces, int4, prepared, run_pieces
 from sdfserver.algorithms.euclidean import EUCLIDEAN_EXACT, StageBoxes
-from sdfserver.algorithms.lower import lower, lowering_boxes
+from sdfserver.algorithms.lower import lower, lower_euclidean, lowering_boxes
 from sdfserver.algorithms.region_jobs import region_jobs
 from sdfserver.algorithms.stats import summarize
 from sdfserver.recompute import PendingRecompute, RecomputeResult
@@ -297,10 +297,11 @@ class World:
         runs: list[tuple[str, AlgorithmRun]] = []
         pieces = None
         lowering = self._lowering_boxes() if regions else None
-        if self.config.euclidean and regions:
+        if lowering is not None:
+            lowers = lower_euclidean if self.config.euclidean else lower
+            runs.append(("exact", lowers(self.gpu, self.buffers, lowering, self.config.max_distance)))
+        elif self.config.euclidean and regions:
             runs.append(("exact", self._compute_euclidean(regions)))
-        elif lowering is not None:
-            runs.append(("exact", lower(self.gpu, self.buffers, lowering, self.config.max_distance)))
         elif regions and piece_s is not None and self._runs_long(regions):
             pieces = self._pieces(regions, runs, piece_s)
         elif regions:
@@ -310,9 +311,9 @@ class World:
 
     def _lowering_boxes(self) -> list[Box] | None:
         """The edited boxes, where their recompute is lowering the field around them
-        (``algorithms/lower.py``: only solids added, a plain Manhattan exact world); else None."""
+        (``algorithms/lower.py``: only solids added, an unsigned exact world); else None."""
         cfg, dirty = self.config, self.dirty
-        if dirty.all or dirty.erased or cfg.algorithm != "exact" or cfg.euclidean or cfg.signed \
+        if dirty.all or dirty.erased or cfg.algorithm != "exact" or cfg.signed \
                 or cfg.focus is not None or cfg.borders != "exact":
             return None
         return lowering_boxes(dirty.boxes)

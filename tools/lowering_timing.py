@@ -1,4 +1,4 @@
-"""A radius-8 brush's recompute in a 1024^3 world (exact, cap 255), lowered against the full
+"""A radius-8 brush's recompute in a 1024^3 world (exact, cap 255; Manhattan and Euclidean), lowered against the full
 transform of its cap-grown region (issue 33): device time (OpenCL profiling events, summed over
 the recompute's launches) and wall time, median and max of --reps, at the centre and at random
 places, for brushes that add solids (lowered: algorithms/lower.py) and the same brushes forced
@@ -28,31 +28,34 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=1024)
     parser.add_argument("--cap", type=int, default=255)
     parser.add_argument("--reps", type=int, default=50)
+    parser.add_argument("--metrics", default="manhattan,euclidean")
     parser.add_argument("--json", default="")
     args = parser.parse_args()
     gpu = GpuContext.create(args.device)
     n = args.size
-    world = World(gpu, WorldConfig(size=(n,) * 3, chunk_size=32, max_distance=args.cap))
-    rng = np.random.default_rng(2025)
-    world.apply_edits([SphereEdit(tuple(float(v) for v in rng.uniform(0, n, 3)), float(rng.uniform(4, 40)), 7)
-                       for _ in range(64)])
-    world.recompute()
     rows = {}
-    for place in ("centre", "random"):
-        for kind in ("add, lowered", "add, full transform", "erase, full transform"):
-            device, wall = [], []
-            for i in range(args.reps + 3):  # the first few build kernels and warm the caches
-                centre = (n / 2,) * 3 if place == "centre" else tuple(float(v) for v in rng.uniform(16, n - 16, 3))
-                world.apply_edits([SphereEdit(centre, RADIUS, 0 if kind.startswith("erase") else 1 + i % 200)])
-                if kind == "add, full transform":
-                    world.dirty.erased = True  # as if erased: the full transform of the region
-                result = world.recompute()
-                if i >= 3:
-                    device.append(result.device_ms)
-                    wall.append(result.wall_ms)
-            rows[f"{place}, {kind}"] = {"device_ms_median": statistics.median(device), "device_ms_max": max(device),
-                                        "wall_ms_median": statistics.median(wall), "wall_ms_max": max(wall)}
-    world.release()
+    for metric in args.metrics.split(","):
+        world = World(gpu, WorldConfig(size=(n,) * 3, chunk_size=32, max_distance=args.cap, metric=metric))
+        rng = np.random.default_rng(2025)
+        world.apply_edits([SphereEdit(tuple(float(v) for v in rng.uniform(0, n, 3)), float(rng.uniform(4, 40)), 7)
+                           for _ in range(64)])
+        world.recompute()
+        for place in ("centre", "random"):
+            for kind in ("add, lowered", "add, full transform", "erase, full transform"):
+                device, wall = [], []
+                for i in range(args.reps + 3):  # the first few build kernels and warm the caches
+                    centre = (n / 2,) * 3 if place == "centre" else tuple(float(v) for v in rng.uniform(16, n - 16, 3))
+                    world.apply_edits([SphereEdit(centre, RADIUS, 0 if kind.startswith("erase") else 1 + i % 200)])
+                    if kind == "add, full transform":
+                        world.dirty.erased = True  # as if erased: the full transform of the region
+                    result = world.recompute()
+                    if i >= 3:
+                        device.append(result.device_ms)
+                        wall.append(result.wall_ms)
+                rows[f"{metric}, {place}, {kind}"] = {
+                    "device_ms_median": statistics.median(device), "device_ms_max": max(device),
+                    "wall_ms_median": statistics.median(wall), "wall_ms_max": max(wall)}
+        world.release()
     print(f"{gpu.device_name}; {n}^3, cap {args.cap}, a radius-{RADIUS:g} sphere, {args.reps} each")
     print("| brush | device ms, median / max | wall ms, median / max |")
     print("| --- | --- | --- |")

@@ -14,7 +14,7 @@ from sdfserver.world import World, WorldConfig
 from sdfserver.world_config import Focus
 
 from references import apply_edits as apply_reference
-from references import oracle_distance
+from references import field_distances, oracle_distance
 
 
 def adding_batch(rng, size, colour_low: int = 1) -> list[dict]:
@@ -73,12 +73,52 @@ def test_an_erasing_edit_takes_the_full_transform(gpu):
         world.release()
 
 
-@pytest.mark.parametrize("config", [dict(algorithm="fim"), dict(metric="euclidean"), dict(signed=True),
+@pytest.mark.parametrize("config", [dict(algorithm="fim"), dict(metric="euclidean", signed=True), dict(signed=True),
                                     dict(focus=Focus((1, 1, 1), (2, 2, 2)))])
 def test_worlds_the_lowering_is_not_for_take_their_own_path(gpu, config):
     world = World(gpu, WorldConfig(size=(32, 24, 40), chunk_size=8, max_distance=12, **config))
     try:
         world.apply_edits(parse_edits(adding_batch(np.random.default_rng(), (32, 24, 40))))
         assert world._lowering_boxes() is None
+    finally:
+        world.release()
+
+
+@pytest.mark.parametrize("cap", [3, 17, 255])
+def test_adding_solids_lowers_a_euclidean_field_and_its_stages(gpu, cap):
+    """The field after adding batches equals scipy's exact Euclidean transform; and the stages the
+    world keeps stay current: an erasing batch after them (the incremental transform, which reads
+    the stages around its boxes) is exact too."""
+    rng = np.random.default_rng()
+    size = tuple(int(v) * 8 for v in rng.integers(3, 7, 3))
+    world = World(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap, metric="euclidean"))
+    try:
+        expected = np.zeros(size[::-1], np.uint8)
+
+        def check():
+            got = distances(world.read_field(), world.config, expected)
+            want = field_distances(expected, "euclidean", False, cap)
+            assert np.allclose(got, want, atol=1e-4), np.abs(got - want).max()
+
+        for i in range(4):
+            batch = adding_batch(rng, size)
+            world.apply_edits(parse_edits(batch))
+            apply_reference(expected, batch)
+            assert world._lowering_boxes() is not None
+            world.recompute()
+            check()
+        solids = np.argwhere(expected > 0)[:20]  # (z, y, x)
+        erasing = [{"op": "sphere", "center": [float(v) for v in rng.uniform(0, size)], "radius": 6.0, "colour": 0},
+                   {"op": "voxels", "voxels": [[int(x), int(y), int(z), 0] for z, y, x in solids]}]
+        world.apply_edits(parse_edits(erasing))
+        apply_reference(expected, erasing)
+        assert world._lowering_boxes() is None
+        world.recompute()
+        check()
+        batch = adding_batch(rng, size)  # and lowering again, from stages the transform rewrote
+        world.apply_edits(parse_edits(batch))
+        apply_reference(expected, batch)
+        world.recompute()
+        check()
     finally:
         world.release()

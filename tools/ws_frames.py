@@ -59,6 +59,8 @@ def frame_settings(args, fmt: str) -> dict:
         return {"format": fmt, "quality": args.quality}
     rate = {"bitrate": args.bitrate} if args.bitrate else {"crf": args.crf} if args.crf is not None else {}
     extra = {"encoder": args.encoder} if args.encoder else {}
+    if args.preset and fmt == "h264":
+        extra["preset"] = args.preset
     return {"format": fmt, "keyframe_s": args.keyframe_s, **rate, **extra}
 
 
@@ -269,6 +271,7 @@ def main() -> int:
     p.add_argument("--crf", type=int, default=None, help="video constant quality")
     p.add_argument("--keyframe-s", type=float, default=2.0)
     p.add_argument("--encoder", default=None, help="pin the video encoder (libx264, h264_nvenc, ...)")
+    p.add_argument("--preset", default=None, help="libx264's preset (h264): ultrafast .. fast")
     p.add_argument("--streams", type=int, default=1, help="clients at once on the world, each its own camera")
     p.add_argument("--orbit", type=float, default=0.0, help="camera orbit, degrees a second (0: still)")
     p.add_argument("--view-hz", type=float, default=60.0, help="camera messages a second while orbiting")

@@ -203,7 +203,8 @@ export class Client {
       ...(this.apiKey === undefined ? {} : { authorization: `Bearer ${this.apiKey}` }),
       ...options.headers,
     };
-    this.fetch = options.fetch ?? globalThis.fetch;
+    // A browser's fetch throws "Illegal invocation" when called as another object's method.
+    this.fetch = options.fetch ?? globalThis.fetch.bind(globalThis);
   }
 
   // -- sending ----------------------------------------------------------------------------------

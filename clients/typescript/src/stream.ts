@@ -195,6 +195,11 @@ export class Stream {
     return new Stream(await connectSocket(url, options), url, options);
   }
 
+  /** Whether the stream has ended: `recv` throws why once the messages that came before are read. */
+  get closed(): boolean {
+    return this.closedWith !== null;
+  }
+
   /** Close the socket and wait until it is closed; a reconnection under way stops. */
   async close(): Promise<void> {
     this.closedByUs = true;
@@ -329,6 +334,11 @@ export class Stream {
     const extra = maxFps === undefined ? {} : { max_fps: maxFps };
     this.camera = { ...cameraWire(camera), ...rest, ...extra, type: "camera" };
     await this.send({ ...this.camera, id: this.nextId++ });
+  }
+
+  /** The next video frame is a keyframe (after a chunk failed to decode, or a decoder fell behind). */
+  async requestKeyframe(): Promise<void> {
+    await this.send({ type: "keyframe", id: this.nextId++ });
   }
 
   /** Send a batch without waiting; its `ack` message carries the returned id. */

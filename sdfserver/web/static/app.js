@@ -1,11 +1,12 @@
 // The voxel painter: frames streamed from the server over the world's WebSocket, a fly camera,
-// brush edits over HTTP. No build step; ES modules only.
+// brush edits over HTTP, all through the TypeScript client (vendor/sdfclient, which index.html's
+// import map names "sdfclient"). No build step; ES modules only.
 //
 // On a server with API keys the page needs one: `#key=<token>` or `?key=<token>` in the address,
 // or the key form.
-// It is kept in sessionStorage (this tab only), sent as `Authorization: Bearer` on fetches and as
-// `?access_token=` on the WebSocket (browsers cannot set its headers).
-import { encode, decode } from "./msgpack.js";
+// It is kept in sessionStorage (this tab only); the client sends it as `Authorization: Bearer` on
+// requests and as `?access_token=` on the WebSocket (browsers cannot set its headers).
+import { Client, NotFound, NotReady, TransportError, Unauthorized } from "sdfclient";
 import { demoScene } from "./scene.js";
 import { Benchmark } from "./benchmode.js";
 import { nearestValue, rgbHex, selectSwatch, showSwatches, worldPalette } from "./palette.js";
@@ -25,7 +26,10 @@ demo.camera = cam;
 const brush = { mode: "place", colour: 0xe4, size: 2 };  // colour: a voxel value, the palette's index + 1
 demo.brush = brush;
 let palette = worldPalette(null);
-let socket = null, cursor = null, viewDirty = true, lastSent = 0, worldSize = [64, 64, 64];
+// A generous timeout: making a large sparse terrain can take a while, and the page waits for it.
+const newClient = (key) => new Client(location.origin, { apiKey: key || undefined, timeoutMs: 300_000 });
+let client = newClient("");
+let stream = null, cursor = null, viewDirty = true, lastSent = 0, worldSize = [64, 64, 64];
 const keys = new Set();
 
 // ---------------------------------------------------------------------------------------------- API key
@@ -42,6 +46,7 @@ function setApiKey(key) {
   try {
     if (key) sessionStorage.setItem(KEY_ITEM, key); else sessionStorage.removeItem(KEY_ITEM);
   } catch { /* memoryKey holds it */ }
+  client = newClient(key);
   $("key-state").textContent = key ? "Using an API key (this tab only)." : "No API key.";
   $("forget-key").hidden = !key;
 }
@@ -60,14 +65,11 @@ function takeKeyFromAddress() {
   history.replaceState(null, "", url.pathname + url.search + (rest ? `#${rest}` : ""));
 }
 
-class Unauthorized extends Error {}
-class NotReady extends Error {}  // the server answers 503 not_ready, or cannot be reached
-
 // A missing or refused key: say so plainly, stop reconnecting, and ask for one.
 function needKey(reason) {
   demo.needsKey = true;
   demo.ready = false;
-  if (socket) { const old = socket; socket = null; old.close(); }
+  closeStream();
   const text = apiKey()
     ? `The API key was refused (${reason}). Enter a valid key to continue.`
     : "This server requires an API key. Enter yours, or open the page as /#key=<your key>.";
@@ -82,35 +84,18 @@ function needKey(reason) {
 
 // ---------------------------------------------------------------------------------------------- HTTP
 
-async function api(method, path, body) {
-  const init = { method, headers: { Accept: "application/json" } };
-  const key = apiKey();
-  if (key) init.headers.Authorization = `Bearer ${key}`;
-  if (body !== undefined) {
-    init.headers["Content-Type"] = "application/json";
-    init.body = JSON.stringify(body);
-  }
-  let response;
+// A call of the client's; a refused key opens the key form before the error goes on.
+async function api(call) {
   try {
-    response = await fetch(path, init);
+    return await call(client);
   } catch (err) {
-    throw new NotReady(`the server cannot be reached (${err.message})`);
+    if (err instanceof Unauthorized) needKey(err.serverMessage);
+    throw err;
   }
-  const text = await response.text();
-  let data = null;
-  try { data = text ? JSON.parse(text) : null; } catch { data = { message: text.slice(0, 200) }; }
-  if (!response.ok) {
-    const message = data?.error?.message ?? data?.message ?? data?.detail ?? `${response.status}`;
-    const said = typeof message === "string" ? message : JSON.stringify(message);
-    if (response.status === 401) {
-      needKey(said);
-      throw new Unauthorized(said);
-    }
-    if (response.status === 503 && data?.error?.code === "not_ready") throw new NotReady(said);
-    throw new Error(said);
-  }
-  return data;
 }
+
+// What the server said (a ServerError's own message), else the error's.
+const said = (err) => err.serverMessage ?? err.message;
 
 function showStatus(text, isError = false) {
   const el = $("status");
@@ -130,8 +115,9 @@ async function guarded(what, fn) {
   try {
     return await fn();
   } catch (err) {
-    if (err instanceof NotReady) waitForServer();  // it says why, for as long as it lasts
-    else if (!(err instanceof Unauthorized)) flash(`${what}: ${err.message}`, 4000, true);  // needKey spoke
+    // not ready, or unreachable: it says why, for as long as it lasts
+    if (err instanceof NotReady || err instanceof TransportError) waitForServer();
+    else if (!(err instanceof Unauthorized)) flash(`${what}: ${said(err)}`, 4000, true);  // needKey spoke
     return undefined;
   }
 }
@@ -185,7 +171,7 @@ function describeWorld(w) {
 }
 
 async function refreshWorlds(selectId) {
-  const { worlds } = await api("GET", "/v1/worlds");
+  const worlds = await api((c) => c.listWorlds());
   const select = $("world-select");
   select.replaceChildren(...worlds.map((w) => new Option(describeWorld(w), w.id)));
   if (selectId) select.value = selectId;
@@ -196,8 +182,8 @@ async function createWorld(choice, algorithm) {  // "64", or "terrain-4096" for 
   if (String(choice).startsWith("terrain-")) return createTerrain(Number(String(choice).slice(8)), algorithm);
   const size = Number(choice);
   showStatus(`Creating a ${size}³ world…`);
-  const world = await api("POST", "/v1/worlds", { size: [size, size, size], algorithm });
-  await api("POST", `/v1/worlds/${world.id}/edits`, { edits: demoScene(world.size) });
+  const world = await api((c) => c.createWorld([size, size, size], { algorithm }));
+  await api((c) => c.edit(world.id, demoScene(world.size)));
   showStatus("");
   return world;
 }
@@ -205,10 +191,10 @@ async function createWorld(choice, algorithm) {  // "64", or "terrain-4096" for 
 // A large sparse world: only the bricks near the generated surface take device memory.
 async function createTerrain(side, algorithm) {
   showStatus(`Generating a ${side}×${side / 8}×${side} terrain…`);
-  const world = await api("POST", "/v1/worlds", {
-    size: [side, side / 8, side], chunk_size: 32, max_distance: 31, algorithm, storage: "sparse",
+  const world = await api((c) => c.createWorld([side, side / 8, side], {
+    chunkSize: 32, maxDistance: 31, algorithm, storage: "sparse",
     generate: { kind: "terrain", seed: Math.floor(Math.random() * 2 ** 31) },
-  });
+  }));
   showStatus("");
   return world;
 }
@@ -228,7 +214,7 @@ async function openWorld(world) {
   if (world.storage === "sparse") lookAt([sx * 0.5, sy * 0.8, sz * 0.5], [sx * 0.5 + 400, sy * 0.35, sz * 0.5 + 400]);
   else lookAt([sx * 1.02, sy * 0.62, sz * 1.12], [sx * 0.5, sy * 0.12, sz * 0.5]);
   $("algorithm").value = world.algorithm;
-  $("lod-algorithm").value = world.lod_algorithm ?? "jfa";
+  $("lod-algorithm").value = world.lodAlgorithm || "jfa";
   $("focus-on").checked = !!world.focus;
   $("metric").value = world.metric ?? "manhattan";
   $("signed").checked = !!world.signed;
@@ -243,38 +229,64 @@ async function openWorld(world) {
 
 // ---------------------------------------------------------------------------------------------- stream
 
-function connect(worldId) {
-  if (socket) { const old = socket; socket = null; old.close(); }
-  const scheme = location.protocol === "https:" ? "wss" : "ws";
-  const key = apiKey();
-  const query = key ? `?access_token=${encodeURIComponent(key)}` : "";
-  const ws = new WebSocket(`${scheme}://${location.host}/v1/worlds/${encodeURIComponent(worldId)}/stream${query}`);
-  ws.binaryType = "arraybuffer";
-  socket = ws;
-  ws.onopen = () => { viewDirty = true; demo.ready = true; showStatus(""); };
-  ws.onmessage = (event) => {
-    const msg = typeof event.data === "string" ? JSON.parse(event.data) : decode(event.data);
-    if (msg.type === "frame") onFrame(msg);
-    else if (msg.type === "video") video.start(msg);
-    else if (msg.type === "error" && msg.error?.code === "not_ready") waitForServer();
-    else if (msg.type === "error") showStatus(`Server: ${msg.message ?? msg.error?.message ?? "error"}`, true);
-  };
-  ws.onclose = (event) => {
-    if (socket !== ws) return;
-    demo.ready = false;
-    if (event.code === 4401) { needKey(event.reason || "unauthorized"); return; }
-    if (event.code === 4404) {
-      socket = null;
-      showStatus(`World ${worldId} is gone (or not yours): pick or create another.`, true);
-      return;
-    }
-    showStatus("Disconnected — reconnecting…", true);
-    // a server that cannot serve says why until it can; then the stream comes back
-    setTimeout(() => waitForServer().then(() => { if (socket === ws) connect(worldId); }), 1000);
-  };
+function closeStream() {
+  if (!stream) return;
+  const old = stream;
+  stream = null;
+  old.close();
 }
 
-function viewMessage() {
+// The world's stream: the client reconnects a dropped connection by itself (and sends the camera
+// again); this reads frames until the stream ends, then says why or opens it again.
+async function connect(worldId) {
+  closeStream();
+  let opened;
+  try {
+    opened = await client.stream(worldId, { onReconnected: () => { if (stream === opened) showStatus(""); } });
+  } catch (err) {
+    streamEnded(worldId, null, err);
+    return;
+  }
+  if (demo.world !== worldId || stream) { opened.close(); return; }  // another world was opened meanwhile
+  stream = opened;
+  viewDirty = true;
+  demo.ready = true;
+  showStatus("");
+  for (;;) {
+    let message;
+    try {
+      message = await opened.recv();
+    } catch (err) {
+      if (stream !== opened) return;
+      if (opened.closed) { streamEnded(worldId, opened, err); return; }
+      // an error message: the server refused one frame, the stream goes on
+      if (err instanceof NotReady) waitForServer();
+      else showStatus(`Server: ${said(err)}`, true);
+      continue;
+    }
+    if (stream !== opened) return;
+    if (message.type === "frame") onFrame(message.raw);
+    else if (message.type === "video") video.start(message.raw);
+    else if (message.type === "reconnected") viewDirty = true;
+  }
+}
+
+function streamEnded(worldId, ended, err) {
+  if (stream !== ended) return;  // closed here: another world, or a key to ask for
+  stream = null;
+  demo.ready = false;
+  if (err instanceof Unauthorized) { needKey(said(err)); return; }
+  if (err instanceof NotFound) {
+    showStatus(`World ${worldId} is gone (or not yours): pick or create another.`, true);
+    return;
+  }
+  showStatus("Disconnected — reconnecting…", true);
+  // a server that cannot serve says why until it can; then the stream comes back
+  setTimeout(() => waitForServer().then(() => { if (!stream && demo.world === worldId) connect(worldId); }), 1000);
+}
+
+// The camera and the stream's render options for the canvas as it is now.
+function view() {
   const scale = Number($("resolution").value);
   const width = Math.max(16, Math.round(canvas.clientWidth * scale));
   const height = Math.max(16, Math.round(canvas.clientHeight * scale));
@@ -282,21 +294,28 @@ function viewMessage() {
     canvas.width = width;
     canvas.height = height;
   }
-  const message = {
-    type: "camera", position: cam.position, yaw_deg: cam.yaw, pitch_deg: cam.pitch, fov_y_deg: cam.fov,
-    width, height, max_fps: Math.max(1, Math.min(240, Number($("max-fps").value) || 60)),
+  const camera = { position: cam.position, yawDeg: cam.yaw, pitchDeg: cam.pitch, fovYDeg: cam.fov, width, height };
+  const options = {
+    maxFps: Math.max(1, Math.min(240, Number($("max-fps").value) || 60)),
     format: frameFormat, ...(VIDEO_FORMATS.includes(frameFormat) ? {} : { quality: 82 }),
     ambient_occlusion: $("ao").checked, shadows: $("shadows").checked,
     highlight_radius: brush.size,
   };
-  if (cursor) message.cursor = [cursor[0] * scale, cursor[1] * scale];
-  return message;
+  if (cursor) options.cursor = [cursor[0] * scale, cursor[1] * scale];
+  return { camera, options };
 }
 
+// One camera message at a time: while the stream reconnects, views do not pile up behind it
+// (the reconnection sends the last one again).
+let sendingView = false;
 function sendView(now) {
-  if (!socket || socket.readyState !== WebSocket.OPEN || !viewDirty) return;
+  if (!stream || !demo.ready || sendingView || !viewDirty) return;
   if (now - lastSent < 1000 / 120) return;
-  socket.send(encode(viewMessage()));
+  const { camera, options } = view();
+  sendingView = true;
+  stream.setCamera(camera, options)
+    .catch(() => {})  // the stream ended: its reader says why
+    .finally(() => { sendingView = false; });
   viewDirty = false;
   lastSent = now;
 }
@@ -306,7 +325,7 @@ function sendView(now) {
 // replaces any waiting one. Video: every chunk decoded, in order (video.js).
 let frameFormat = "jpeg";
 const video = new VideoPlayer((frame) => ctx.drawImage(frame, 0, 0, canvas.width, canvas.height), () => {
-  if (socket && socket.readyState === WebSocket.OPEN) socket.send(encode({ type: "keyframe" }));
+  stream?.requestKeyframe().catch(() => {});  // the stream ended: its reader says why
 });
 demo.video = video.stats;
 let decoding = false, waiting = null;
@@ -378,13 +397,11 @@ function updateStats(now) {
 async function paint(px, py, erase) {
   if (!demo.world) return;
   const scale = Number($("resolution").value);
-  const view = viewMessage();
-  const hit = await guarded("Pick", () => api("POST", `/v1/worlds/${demo.world}/pick`, {
-    position: view.position, yaw_deg: view.yaw_deg, pitch_deg: view.pitch_deg, fov_y_deg: view.fov_y_deg,
-    width: view.width, height: view.height, x: px * scale, y: py * scale,
-  }));
-  if (!hit) return;
-  if (!hit.hit) {  // the ray met no voxel: nothing to place against
+  const { camera } = view();
+  const world = demo.world;
+  const hit = await guarded("Pick", () => api((c) => c.pick(world, camera, px * scale, py * scale)));
+  if (hit === undefined) return;  // failed: guarded said why
+  if (hit === null) {  // the ray met no voxel: nothing to place against
     demo.misses++;
     flash("Nothing under the cursor to paint on: aim at a surface.", 1800);
     return;
@@ -392,8 +409,8 @@ async function paint(px, py, erase) {
   const edit = erase
     ? { op: "sphere", center: hit.voxel, radius: brush.size, colour: 0 }
     : { op: "sphere", center: hit.place, radius: brush.size, colour: brush.colour };
-  const done = await guarded("Edit", () => api("POST", `/v1/worlds/${demo.world}/edits`, { edits: [edit] }));
-  if (done) demo.edits++;
+  const done = await guarded("Edit", () => api((c) => c.edit(world, [edit])));
+  if (done !== undefined) demo.edits++;
 }
 
 // ---------------------------------------------------------------------------------------------- input
@@ -514,8 +531,8 @@ function showPalette(world) {
 
 // The §3.5 benchmark mode; its numbers are in window.sdfDemo.benchmark for the browser test.
 demo.benchmark = {};
-const benchmark = new Benchmark({ api, lookAt, viewChanged: () => { viewDirty = true; },
-  world: () => demo.world, size: () => worldSize, stats: demo.benchmark });
+const benchmark = new Benchmark({ edit: (edits) => api((c) => c.edit(demo.world, edits)), lookAt,
+  viewChanged: () => { viewDirty = true; }, size: () => worldSize, stats: demo.benchmark });
 
 function setupPanel() {
   $("bench-on").onchange = (e) => {
@@ -552,7 +569,7 @@ function setupPanel() {
     } else setFrameFormat(e.target.value);
   });
   $("world-select").onchange = (e) => guarded("Open world", async () => {
-    openWorld(await api("GET", `/v1/worlds/${encodeURIComponent(e.target.value)}`));
+    openWorld(await api((c) => c.getWorld(e.target.value)));
   });
   $("create-world").onclick = () => guarded("Create world", async () => {
     const world = await createWorld($("new-size").value, $("new-algorithm").value);
@@ -561,15 +578,15 @@ function setupPanel() {
   });
   $("apply-field").onclick = () => guarded("Apply", async () => {
     const triple = (id) => $(id).value.split(",").map((v) => parseInt(v.trim(), 10));
-    const body = { algorithm: $("algorithm").value, lod_algorithm: $("lod-algorithm").value,
+    const update = { algorithm: $("algorithm").value, lodAlgorithm: $("lod-algorithm").value,
       focus: $("focus-on").checked ? { center: triple("focus-center"), size: triple("focus-size") } : null,
       metric: $("metric").value, signed: $("signed").checked };
-    const world = await api("PATCH", `/v1/worlds/${demo.world}`, body);
+    const world = await api((c) => c.updateWorld(demo.world, update));
     await refreshWorlds(world.id);
     showPalette(world);
     viewDirty = true;  // a stream sends a frame for a new view, not for a reconfigured field
     showStatus(`Field: ${world.metric ?? "manhattan"}${world.signed ? ", signed" : ""}, ${world.algorithm}`
-      + `${world.focus ? " in focus, " + world.lod_algorithm + " outside" : ""}`);
+      + `${world.focus ? " in focus, " + world.lodAlgorithm + " outside" : ""}`);
     setTimeout(() => showStatus(""), 1500);
   });
 }
@@ -621,7 +638,7 @@ async function openStartWorld() {
       $("world-select").value = world.id;
       openWorld(world);
     } catch (err) {
-      notReady = err instanceof NotReady;
+      notReady = err instanceof NotReady || err instanceof TransportError;
       throw err;
     }
   });

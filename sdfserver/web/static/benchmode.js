@@ -5,7 +5,7 @@
 import { EDIT_INTERVAL_MS, mulberry32, nextBrush } from "./schedule.js";
 
 export class Benchmark {
-  // host: { api(method, path, body), lookAt(position, target), viewChanged(), world(), size(), stats }
+  // host: { edit(edits) -> the version it became, lookAt(position, target), viewChanged(), size(), stats }
   constructor(host) {
     this.host = host;
     this.running = false;
@@ -48,8 +48,7 @@ export class Benchmark {
     this.inFlight.push(slot);
     if (this.inFlightSince === null) this.inFlightSince = now;
     try {
-      const done = await this.host.api("POST", `/v1/worlds/${this.host.world()}/edits`, { edits: [brush] });
-      slot.version = done.version;
+      slot.version = await this.host.edit([brush]);
       this.edits++;
     } catch {
       this.failed++;

@@ -20,19 +20,25 @@
 /* |a - b| as an int (OpenCL's abs of an int is a uint, which min would not mix with an int). */
 inline int gap(int a, int b) { return a > b ? a - b : b - a; }
 
+/* The distance along x from wx to the nearest solid of the row's n voxels from x0 (`row` its
+ * first), capped. */
+inline int nearest_along_x(__global const uchar *voxels, size_t row, int x0, int n, int wx, int cap)
+{
+    int best = cap;
+    for (int i = 0; i < n; ++i)
+        if (voxels[row + i])
+            best = min(best, gap(wx, x0 + i));
+    return best;
+}
+
 __kernel void lower_x(__global const uchar *voxels, __global uchar *t1, int4 dims, int4 d_lo, int4 d_n,
                       int4 g_lo, int4 g_n, int cap)
 {
     const int x = get_global_id(0), y = get_global_id(1), z = get_global_id(2);
     if (x >= g_n.x || y >= d_n.y || z >= d_n.z)
         return;
-    const int wx = g_lo.x + x;
-    const size_t row = world_index(d_lo.x, d_lo.y + y, d_lo.z + z, dims);
-    int best = cap;
-    for (int i = 0; i < d_n.x; ++i)
-        if (voxels[row + i])
-            best = min(best, gap(wx, d_lo.x + i));
-    t1[((size_t)z * d_n.y + y) * g_n.x + x] = (uchar)best;
+    t1[((size_t)z * d_n.y + y) * g_n.x + x] =
+        (uchar)nearest_along_x(voxels, world_index(d_lo.x, d_lo.y + y, d_lo.z + z, dims), d_lo.x, d_n.x, g_lo.x + x, cap);
 }
 
 __kernel void lower_y(__global const uchar *t1, __global uchar *t2, int4 d_lo, int4 d_n, int4 g_lo, int4 g_n,
@@ -109,11 +115,7 @@ __kernel void elower_x(__global const uchar *voxels, __global uchar *t1, __globa
     if (x >= g_n.x || y >= d_n.y || z >= d_n.z)
         return;
     const int wx = g_lo.x + x;
-    const size_t row = world_index(d_lo.x, d_lo.y + y, d_lo.z + z, dims);
-    int best = cap;
-    for (int i = 0; i < d_n.x; ++i)
-        if (voxels[row + i])
-            best = min(best, gap(wx, d_lo.x + i));
+    const int best = nearest_along_x(voxels, world_index(d_lo.x, d_lo.y + y, d_lo.z + z, dims), d_lo.x, d_n.x, wx, cap);
     t1[((size_t)z * d_n.y + y) * g_n.x + x] = (uchar)best;
     const size_t at = world_index(wx, d_lo.y + y, d_lo.z + z, dims);
     if (best < (int)line[at])

@@ -33,7 +33,7 @@ from sdfserver.brushes import enqueue_brushes, enqueue_voxels
 from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, WorldBuffers
 from sdfserver.algorithms.base import WORK_PLANE_PAD, Pieces, int4, prepared, run_pieces
 from sdfserver.algorithms.euclidean import EUCLIDEAN_EXACT, StageBoxes
-from sdfserver.algorithms.lower import lower, lower_euclidean, lowering_boxes
+from sdfserver.algorithms.lower import lower, lowering_boxes
 from sdfserver.algorithms.region_jobs import region_jobs
 from sdfserver.algorithms.stats import summarize
 from sdfserver.recompute import PendingRecompute, RecomputeResult
@@ -298,8 +298,8 @@ class World:
         pieces = None
         lowering = self._lowering_boxes() if regions else None
         if lowering is not None:
-            lowers = lower_euclidean if self.config.euclidean else lower
-            runs.append(("exact", lowers(self.gpu, self.buffers, lowering, self.config.max_distance)))
+            runs.append(("exact", lower(self.gpu, self.buffers, lowering, self.config.max_distance,
+                                        self.config.euclidean)))
         elif self.config.euclidean and regions:
             runs.append(("exact", self._compute_euclidean(regions)))
         elif regions and piece_s is not None and self._runs_long(regions):

@@ -41,43 +41,28 @@ def lowering_boxes(boxes: list[Box]) -> list[Box] | None:
     return boxes
 
 
-def lower(gpu: GpuContext, buffers: WorldBuffers, boxes: list[Box], cap: int) -> AlgorithmRun:
-    """Lower the field around each of ``boxes`` (world-clipped, from ``lowering_boxes``)."""
+def lower(gpu: GpuContext, buffers: WorldBuffers, boxes: list[Box], cap: int, euclidean: bool = False) -> AlgorithmRun:
+    """Lower the field around each of ``boxes`` (world-clipped, from ``lowering_boxes``); with
+    ``euclidean``, a Euclidean world's line, plane and field."""
     kernel = gpu.programs.kernel
     world = Box.of_size(buffers.dims)
     dims, cap_arg = int4(buffers.dims), np.int32(cap)
+    b = buffers
     run = AlgorithmRun()
     for d in boxes:
         g = d.grow(cap).intersect(world)
-        (dx, dy, dz), (gx, gy, _) = d.shape_xyz, g.shape_xyz
-        d_lo, d_n, g_lo, g_n = int4(d.lo), int4(d.shape_xyz), int4(g.lo), int4(g.shape_xyz)
-        run.events.append(kernel("lower.cl", "lower_x")(
-            gpu.queue, *grid((gx, dy, dz)), buffers.voxels, buffers.work2, dims, d_lo, d_n, g_lo, g_n, cap_arg))
-        run.events.append(kernel("lower.cl", "lower_y")(
-            gpu.queue, *grid((gx, gy, dz)), buffers.work2, buffers.work, d_lo, d_n, g_lo, g_n, cap_arg))
-        run.events.append(kernel("lower.cl", "lower_z")(
-            gpu.queue, *grid((gx, gy, COLUMN_SHARES), (32, 4, 2)), buffers.work, buffers.voxels, buffers.field, dims,
-            d_lo, d_n, g_lo, g_n, cap_arg))
-    return run
-
-
-def lower_euclidean(gpu: GpuContext, buffers: WorldBuffers, boxes: list[Box], cap: int) -> AlgorithmRun:
-    """Lower a Euclidean world's line, plane and field around each of ``boxes``."""
-    kernel = gpu.programs.kernel
-    world = Box.of_size(buffers.dims)
-    dims, cap_arg = int4(buffers.dims), np.int32(cap)
-    run = AlgorithmRun()
-    for d in boxes:
-        g = d.grow(cap).intersect(world)
-        (dx, dy, dz), (gx, gy, gz) = d.shape_xyz, g.shape_xyz
-        d_lo, d_n, g_lo, g_n = int4(d.lo), int4(d.shape_xyz), int4(g.lo), int4(g.shape_xyz)
-        run.events.append(kernel("lower.cl", "elower_x")(
-            gpu.queue, *grid((gx, dy, dz)), buffers.voxels, buffers.work2, buffers.work, dims, d_lo, d_n, g_lo, g_n,
-            cap_arg))
-        run.events.append(kernel("lower.cl", "elower_z")(
-            gpu.queue, *grid((gx, dy, gz)), buffers.work2, buffers.edt_stack, buffers.edt_plane, dims, d_lo, d_n,
-            g_lo, g_n, cap_arg))
-        run.events.append(kernel("lower.cl", "elower_y")(
-            gpu.queue, *grid((gx, gz, COLUMN_SHARES), (32, 4, 2)), buffers.edt_stack, buffers.field, dims,
-            d_lo, d_n, g_lo, g_n, cap_arg))
+        (_, dy, dz), (gx, gy, gz) = d.shape_xyz, g.shape_xyz
+        box = (int4(d.lo), int4(d.shape_xyz), int4(g.lo), int4(g.shape_xyz), cap_arg)
+        if euclidean:
+            stages = (("elower_x", (gx, dy, dz), (b.voxels, b.work2, b.work, dims)),
+                      ("elower_z", (gx, dy, gz), (b.work2, b.edt_stack, b.edt_plane, dims)),
+                      ("elower_y", (gx, gz, COLUMN_SHARES), (b.edt_stack, b.field, dims)))
+        else:
+            stages = (("lower_x", (gx, dy, dz), (b.voxels, b.work2, dims)),
+                      ("lower_y", (gx, gy, dz), (b.work2, b.work)),
+                      ("lower_z", (gx, gy, COLUMN_SHARES), (b.work, b.voxels, b.field, dims)))
+        for name, shape, args in stages:
+            local = (32, 4, 2) if shape[2] == COLUMN_SHARES else None
+            sizes = grid(shape, local) if local else grid(shape)
+            run.events.append(kernel("lower.cl", name)(gpu.queue, *sizes, *args, *box))
     return run

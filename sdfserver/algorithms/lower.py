@@ -5,7 +5,7 @@ min(old, T) wherever D is nearer than the cap; exact, since adding solids adds t
 minimum the field is and changes nothing else. Its work is the rounded octahedron within the cap
 of D, not the cap-grown, chunk-snapped region the full transform rewrites (about a sixth of it).
 A Euclidean world's three stages (kernels/edt.cl) are each a minimum too, so each is lowered the
-same way and stays current for the next recompute (``lower_euclidean``).
+same way and stays current for the next recompute (``lower(..., euclidean=True)``).
 Used by dense worlds without a sign, a focus or padded borders whose algorithm is ``exact``,
 when every edit since the last recompute wrote solids (no erasing: a removed voxel can raise
 distances, which only the full transform finds) and each box is small (``MAX_BOX_VOXELS``).

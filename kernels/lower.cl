@@ -171,3 +171,50 @@ __kernel void elower_y(__global const ushort *t2, __global ushort *field, int4 d
             field[at] = (ushort)best;
     }
 }
+
+/* Where removing solids from D can raise a Manhattan field: voxels within the cap of D whose
+ * distance is below the cap and not below their distance to D (their nearest solid may have been
+ * in D); every other voxel's nearest solid is still there. Their bounding box, reduced in each
+ * work-group and then into bounds: min x, y, z, then max x, y, z (inclusive). A transform of that
+ * box, seeded from the unchanged field around it, is exact. Launched like lower_z. */
+__kernel void raise_bounds(__global const ushort *field, int4 dims, int4 d_lo, int4 d_n, int4 g_lo, int4 g_n,
+                           int cap, __global int *bounds)
+{
+    __local int group[6];
+    const int lid = get_local_id(0) + get_local_size(0) * (get_local_id(1) + get_local_size(1) * get_local_id(2));
+    if (lid < 6)
+        group[lid] = lid < 3 ? INT_MAX : INT_MIN;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const int x = get_global_id(0), y = get_global_id(1);
+    int lo_z = INT_MAX, hi_z = INT_MIN;
+    const int wx = g_lo.x + x, wy = g_lo.y + y;
+    const int4 d_hi = d_lo + d_n;
+    const int dxy = max(max(d_lo.x - wx, wx - (d_hi.x - 1)), 0) + max(max(d_lo.y - wy, wy - (d_hi.y - 1)), 0);
+    if (x < g_n.x && y < g_n.y && dxy < cap) {
+        const int reach = cap - dxy;
+        const int c0 = max(d_lo.z - reach, 0), c1 = min(d_hi.z + reach, dims.z);
+        const int share = (c1 - c0 + (int)get_global_size(2) - 1) / (int)get_global_size(2);
+        const int z0 = c0 + (int)get_global_id(2) * share, z1 = min(z0 + share, c1);
+        for (int wz = z0; wz < z1; ++wz) {
+            const int old = field[world_index(wx, wy, wz, dims)] >> 8;
+            const int to_d = dxy + max(max(d_lo.z - wz, wz - (d_hi.z - 1)), 0);
+            if (old < cap && old >= to_d) {
+                lo_z = min(lo_z, wz);
+                hi_z = max(hi_z, wz);
+            }
+        }
+    }
+    if (lo_z <= hi_z) {
+        atomic_min(&group[0], wx);
+        atomic_min(&group[1], wy);
+        atomic_min(&group[2], lo_z);
+        atomic_max(&group[3], wx);
+        atomic_max(&group[4], wy);
+        atomic_max(&group[5], hi_z);
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (lid < 3 && group[lid] != INT_MAX)
+        atomic_min(&bounds[lid], group[lid]);
+    else if (lid >= 3 && lid < 6 && group[lid] != INT_MIN)
+        atomic_max(&bounds[lid], group[lid]);
+}

@@ -21,16 +21,20 @@ class DirtySet:
     def __init__(self) -> None:
         self.boxes: list[Box] = []
         self.all = False
-        # an edit since the last recompute erased (wrote air): distances may rise, not only fall
+        # an edit since the last recompute erased (wrote air): distances may rise, not only fall;
+        # one added solids (wrote a colour): they may fall
         self.erased = False
+        self.added = False
 
     def __bool__(self) -> bool:
         return self.all or bool(self.boxes)
 
-    def add(self, boxes: list[Box], erases: bool = True) -> None:
-        """``erases``: whether the edit that changed ``boxes`` may have written air."""
+    def add(self, boxes: list[Box], erases: bool = True, adds: bool = True) -> None:
+        """``erases``, ``adds``: whether the edit that changed ``boxes`` may have written air, and
+        solids."""
         self.boxes.extend(boxes)
         self.erased |= erases and bool(boxes)
+        self.added |= adds and bool(boxes)
 
     def mark_all(self) -> None:
         self.all = True
@@ -38,7 +42,7 @@ class DirtySet:
     def clear(self) -> None:
         self.boxes.clear()
         self.all = False
-        self.erased = False
+        self.erased = self.added = False
 
     def regions(self, config: WorldConfig, max_regions: int = 32) -> list[Box]:
         """The regions a recompute rewrites: each box grown by the cap, snapped to chunks,

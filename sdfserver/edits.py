@@ -281,3 +281,10 @@ def erases(edit: Edit) -> bool:
     if isinstance(edit, VoxelsEdit):
         return bool((edit.voxels[:, 3] == 0).any())
     return edit.colour == 0
+
+
+def adds(edit: Edit) -> bool:
+    """Whether ``edit`` may write a solid (a colour 1..255) anywhere."""
+    if isinstance(edit, VoxelsEdit):
+        return bool((edit.voxels[:, 3] != 0).any())
+    return edit.colour != 0

@@ -7,8 +7,10 @@ of D, not the cap-grown, chunk-snapped region the full transform rewrites (about
 A Euclidean world's three stages (kernels/edt.cl) are each a minimum too, so each is lowered the
 same way and stays current for the next recompute (``lower(..., euclidean=True)``).
 Used by dense worlds without a sign, a focus or padded borders whose algorithm is ``exact``,
-when every edit since the last recompute wrote solids (no erasing: a removed voxel can raise
-distances, which only the full transform finds) and each box is small (``MAX_BOX_VOXELS``).
+when each edited box is small (``MAX_BOX_VOXELS``). Where an edit erased (a removed solid can
+raise distances) a Manhattan world first transforms only the box of the voxels whose nearest
+solid may have been removed (``raise_bounds``), then lowers around what was added; a Euclidean
+world that erased takes its full incremental transform.
 Scratch: a Manhattan world's ``work`` and ``work2``; a Euclidean world's ``work2`` and
 ``edt_stack`` (its ``work`` and ``edt_plane`` hold stages it keeps).
 """
@@ -16,6 +18,7 @@ Scratch: a Manhattan world's ``work`` and ``work2``; a Euclidean world's ``work2
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 
 from sdfserver.algorithms.base import AlgorithmRun, WorldBuffers, grid, int4
 from sdfserver.geometry import Box
@@ -66,3 +69,26 @@ def lower(gpu: GpuContext, buffers: WorldBuffers, boxes: list[Box], cap: int, eu
             sizes = grid(shape, local) if local else grid(shape)
             run.events.append(kernel("lower.cl", name)(gpu.queue, *sizes, *args, *box))
     return run
+
+
+def raise_bounds(gpu: GpuContext, buffers: WorldBuffers, boxes: list[Box], cap: int, run: AlgorithmRun) -> Box | None:
+    """The box where removing solids from ``boxes`` can raise a Manhattan field (every voxel whose
+    nearest solid may have been removed), or None where none can; waits for the device. A
+    transform of that box seeded from the field around it is exact: nothing outside it changes."""
+    far = np.iinfo(np.int32).max
+    bounds = np.array([far] * 3 + [-far] * 3, dtype=np.int32)
+    buffer = cl.Buffer(gpu.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=bounds)
+    try:
+        world = Box.of_size(buffers.dims)
+        for d in boxes:
+            g = d.grow(cap).intersect(world)
+            gx, gy, _ = g.shape_xyz
+            run.events.append(gpu.programs.kernel("lower.cl", "raise_bounds")(
+                gpu.queue, *grid((gx, gy, COLUMN_SHARES), (32, 4, 2)), buffers.field, int4(buffers.dims),
+                int4(d.lo), int4(d.shape_xyz), int4(g.lo), int4(g.shape_xyz), np.int32(cap), buffer))
+        cl.enqueue_copy(gpu.queue, bounds, buffer)
+    finally:
+        buffer.release()
+    if bounds[0] > bounds[3]:
+        return None
+    return Box(tuple(int(v) for v in bounds[:3]), tuple(int(v) + 1 for v in bounds[3:]))

@@ -56,19 +56,44 @@ def test_adding_solids_lowers_the_field_exactly(gpu, cap):
         world.release()
 
 
-def test_an_erasing_edit_takes_the_full_transform(gpu):
+@pytest.mark.parametrize("cap", [2, 9, 40, 255])
+def test_erasing_and_mixed_batches_transform_only_where_the_field_can_rise(gpu, cap):
+    """A batch that erases transforms the box of the voxels whose nearest solid may have been
+    removed (raise_bounds), then lowers around what it added: exact after batches that erase,
+    add, or both, over chunk and world faces."""
     rng = np.random.default_rng()
-    size, cap = (32, 24, 40), 12
+    size = tuple(int(v) * 8 for v in rng.integers(3, 8, 3))
     world = World(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap))
     try:
         expected = np.zeros(size[::-1], np.uint8)
-        for batch in (adding_batch(rng, size), adding_batch(rng, size, colour_low=0)
-                      + [{"op": "sphere", "center": [16.0, 12.0, 20.0], "radius": 5.0, "colour": 0}]):
+        first = [{"op": "voxels", "voxels": np.column_stack([rng.integers(0, min(size), (300, 3)),
+                                                             rng.integers(1, 256, 300)])}]
+        world.apply_edits(parse_edits(first))
+        apply_reference(expected, first)
+        world.recompute()
+        for step in range(6):
+            solids = np.argwhere(expected > 0)[rng.permutation(int((expected > 0).sum()))[:4]]  # (z, y, x)
+            batch = adding_batch(rng, size, colour_low=0) + [
+                {"op": "voxels", "voxels": [[int(x), int(y), int(z), 0] for z, y, x in solids]}]
+            if step % 2:  # erasing alone
+                batch = batch[-1:] + [{"op": "sphere", "center": [float(v) for v in rng.uniform(0, size)],
+                                       "radius": float(rng.uniform(1, 5)), "colour": 0}]
             world.apply_edits(parse_edits(batch))
             apply_reference(expected, batch)
+            assert world.dirty.erased and world._lowering_boxes() is not None
+            world.recompute()
+            field = world.read_field()
+            assert np.array_equal(field & 0xFF, expected)
+            assert np.array_equal(distances(field, world.config, expected), oracle_distance(expected, cap)), step
+    finally:
+        world.release()
+
+
+def test_an_erasing_edit_in_a_euclidean_world_takes_the_transform(gpu):
+    world = World(gpu, WorldConfig(size=(32, 24, 40), chunk_size=8, max_distance=12, metric="euclidean"))
+    try:
+        world.apply_edits(parse_edits([{"op": "sphere", "center": [16.0, 12.0, 20.0], "radius": 5.0, "colour": 0}]))
         assert world._lowering_boxes() is None
-        world.recompute()
-        assert np.array_equal(distances(world.read_field(), world.config, expected), oracle_distance(expected, cap))
     finally:
         world.release()
 

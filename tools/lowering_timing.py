@@ -1,8 +1,10 @@
 """A radius-8 brush's recompute in a 1024^3 world (exact, cap 255; Manhattan and Euclidean), lowered against the full
 transform of its cap-grown region (issue 33): device time (OpenCL profiling events, summed over
 the recompute's launches) and wall time, median and max of --reps, at the centre and at random
-places, for brushes that add solids (lowered: algorithms/lower.py) and the same brushes forced
-through the full transform, and brushes that erase (always the full transform).
+places, for brushes that add solids (lowered: algorithms/lower.py) and that erase a sphere placed
+there just before (raised: the transform of the box where the field can rise; a Euclidean world
+takes its incremental transform), each beside the same brush forced through the transform of its
+whole cap-grown region.
 
     source .whl/activate.sh; PYTHONPATH=$PWD python3 tools/lowering_timing.py --device nvidia [--size 1024]
 """
@@ -41,14 +43,18 @@ def main() -> None:
                            for _ in range(64)])
         world.recompute()
         for place in ("centre", "random"):
-            for kind in ("add, lowered", "add, full transform", "erase, full transform"):
+            for kind in ("add, lowered", "add, full transform", "erase, raised", "erase, full transform"):
                 device, wall = [], []
                 for i in range(args.reps + 3):  # the first few build kernels and warm the caches
                     centre = (n / 2,) * 3 if place == "centre" else tuple(float(v) for v in rng.uniform(16, n - 16, 3))
+                    if kind.startswith("erase"):  # a sphere there first, so that the erasing removes something
+                        world.apply_edits([SphereEdit(centre, RADIUS, 1 + i % 200)])
+                        world.recompute()
                     world.apply_edits([SphereEdit(centre, RADIUS, 0 if kind.startswith("erase") else 1 + i % 200)])
-                    if kind == "add, full transform":
-                        world.dirty.erased = True  # as if erased: the full transform of the region
+                    if kind.endswith("full transform"):  # the transform of the whole cap-grown region
+                        world._lowering_boxes = lambda: None
                     result = world.recompute()
+                    world.__dict__.pop("_lowering_boxes", None)
                     if i >= 3:
                         device.append(result.device_ms)
                         wall.append(result.wall_ms)

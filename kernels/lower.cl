@@ -172,13 +172,15 @@ __kernel void elower_y(__global const ushort *t2, __global ushort *field, int4 d
     }
 }
 
-/* Where removing solids from D can raise a Manhattan field: voxels within the cap of D whose
- * distance is below the cap and not below their distance to D (their nearest solid may have been
- * in D); every other voxel's nearest solid is still there. Their bounding box, reduced in each
- * work-group and then into bounds: min x, y, z, then max x, y, z (inclusive). A transform of that
- * box, seeded from the unchanged field around it, is exact. Launched like lower_z. */
+/* Where removing solids from D can raise the field: voxels within the cap of D whose distance is
+ * below the cap and not below their distance to D (their nearest solid may have been in D); every
+ * other voxel's nearest solid is still there. `euclid`: the field holds squared Euclidean
+ * distances (a Euclidean world's), compared with the squared distance to D; else Manhattan ones.
+ * Their bounding box, reduced in each work-group and then into bounds: min x, y, z, then max x, y,
+ * z (inclusive). A transform of that box, seeded from the unchanged field around it, is exact.
+ * Launched like lower_z. */
 __kernel void raise_bounds(__global const ushort *field, int4 dims, int4 d_lo, int4 d_n, int4 g_lo, int4 g_n,
-                           int cap, __global int *bounds)
+                           int cap, int euclid, __global int *bounds)
 {
     __local int group[6];
     const int lid = get_local_id(0) + get_local_size(0) * (get_local_id(1) + get_local_size(1) * get_local_id(2));
@@ -189,16 +191,20 @@ __kernel void raise_bounds(__global const ushort *field, int4 dims, int4 d_lo, i
     int lo_z = INT_MAX, hi_z = INT_MIN;
     const int wx = g_lo.x + x, wy = g_lo.y + y;
     const int4 d_hi = d_lo + d_n;
-    const int dxy = max(max(d_lo.x - wx, wx - (d_hi.x - 1)), 0) + max(max(d_lo.y - wy, wy - (d_hi.y - 1)), 0);
-    if (x < g_n.x && y < g_n.y && dxy < cap) {
-        const int reach = cap - dxy;
+    const int dx = max(max(d_lo.x - wx, wx - (d_hi.x - 1)), 0), dy = max(max(d_lo.y - wy, wy - (d_hi.y - 1)), 0);
+    const int limit = euclid ? cap * cap : cap;
+    const int dxy = euclid ? dx * dx + dy * dy : dx + dy;
+    if (x < g_n.x && y < g_n.y && dxy < limit) {
+        const int reach = euclid ? (int)sqrt((float)(limit - dxy)) + 1 : cap - dxy;
         const int c0 = max(d_lo.z - reach, 0), c1 = min(d_hi.z + reach, dims.z);
         const int share = (c1 - c0 + (int)get_global_size(2) - 1) / (int)get_global_size(2);
         const int z0 = c0 + (int)get_global_id(2) * share, z1 = min(z0 + share, c1);
         for (int wz = z0; wz < z1; ++wz) {
-            const int old = field[world_index(wx, wy, wz, dims)] >> 8;
-            const int to_d = dxy + max(max(d_lo.z - wz, wz - (d_hi.z - 1)), 0);
-            if (old < cap && old >= to_d) {
+            const ushort value = field[world_index(wx, wy, wz, dims)];
+            const int old = euclid ? value : value >> 8;
+            const int dz = max(max(d_lo.z - wz, wz - (d_hi.z - 1)), 0);
+            const int to_d = dxy + (euclid ? dz * dz : dz);
+            if (old < limit && old >= to_d) {
                 lo_z = min(lo_z, wz);
                 hi_z = max(hi_z, wz);
             }

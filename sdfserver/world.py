@@ -33,11 +33,11 @@ from sdfserver.brushes import enqueue_brushes, enqueue_voxels
 from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, WorldBuffers
 from sdfserver.algorithms.base import WORK_PLANE_PAD, Pieces, int4, prepared, run_pieces
 from sdfserver.algorithms.euclidean import EUCLIDEAN_EXACT, StageBoxes
-from sdfserver.algorithms.lower import lower, lowering_boxes, raise_bounds
 from sdfserver.algorithms.region_jobs import region_jobs
 from sdfserver.algorithms.stats import summarize
 from sdfserver.recompute import PendingRecompute, RecomputeResult
 from sdfserver.recompute_cost import visits_per_voxel
+from sdfserver.small_edits import SmallEdits
 from sdfserver.dirty import SMALL_DIRTY_CHUNKS, DirtySet  # noqa: F401  (SMALL_DIRTY_CHUNKS: read by tests)
 from sdfserver.edits import Edit, EditLimits, VoxelsEdit, adds, edit_bounds, erases, validate_batch
 from sdfserver.errors import InvalidInput
@@ -90,7 +90,7 @@ def field_defines(config: WorldConfig) -> dict[str, int]:
     return {"FIELD_EUCLID": int(config.euclidean), "FIELD_SIGNED": int(config.signed)}
 
 
-class World:
+class World(SmallEdits):
     def __init__(self, gpu: GpuContext, config: WorldConfig, limits: EditLimits = EditLimits()):
         self.config = config = config.validated()
         self.gpu = gpu
@@ -300,37 +300,13 @@ class World:
         if lowering is not None:
             runs = self._lower(lowering)
         elif self.config.euclidean and regions:
-            runs.append(("exact", self._compute_euclidean(regions)))
+            runs.append(("exact", self._compute_euclidean(self._rising_regions(regions, runs))))
         elif regions and piece_s is not None and self._runs_long(regions):
             pieces = self._pieces(regions, runs, piece_s)
         elif regions:
             runs = [(name, launch()) for name, launch in self._launches(regions)]
         self.dirty.clear()
         return PendingRecompute(self, regions, runs, start, self.version, pieces)
-
-    def _lowering_boxes(self) -> list[Box] | None:
-        """The edited boxes, where their recompute is ``_lower`` (``algorithms/lower.py``: an
-        unsigned exact world, small boxes, a Euclidean one only where nothing was erased); else None."""
-        cfg, dirty = self.config, self.dirty
-        if dirty.all or (dirty.erased and cfg.euclidean) or cfg.algorithm != "exact" or cfg.signed \
-                or cfg.focus is not None or cfg.borders != "exact":
-            return None
-        return lowering_boxes(dirty.boxes)
-
-    def _lower(self, boxes: list[Box]) -> list[tuple[str, AlgorithmRun]]:
-        """Where solids were erased, the transform of the box whose voxels may rise; then the
-        field lowered around what was added."""
-        cap, runs = self.config.max_distance, []
-        if self.dirty.erased:
-            bounding = AlgorithmRun()
-            runs.append(("exact", bounding))
-            rising = raise_bounds(self.gpu, self.buffers, boxes, cap, bounding)
-            if rising is not None:  # snapped to chunks, as every region the transform is given
-                region = rising.snap(self.config.chunk_size).intersect(self.world_box)
-                runs += [(name, launch()) for name, launch in self._launches([region])]
-        if self.dirty.added:
-            runs.append(("exact", lower(self.gpu, self.buffers, boxes, cap, self.config.euclidean)))
-        return runs
 
     def _runs_long(self, regions: list[Box]) -> bool:
         """Whether recomputing ``regions`` is work worth cutting into pieces: an algorithm that

@@ -10,7 +10,8 @@ Used by dense worlds without a sign, a focus or padded borders whose algorithm i
 when each edited box is small (``MAX_BOX_VOXELS``). Where an edit erased (a removed solid can
 raise distances) a Manhattan world first transforms only the box of the voxels whose nearest
 solid may have been removed (``raise_bounds``), then lowers around what was added; a Euclidean
-world that erased takes its full incremental transform.
+world whose batches only erased runs its incremental transform with that box as the last
+stage's, and one that erased and added runs it whole.
 Scratch: a Manhattan world's ``work`` and ``work2``; a Euclidean world's ``work2`` and
 ``edt_stack`` (its ``work`` and ``edt_plane`` hold stages it keeps).
 """
@@ -71,10 +72,11 @@ def lower(gpu: GpuContext, buffers: WorldBuffers, boxes: list[Box], cap: int, eu
     return run
 
 
-def raise_bounds(gpu: GpuContext, buffers: WorldBuffers, boxes: list[Box], cap: int, run: AlgorithmRun) -> Box | None:
-    """The box where removing solids from ``boxes`` can raise a Manhattan field (every voxel whose
-    nearest solid may have been removed), or None where none can; waits for the device. A
-    transform of that box seeded from the field around it is exact: nothing outside it changes."""
+def raise_bounds(gpu: GpuContext, buffers: WorldBuffers, boxes: list[Box], cap: int, run: AlgorithmRun,
+                 euclidean: bool = False) -> Box | None:
+    """The box where removing solids from ``boxes`` can raise the field (every voxel whose nearest
+    solid may have been removed), or None where none can; waits for the device. A transform of
+    that box seeded from the field around it is exact: nothing outside it changes."""
     far = np.iinfo(np.int32).max
     bounds = np.array([far] * 3 + [-far] * 3, dtype=np.int32)
     buffer = cl.Buffer(gpu.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=bounds)
@@ -85,7 +87,8 @@ def raise_bounds(gpu: GpuContext, buffers: WorldBuffers, boxes: list[Box], cap: 
             gx, gy, _ = g.shape_xyz
             run.events.append(gpu.programs.kernel("lower.cl", "raise_bounds")(
                 gpu.queue, *grid((gx, gy, COLUMN_SHARES), (32, 4, 2)), buffers.field, int4(buffers.dims),
-                int4(d.lo), int4(d.shape_xyz), int4(g.lo), int4(g.shape_xyz), np.int32(cap), buffer))
+                int4(d.lo), int4(d.shape_xyz), int4(g.lo), int4(g.shape_xyz), np.int32(cap),
+                np.int32(euclidean), buffer))
         cl.enqueue_copy(gpu.queue, bounds, buffer)
     finally:
         buffer.release()

@@ -89,11 +89,39 @@ def test_erasing_and_mixed_batches_transform_only_where_the_field_can_rise(gpu, 
         world.release()
 
 
-def test_an_erasing_edit_in_a_euclidean_world_takes_the_transform(gpu):
-    world = World(gpu, WorldConfig(size=(32, 24, 40), chunk_size=8, max_distance=12, metric="euclidean"))
+@pytest.mark.parametrize("cap", [4, 255])
+def test_a_euclidean_world_that_only_erased_transforms_its_last_stage_where_it_can_rise(gpu, cap, monkeypatch):
+    """Erasing alone: the last stage runs over the box where the field can rise (raise_bounds in
+    squared distances), the x and second stages over the edits' boxes as always; exact against
+    scipy, and the stages stay current for the lowering after it."""
+    import sdfserver.small_edits as small_edits
+
+    calls = []
+    real = small_edits.raise_bounds
+    monkeypatch.setattr(small_edits, "raise_bounds",
+                        lambda *a, **k: calls.append(k.get("euclidean")) or real(*a, **k))
+    rng = np.random.default_rng()
+    size = tuple(int(v) * 8 for v in rng.integers(3, 6, 3))
+    world = World(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap, metric="euclidean"))
     try:
-        world.apply_edits(parse_edits([{"op": "sphere", "center": [16.0, 12.0, 20.0], "radius": 5.0, "colour": 0}]))
-        assert world._lowering_boxes() is None
+        expected = np.zeros(size[::-1], np.uint8)
+
+        def step(batch):
+            world.apply_edits(parse_edits(batch))
+            apply_reference(expected, batch)
+            world.recompute()
+            got = distances(world.read_field(), world.config, expected)
+            assert np.allclose(got, field_distances(expected, "euclidean", False, cap), atol=1e-4)
+
+        step([{"op": "voxels", "voxels": np.column_stack([rng.integers(0, min(size), (200, 3)),
+                                                          rng.integers(1, 256, 200)])}])
+        for _ in range(3):
+            solids = np.argwhere(expected > 0)[rng.permutation(int((expected > 0).sum()))[:5]]
+            step([{"op": "voxels", "voxels": [[int(x), int(y), int(z), 0] for z, y, x in solids]},
+                  {"op": "sphere", "center": [float(v) for v in rng.uniform(0, size)], "radius": 3.0, "colour": 0}])
+        assert calls == [True, True, True]
+        step(adding_batch(rng, size))  # lowered, from the stages the erasing left
+        assert calls == [True, True, True]
     finally:
         world.release()
 

@@ -31,18 +31,24 @@ def adding_batch(rng, size, colour_low: int = 1) -> list[dict]:
     ]
 
 
+def scattered_world(gpu, rng, cap: int, solids: int, **config):
+    """A world of random size with ``solids`` random solid voxels, recomputed, and its voxels."""
+    size = tuple(int(v) * 8 for v in rng.integers(3, 8, 3))
+    world = World(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap, **config))
+    expected = np.zeros(size[::-1], np.uint8)
+    first = [{"op": "voxels", "voxels": np.column_stack([rng.integers(0, min(size), (solids, 3)),
+                                                         rng.integers(1, 256, solids)])}]
+    world.apply_edits(parse_edits(first))
+    apply_reference(expected, first)
+    world.recompute()
+    return world, size, expected
+
+
 @pytest.mark.parametrize("cap", [2, 9, 40, 255])
 def test_adding_solids_lowers_the_field_exactly(gpu, cap):
     rng = np.random.default_rng()
-    size = tuple(int(v) * 8 for v in rng.integers(3, 8, 3))
-    world = World(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap))
+    world, size, expected = scattered_world(gpu, rng, cap, 40)
     try:
-        expected = np.zeros(size[::-1], np.uint8)
-        first = [{"op": "voxels", "voxels": np.column_stack([rng.integers(0, min(size), (40, 3)),
-                                                             rng.integers(1, 256, 40)])}]
-        world.apply_edits(parse_edits(first))
-        apply_reference(expected, first)
-        world.recompute()
         for _ in range(4):
             batch = adding_batch(rng, size)
             world.apply_edits(parse_edits(batch))
@@ -62,15 +68,8 @@ def test_erasing_and_mixed_batches_transform_only_where_the_field_can_rise(gpu, 
     removed (raise_bounds), then lowers around what it added: exact after batches that erase,
     add, or both, over chunk and world faces."""
     rng = np.random.default_rng()
-    size = tuple(int(v) * 8 for v in rng.integers(3, 8, 3))
-    world = World(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap))
+    world, size, expected = scattered_world(gpu, rng, cap, 300)
     try:
-        expected = np.zeros(size[::-1], np.uint8)
-        first = [{"op": "voxels", "voxels": np.column_stack([rng.integers(0, min(size), (300, 3)),
-                                                             rng.integers(1, 256, 300)])}]
-        world.apply_edits(parse_edits(first))
-        apply_reference(expected, first)
-        world.recompute()
         for step in range(6):
             solids = np.argwhere(expected > 0)[rng.permutation(int((expected > 0).sum()))[:4]]  # (z, y, x)
             batch = adding_batch(rng, size, colour_low=0) + [

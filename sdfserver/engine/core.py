@@ -251,7 +251,7 @@ class Engine(EngineLifetime, CommandCalls):
         if not long:
             return step
         busy_ms = max(e["running_ms"] for e in long)
-        step = step or {"busy_ms": busy_ms, "phase": "recompute in pieces", "worlds": sorted(e["world"] for e in long)}
+        step = step or {"busy_ms": busy_ms, "phase": "pieces", "worlds": sorted(e["world"] for e in long)}
         return {**step, "recomputing": long}
 
     def _busy_seconds(self) -> float:

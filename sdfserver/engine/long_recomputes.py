@@ -112,15 +112,15 @@ class LongRecomputes:
             log.info("world %s: %s recompute of %d voxels running for %.0f s, %d pieces so far", world_id,
                      entry.algorithm, entry.voxels, now - entry.started, entry.pending.pieces_run)
 
-    def cancel(self, world_id: str) -> None:
-        """The world goes away: stop its recompute; what waited for it runs next step (and finds
+    def cancel(self, world_id: str, why: str = "the world is deleted") -> None:
+        """Stop the world's recompute (it goes away); what waited for it runs next step (and finds
         the world gone, or a new one of that id)."""
         self._restoring.discard(world_id)
         entry = self.running.pop(world_id, None)
         if entry is not None:
             entry.pending.cancel()
-            log.info("world %s: its %s recompute stopped after %d pieces (the world is deleted)", world_id,
-                     entry.algorithm, entry.pending.pieces_run)
+            log.info("world %s: its %s recompute stopped after %d pieces (%s)", world_id, entry.algorithm,
+                     entry.pending.pieces_run, why)
         self._released += self._held.pop(world_id, [])
 
     def give_up(self) -> list[str]:
@@ -128,7 +128,7 @@ class LongRecomputes:
         piece that failed would fail again each step); the worlds whose field is not done."""
         stopped = list(self.running)
         for world_id in stopped:
-            self.cancel(world_id)
+            self.cancel(world_id, "an engine step failed; the world recomputes whole at its next edit")
         return stopped
 
     def take_released(self) -> list[Pending]:

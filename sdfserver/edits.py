@@ -276,15 +276,9 @@ def edit_bounds(edit: Edit, dims: Vec3, chunk_size_vox: int) -> list[Box]:
     return [Box(tuple(map(int, a)), tuple(map(int, b))) for a, b in zip(lo, hi)]
 
 
-def erases(edit: Edit) -> bool:
-    """Whether ``edit`` may write air (colour 0) anywhere."""
+def writes(edit: Edit) -> tuple[bool, bool]:
+    """Whether ``edit`` may write air (colour 0) anywhere, and whether it may write a solid."""
     if isinstance(edit, VoxelsEdit):
-        return bool((edit.voxels[:, 3] == 0).any())
-    return edit.colour == 0
-
-
-def adds(edit: Edit) -> bool:
-    """Whether ``edit`` may write a solid (a colour 1..255) anywhere."""
-    if isinstance(edit, VoxelsEdit):
-        return bool((edit.voxels[:, 3] != 0).any())
-    return edit.colour != 0
+        air = edit.voxels[:, 3] == 0
+        return bool(air.any()), not bool(air.all())
+    return edit.colour == 0, edit.colour != 0

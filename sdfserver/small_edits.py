@@ -28,22 +28,26 @@ class SmallEdits:
         boxes = None if dirty.all or dirty.added or cfg.signed else lowering_boxes(dirty.boxes)
         if boxes is None:
             return regions
-        bounding = AlgorithmRun()
-        runs.append(("exact", bounding))
-        rising = raise_bounds(self.gpu, self.buffers, boxes, cfg.max_distance, bounding, euclidean=True)
-        return [] if rising is None else [rising.snap(cfg.chunk_size).intersect(self.world_box)]
+        rising = self._rising_region(boxes, runs, euclidean=True)
+        return [] if rising is None else [rising]
 
     def _lower(self, boxes: list[Box]) -> list[tuple[str, AlgorithmRun]]:
         """Where solids were erased, the transform of the box whose voxels may rise; then the
         field lowered around what was added."""
         cap, runs = self.config.max_distance, []
         if self.dirty.erased:
-            bounding = AlgorithmRun()
-            runs.append(("exact", bounding))
-            rising = raise_bounds(self.gpu, self.buffers, boxes, cap, bounding)
-            if rising is not None:  # snapped to chunks, as every region the transform is given
-                region = rising.snap(self.config.chunk_size).intersect(self.world_box)
-                runs += [(name, launch()) for name, launch in self._launches([region])]
+            rising = self._rising_region(boxes, runs)
+            if rising is not None:
+                runs += [(name, launch()) for name, launch in self._launches([rising])]
         if self.dirty.added:
             runs.append(("exact", lower(self.gpu, self.buffers, boxes, cap, self.config.euclidean)))
         return runs
+
+    def _rising_region(self, boxes: list[Box], runs: list, euclidean: bool = False) -> Box | None:
+        """The box where erasing in ``boxes`` can raise the field (``raise_bounds``, its launches
+        counted in ``runs``), snapped to chunks as every region the transform is given; None
+        where nothing can rise."""
+        bounding = AlgorithmRun()
+        runs.append(("exact", bounding))
+        rising = raise_bounds(self.gpu, self.buffers, boxes, self.config.max_distance, bounding, euclidean=euclidean)
+        return None if rising is None else rising.snap(self.config.chunk_size).intersect(self.world_box)

@@ -39,7 +39,7 @@ from sdfserver.recompute import PendingRecompute, RecomputeResult
 from sdfserver.recompute_cost import visits_per_voxel
 from sdfserver.small_edits import SmallEdits
 from sdfserver.dirty import SMALL_DIRTY_CHUNKS, DirtySet  # noqa: F401  (SMALL_DIRTY_CHUNKS: read by tests)
-from sdfserver.edits import Edit, EditLimits, VoxelsEdit, adds, edit_bounds, erases, validate_batch
+from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, validate_batch, writes
 from sdfserver.errors import InvalidInput
 from sdfserver.field_values import distances, needs_voxels
 from sdfserver.geometry import Box
@@ -191,7 +191,7 @@ class World(SmallEdits):
                         brushes, volume = [], 0
                     brushes.append((edit, box))
                     volume += box_volume
-                self.dirty.add(boxes, erases(edit), adds(edit))
+                self.dirty.add(boxes, *writes(edit))
             self.version += 1
             versions.append(self.version)
         self._enqueue_brushes(brushes)

@@ -6,8 +6,9 @@ import assert from "node:assert/strict";
 import { createConnection, createServer, type Server, type Socket } from "node:net";
 import { after, before, test } from "node:test";
 
-import { Client, StreamClosed, TransportError, sphere, type Reconnected, type Stream, type StreamMessage } from "sdfclient";
+import { Client, StreamClosed, TransportError, sphere, type Reconnected } from "sdfclient";
 
+import { until } from "./messages.js";
 import { TestServer } from "./server.js";
 
 let server: TestServer;
@@ -61,17 +62,6 @@ before(async () => {
 after(async () => {
   await server?.stop();
 });
-
-/** Messages until `done` says so; fails after `limit` messages. */
-async function until(stream: Stream, done: (message: StreamMessage) => boolean, limit = 100): Promise<StreamMessage[]> {
-  const seen: StreamMessage[] = [];
-  for await (const message of stream) {
-    seen.push(message);
-    if (done(message)) return seen;
-    assert.ok(seen.length < limit, `no match in ${limit} messages: ${seen.map((m) => m.type).join(", ")}`);
-  }
-  assert.fail("the stream ended");
-}
 
 test("a dropped connection is resumed: reconnected, subscribed again, and changes keep coming", { timeout: 30_000 }, async () => {
   const proxy = await Proxy.start(server.url);

@@ -5,8 +5,9 @@ import assert from "node:assert/strict";
 import { createServer } from "node:http";
 import { after, before, test } from "node:test";
 
-import { Client, InvalidEdit, NotFound, NotReady, Stream, box, sphere, voxels, type StreamMessage } from "sdfclient";
+import { Client, InvalidEdit, NotFound, NotReady, Stream, box, sphere, voxels } from "sdfclient";
 
+import { until } from "./messages.js";
 import { TestServer } from "./server.js";
 
 let server: TestServer;
@@ -22,17 +23,6 @@ before(async () => {
 after(async () => {
   await server?.stop();
 });
-
-/** Messages until `done` says so; fails after `limit` messages. */
-async function until(stream: Stream, done: (message: StreamMessage) => boolean, limit = 100): Promise<StreamMessage[]> {
-  const seen: StreamMessage[] = [];
-  for await (const message of stream) {
-    seen.push(message);
-    if (done(message)) return seen;
-    assert.ok(seen.length < limit, `no match in ${limit} messages: ${seen.map((m) => m.type).join(", ")}`);
-  }
-  assert.fail("the stream ended");
-}
 
 test("subscribe: every chunk once, then the chunks an edit changed, equal to a field read", async () => {
   const stream = await client.stream(worldId);

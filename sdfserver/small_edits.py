@@ -12,20 +12,21 @@ from sdfserver.geometry import Box
 class SmallEdits:
     """Mixed into ``World``, whose config, dirty set, device buffers and region launches it uses."""
 
-    def _lowering_boxes(self) -> list[Box] | None:
+    def _lowering_boxes(self, regions: list[Box] | None = None) -> list[Box] | None:
         """The edited boxes, where their recompute is ``_lower`` (``algorithms/lower.py``: an
-        unsigned exact world, small boxes, a Euclidean one only where nothing was erased); else None."""
+        unsigned exact world, small boxes in large regions, a Euclidean one only where nothing
+        was erased); else None. ``regions``: the dirty regions, where the caller has them."""
         cfg, dirty = self.config, self.dirty
         if dirty.all or (dirty.erased and cfg.euclidean) or cfg.algorithm != "exact" or cfg.signed \
                 or cfg.focus is not None or cfg.borders != "exact":
             return None
-        return lowering_boxes(dirty.boxes)
+        return lowering_boxes(dirty.boxes, self.dirty_regions() if regions is None else regions)
 
     def _rising_regions(self, regions: list[Box], runs: list) -> list[Box]:
         """A Euclidean world's regions for its last stage: where its batches only erased, the box
         where the field can rise (``raise_bounds``), snapped to chunks, or none; else ``regions``."""
         cfg, dirty = self.config, self.dirty
-        boxes = None if dirty.all or dirty.added or cfg.signed else lowering_boxes(dirty.boxes)
+        boxes = None if dirty.all or dirty.added or cfg.signed else lowering_boxes(dirty.boxes, regions)
         if boxes is None:
             return regions
         rising = self._rising_region(boxes, runs, euclidean=True)

@@ -296,7 +296,7 @@ class World(SmallEdits):
         regions = self.dirty_regions() if self.dirty else []
         runs: list[tuple[str, AlgorithmRun]] = []
         pieces = None
-        lowering = self._lowering_boxes() if regions else None
+        lowering = self._lowering_boxes(regions) if regions else None
         if lowering is not None:
             runs = self._lower(lowering)
         elif self.config.euclidean and regions:

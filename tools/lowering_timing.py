@@ -52,7 +52,7 @@ def main() -> None:
                         world.recompute()
                     world.apply_edits([SphereEdit(centre, RADIUS, 0 if kind.startswith("erase") else 1 + i % 200)])
                     if kind.endswith("full transform"):  # the transform of the whole cap-grown region
-                        world._lowering_boxes = lambda: None
+                        world._lowering_boxes = lambda *_: None
                         world._rising_regions = lambda regions, runs: regions
                     result = world.recompute()
                     world.__dict__.pop("_lowering_boxes", None)

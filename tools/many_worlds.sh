@@ -7,10 +7,12 @@
 #   mkdir -p ab/old && git archive OLD_COMMIT sdfserver kernels pyproject.toml | tar -x -C ab/old
 #   source .whl/activate.sh; bash tools/many_worlds.sh ab/old [rounds]
 # DEVICE, SIZE, DUR override the device (nvidia), the worlds' side (128) and each run's seconds (12);
-# a CPU smoke run: DEVICE= SIZE=32 DUR=3 bash tools/many_worlds.sh OLD 1
+# SERVE_FLAGS adds `sdfserver serve` flags to both builds' servers (for example --no-sync); OLD
+# given as - measures this checkout alone. Each run's server CPU (tools/cpu_use.py) is kept beside
+# its load generators' JSON. A CPU smoke run: DEVICE= SIZE=32 DUR=3 bash tools/many_worlds.sh - 1
 # Results: $OUT/many-worlds.tgz and a table on stdout.
 set -uo pipefail
-old=$(cd "${1:?old checkout}" && pwd); rounds=${2:-1}
+old=${1:?old checkout, or -}; [ "$old" = - ] || old=$(cd "$old" && pwd); rounds=${2:-1}
 new=$PWD
 export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD:${PYTHONPATH:-}
 FINAL=${OUT:-/tmp/sdfserver-out}; OUT=$(mktemp -d); mkdir -p "$FINAL"
@@ -22,17 +24,20 @@ load="python3 $new/clients/loadtest --url http://127.0.0.1:$port --size $size $s
 
 spread() {  # spread NAME K C [PROCESSES]: K generators of C clients at once
   local name=$1 k=$2 c=$3 procs=${4:-1} pids=()
+  python3 "$new/tools/cpu_use.py" snap $server > "$OUT/$name-cpu-before.json"
   for i in $(seq "$k"); do
     timeout $((dur + 60)) $load --clients "$c" --processes "$procs" --duration "$dur" \
       --json "$OUT/$name-load$i.json" > /dev/null 2>&1 &
     pids+=($!)
   done
   wait "${pids[@]}"
+  python3 "$new/tools/cpu_use.py" snap $server > "$OUT/$name-cpu-after.json"
 }
 
 measure() {  # measure NAME ROOT
   local name=$1 root=$2
-  serve_build "$root" "$OUT/$name-server.log" $port /tmp/sdfserver-many-data
+  # shellcheck disable=SC2086  # the flags are words
+  serve_build "$root" "$OUT/$name-server.log" $port /tmp/sdfserver-many-data ${SERVE_FLAGS:-} || return
   spread "$name-w1" 1 64 8
   spread "$name-w16" 16 4
   spread "$name-w64" 64 1
@@ -40,7 +45,7 @@ measure() {  # measure NAME ROOT
 }
 
 for round in $(seq "$rounds"); do
-  measure "r$round-old" "$old"
+  [ "$old" = - ] || measure "r$round-old" "$old"
   measure "r$round-new" "$new"
 done
 
@@ -48,8 +53,8 @@ python3 - "$OUT" <<'PY'
 import glob, json, os, sys
 out = sys.argv[1]
 runs = sorted({os.path.basename(p).rsplit("-load", 1)[0] for p in glob.glob(f"{out}/*-load*.json")})
-print("| run | worlds | batches/s (sum) | worst p99 (ms) | errors | against 1 world |")
-print("| --- | --- | --- | --- | --- | --- |")
+print("| run | worlds | batches/s (sum) | worst p99 (ms) | errors | against 1 world | engine CPU a batch |")
+print("| --- | --- | --- | --- | --- | --- | --- |")
 one = {}
 for run in runs:
     loads = []
@@ -67,5 +72,12 @@ for run in runs:
     if worlds == "1":
         one[build] = total
     ratio = f"{total / one[build]:.2f}x" if build in one and worlds != "1" else ""
-    print(f"| {build} | {worlds} | {total:,.0f} | {p99:.1f} | {errors} | {ratio} |")
+    engine = ""
+    try:
+        before, after = (json.load(open(f"{out}/{run}-cpu-{when}.json")) for when in ("before", "after"))
+        batches = sum(r["requests"] for r in loads)
+        engine = f"{(after['engine_s'] - before['engine_s']) / batches * 1e6:.0f} us"
+    except (OSError, ValueError, KeyError, ZeroDivisionError):
+        pass
+    print(f"| {build} | {worlds} | {total:,.0f} | {p99:.1f} | {errors} | {ratio} | {engine} |")
 PY

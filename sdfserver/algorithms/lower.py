@@ -29,12 +29,19 @@ from sdfserver.gpu import GpuContext
 # whole-region transform is cheaper.
 MAX_BOX_VOXELS = 64 ** 3
 MAX_BOXES = 16
+# Lowering pays where it spares the device a large transform; under this many voxels of regions
+# the transform's few launches (prepared once, replayed while its regions repeat) cost the engine
+# thread less than three launches per box and, where a batch erased, a wait for raise_bounds.
+LOWER_ABOVE_REGION_VOXELS = 1 << 24
 # Work-items sharing one (x, y) column of the last stage: up to 2·cap + D's depth voxels each.
 COLUMN_SHARES = 16
 
 
-def lowering_boxes(boxes: list[Box]) -> list[Box] | None:
-    """The boxes to lower, or None where lowering does not pay (many or large boxes)."""
+def lowering_boxes(boxes: list[Box], regions: list[Box]) -> list[Box] | None:
+    """The boxes to lower, or None where lowering does not pay: many or large boxes, or a transform
+    of ``regions`` (what the recompute would rewrite instead) small enough to run as it is."""
+    if sum(r.volume for r in regions) <= LOWER_ABOVE_REGION_VOXELS:
+        return None
     if len(boxes) > MAX_BOXES:
         lo = tuple(min(b.lo[a] for b in boxes) for a in range(3))
         hi = tuple(max(b.hi[a] for b in boxes) for a in range(3))

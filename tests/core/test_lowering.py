@@ -1,13 +1,15 @@
 """Edits that only add solids lower the field around them (algorithms/lower.py, kernels/lower.cl):
 the field equals a full recompute and scipy's taxicab transform, across chunk borders and world
 faces, under small and large caps; an erasing edit, or a world the lowering is not for, takes the
-full transform."""
+full transform. The worlds here are small, so each test but the threshold's lowers whatever the
+size of the regions (``LOWER_ABOVE_REGION_VOXELS`` 0)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from sdfserver.algorithms import lower
 from sdfserver.edits import parse_edits
 from sdfserver.field_values import distances
 from sdfserver.world import World, WorldConfig
@@ -15,6 +17,12 @@ from sdfserver.world_config import Focus
 
 from references import apply_edits as apply_reference
 from references import field_distances, oracle_distance
+
+
+@pytest.fixture(autouse=True)
+def lower_any_region(request, monkeypatch):
+    if "threshold" not in request.node.name:
+        monkeypatch.setattr(lower, "LOWER_ABOVE_REGION_VOXELS", 0)
 
 
 def adding_batch(rng, size, colour_low: int = 1) -> list[dict]:
@@ -132,6 +140,36 @@ def test_worlds_the_lowering_is_not_for_take_their_own_path(gpu, config):
     try:
         world.apply_edits(parse_edits(adding_batch(np.random.default_rng(), (32, 24, 40))))
         assert world._lowering_boxes() is None
+    finally:
+        world.release()
+
+
+def test_regions_under_the_threshold_are_transformed_not_lowered(gpu, monkeypatch):
+    """Under ``LOWER_ABOVE_REGION_VOXELS`` of regions the recompute is the transform (no lowering
+    launch), and its field equals scipy's; just over it, the same batch is lowered."""
+    rng = np.random.default_rng()
+    world, size, expected = scattered_world(gpu, rng, 255, 40)
+    launched = []
+    real_lower = world._lower
+    monkeypatch.setattr(world, "_lower", lambda boxes: launched.append(boxes) or real_lower(boxes))
+    try:
+        batch = adding_batch(rng, size)
+        world.apply_edits(parse_edits(batch))
+        apply_reference(expected, batch)
+        regions = world.dirty_regions()
+        volume = sum(r.volume for r in regions)
+        monkeypatch.setattr(lower, "LOWER_ABOVE_REGION_VOXELS", volume)
+        assert world._lowering_boxes() is None
+        world.recompute()
+        assert not launched
+        assert np.array_equal(distances(world.read_field(), world.config, expected), oracle_distance(expected, 255))
+        batch = adding_batch(rng, size)
+        world.apply_edits(parse_edits(batch))
+        apply_reference(expected, batch)
+        monkeypatch.setattr(lower, "LOWER_ABOVE_REGION_VOXELS", sum(r.volume for r in world.dirty_regions()) - 1)
+        world.recompute()
+        assert len(launched) == 1
+        assert np.array_equal(distances(world.read_field(), world.config, expected), oracle_distance(expected, 255))
     finally:
         world.release()
 

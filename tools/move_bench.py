@@ -7,6 +7,7 @@ every world's acknowledged versions are exactly 1..version (nothing lost, nothin
         --json $OUT/moves.json
     python3 tools/move_bench.py --device 0 --size 32 --worlds 2 --writers 2 --moves 2   # CPU smoke
     python3 tools/move_bench.py --cluster --device nvidia ...   # two Ray engine actors, 0.5 GPU each
+    python3 tools/move_bench.py --devices 0,1 ...   # one engine process on each of two GPUs
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ def percentile(values: list[float], q: float) -> float | None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="nvidia")
+    parser.add_argument("--devices", default=None,
+                        help="the two engines' devices, as serve --devices (default: --device twice)")
     parser.add_argument("--cluster", action="store_true", help="two Ray engine actors instead of engine processes")
     parser.add_argument("--engine-gpus", type=float, default=0.5)
     parser.add_argument("--size", type=int, default=256)
@@ -56,7 +59,7 @@ def main() -> None:
     args = parser.parse_args()
     args.url = f"http://127.0.0.1:{args.port}"
     engines = (["--cluster", "local", "--engines", "2", "--engine-gpus", str(args.engine_gpus), "--device", args.device]
-               if args.cluster else ["--devices", f"{args.device},{args.device}"])
+               if args.cluster else ["--devices", args.devices or f"{args.device},{args.device}"])
     data_dir = tempfile.mkdtemp(prefix="sdf-move-bench-")
     os.makedirs(args.log_dir, exist_ok=True)
     try:

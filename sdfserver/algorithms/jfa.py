@@ -11,8 +11,14 @@ distance in the current field). ``jfa+1`` adds a pass of step 1 at the end,
 ``jfa+2`` passes of step 2 and 1 (Rong & Tan's JFA+1 and JFA+2).
 Source: Rong & Tan, "Jump flooding in GPU with applications to Voronoi diagram
 and distance transform", I3D 2006; Fedor 2025 §4.4.
-Kernel: kernels/jfa.cl (+ region.cl). Scratch: two uint nearest-seed buffers
-(WorldBuffers.seeds/seeds2, 8 bytes per voxel), held only by worlds that flood.
+Kernel: kernels/jfa.cl (+ region.cl), one launch a pass: the first finds the
+seeds in the initial distances, the last writes distances. Where every seed is
+a solid (a whole world, a halo, padded chunks: ``seeds_weigh_nothing``) a
+candidate's cost is its offset's length and no weight is read, and a work-item
+takes four voxels along x; otherwise the passes read the winning seeds'
+weights, a voxel an item. Both find the same seeds, in the same order, with the
+same ties. Scratch: two uint nearest-seed buffers (WorldBuffers.seeds/seeds2,
+8 bytes per voxel), held only by worlds that flood.
 A box that fits one work-group's local memory floods there in one launch, with
 the same passes and ties (one_launch.py).
 Units: voxels. Halo: seed shell or ``cap`` voxels; none with padded borders
@@ -22,11 +28,14 @@ below the truth: jump flooding can only overestimate, where a voxel's nearest
 seed did not reach it through the jumps. A ray that steps by such a field can
 step past a solid (a sphere tracer is safe only with distances at or below the
 truth). The error is measured by the tests and the benchmark, not assumed.
-Cost: 26 neighbour seeds and their weights read per voxel per pass,
-log2(min(side, cap)) + extra passes.
+Cost: 26 neighbour seeds per voxel per pass (and, in a seeded job, the weights
+of those that could win), log2(min(side, cap)) + extra passes. Each pass is
+built with its step as a constant: a box's passes are a handful of programs.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 import pyopencl as cl
@@ -59,30 +68,61 @@ def step_sizes(job: RegionJob, extra_passes: int = 0) -> list[int]:
     return steps + list(EXTRA_STEPS[extra_passes])
 
 
+def seeds_weigh_nothing(job: RegionJob) -> bool:
+    """Whether every seed of ``job`` is a solid (weight 0). Only a seed shell weighs
+    something (its distances from the current field), and a seeded job has one only where its
+    work box is larger than its region: a whole world's work box is the world itself."""
+    return job.chunk > 0 or not job.seeded or job.work_box == job.region
+
+
+@dataclass(frozen=True)
+class PassLayout:
+    """How a pass's work-items cover the box: ``group`` items a work-group (x, y, z), and with
+    ``vector`` four voxels along x an item where the job allows it (weight 0, the x side and
+    the chunk multiples of 4)."""
+
+    group: tuple[int, int, int] = (16, 4, 2)
+    vector: bool = True
+
+
+LAYOUT = PassLayout()
+
+
 def flood(gpu: GpuContext, job: RegionJob, run: AlgorithmRun, out: cl.Buffer, extra_passes: int = 0,
-          piece_s: float | None = None) -> Pieces:
+          piece_s: float | None = None, weighted: bool | None = None, layout: PassLayout | None = None) -> Pieces:
     """Jump flooding from the initial distances in job.buffers.work (left as they are);
     the distances found go to ``out``, a uchar box like work. Cut after each pass; with
-    ``piece_s``, each pass runs in slabs of z-planes of about that long."""
+    ``piece_s``, each pass runs in slabs of z-planes of about that long. ``weighted``: read
+    seeds' weights from work (None: only where the job has seeds that weigh something)."""
     b = job.buffers
     if b.seeds is None or b.seeds2 is None:
         raise RuntimeError("jump flooding needs the world's seed buffers (World.buffer_bytes allocates them)")
-    kernel = gpu.programs.kernel
-    w_n, cap, chunk = int4(job.work_box.shape_xyz), np.int32(job.cap), np.int32(job.chunk)
-    gsize, lsize = grid(job.work_box.shape_xyz)
+    if weighted is None:
+        weighted = not seeds_weigh_nothing(job)
+    layout = layout or LAYOUT
+    shape = job.work_box.shape_xyz
+    w_n, cap, chunk = int4(shape), np.int32(job.cap), np.int32(job.chunk)
+    steps = step_sizes(job, extra_passes)
+    passes = steps or [0]  # a box too small for any pass: one that only finds and resolves the seeds
+    wide = int(max(passes) * (shape[0] * shape[1] + shape[0] + 1) >= 2 ** 31)
+    vector = layout.vector and not weighted and shape[0] % 4 == 0 and job.chunk % 4 == 0
+    name, per_item_x = ("jfa_seed_pass4", 4) if vector else ("jfa_seed_pass", 1)
+    gsize, lsize = grid((-(-shape[0] // per_item_x), shape[1], shape[2]), layout.group)
     pace = None if piece_s is None else SlabPace(piece_s, lsize[2])
-    seed_pass = kernel("jfa.cl", "jfa_seed_pass")
     src, dst = b.seeds, b.seeds2
-    run.events.append(kernel("jfa.cl", "jfa_seed_init")(gpu.queue, gsize, lsize, b.work, src, w_n, cap, chunk))
-    for step in step_sizes(job, extra_passes):
-        def launch(z0: int, planes: int, src=src, dst=dst, step=step) -> cl.Event:
-            return seed_pass(gpu.queue, (gsize[0], gsize[1], grid((1, 1, planes), lsize)[0][2]), lsize, b.work,
-                             src, dst, w_n, np.int32(step), cap, chunk, global_offset=(0, 0, z0))
-        yield from slabs(run, launch, job.work_box.shape_xyz[2], pace)
+    for n, step in enumerate(passes):
+        seed_pass = gpu.programs.kernel("jfa.cl", name, JFA_STEP=step, JFA_WEIGHTED=int(weighted), JFA_WIDE=wide,
+                                        JFA_FIRST=int(n == 0), JFA_LAST=int(n == len(passes) - 1))
+
+        def launch(z0: int, planes: int, src=src, dst=dst) -> cl.Event:
+            return seed_pass(gpu.queue, (gsize[0], gsize[1], planes), lsize, b.work, src, dst, out, w_n,
+                             cap, chunk, global_offset=(0, 0, z0))
+        yield from slabs(run, launch, gsize[2], pace)
         src, dst = dst, src
-        run.iterations += 1
-        yield
-    run.events.append(kernel("jfa.cl", "jfa_resolve")(gpu.queue, gsize, lsize, b.work, src, out, w_n, cap))
+        if steps:
+            run.iterations += 1
+        if n < len(passes) - 1:
+            yield
 
 
 def flood_in_one_launch(small: OneLaunch, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, plan: Plan,

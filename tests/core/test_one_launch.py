@@ -138,7 +138,7 @@ def test_one_launch_is_taken(gpu, rng, monkeypatch, algorithm, borders, size, ch
                    random_voxels(rng, size[::-1], 0.01), [inside(rng, size)])
     for (one, _), (multi, _) in zip(out["one"][0], out["multi"][0]):
         launches = 2 if borders == "padded" and algorithm in EXACT else 1
-        assert len(one.kernel_ms) <= launches < 6 <= len(multi.kernel_ms)
+        assert len(one.kernel_ms) <= launches < 5 <= len(multi.kernel_ms)
         if algorithm == "fim":  # solids are certain to be there, so some pass changes something
             assert 0 < one.iterations <= 3 * 255
         elif algorithm == "jfa_fim":  # FIM passes after the same flood: none where it was exact

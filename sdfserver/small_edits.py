@@ -20,13 +20,14 @@ class SmallEdits:
         if dirty.all or (dirty.erased and cfg.euclidean) or cfg.algorithm != "exact" or cfg.signed \
                 or cfg.focus is not None or cfg.borders != "exact":
             return None
-        return lowering_boxes(dirty.boxes, self.dirty_regions() if regions is None else regions)
+        return lowering_boxes(dirty.boxes, self.dirty_regions() if regions is None else regions, cfg.euclidean,
+                              dirty.erased)
 
     def _rising_regions(self, regions: list[Box], runs: list) -> list[Box]:
         """A Euclidean world's regions for its last stage: where its batches only erased, the box
         where the field can rise (``raise_bounds``), snapped to chunks, or none; else ``regions``."""
         cfg, dirty = self.config, self.dirty
-        boxes = None if dirty.all or dirty.added or cfg.signed else lowering_boxes(dirty.boxes, regions)
+        boxes = None if dirty.all or dirty.added or cfg.signed else lowering_boxes(dirty.boxes, regions, True)
         if boxes is None:
             return regions
         rising = self._rising_region(boxes, runs, euclidean=True)

@@ -1,12 +1,12 @@
-"""A radius-8 brush's recompute in a 1024^3 world (exact, cap 255; Manhattan and Euclidean), lowered against the full
-transform of its cap-grown region (issue 33): device time (OpenCL profiling events, summed over
-the recompute's launches) and wall time, median and max of --reps, at the centre and at random
-places, for brushes that add solids (lowered: algorithms/lower.py) and that erase a sphere placed
-there just before (raised: the transform of the box where the field can rise; a Euclidean world
-takes its incremental transform), each beside the same brush forced through the transform of its
-whole cap-grown region.
+"""A brush's recompute (radius 8 unless --radius) in a 1024^3 world (exact, cap 255; Manhattan and
+Euclidean), lowered against the full transform of its cap-grown region (issue 33): device time
+(OpenCL profiling events, summed over the recompute's launches) and wall time, median and max of
+--reps, at the centre and at random places, for brushes that add solids (lowered:
+algorithms/lower.py) and that erase a sphere placed there just before (raised: the transform of the
+box where the field can rise; a Euclidean world takes its incremental transform), each beside the
+same brush forced through the transform of its whole cap-grown region.
 
-    source .whl/activate.sh; PYTHONPATH=$PWD python3 tools/lowering_timing.py --device nvidia [--size 1024]
+    source .whl/activate.sh; PYTHONPATH=$PWD python3 tools/lowering_timing.py --device nvidia [--size 1024] [--radius 64]
 """
 
 from __future__ import annotations
@@ -21,8 +21,6 @@ from sdfserver.edits import SphereEdit
 from sdfserver.gpu import GpuContext
 from sdfserver.world import World, WorldConfig
 
-RADIUS = 8.0
-
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -30,6 +28,7 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=1024)
     parser.add_argument("--cap", type=int, default=255)
     parser.add_argument("--reps", type=int, default=50)
+    parser.add_argument("--radius", type=float, default=8.0, help="the brush's radius, voxels")
     parser.add_argument("--metrics", default="manhattan,euclidean")
     parser.add_argument("--json", default="")
     args = parser.parse_args()
@@ -48,9 +47,9 @@ def main() -> None:
                 for i in range(args.reps + 3):  # the first few build kernels and warm the caches
                     centre = (n / 2,) * 3 if place == "centre" else tuple(float(v) for v in rng.uniform(16, n - 16, 3))
                     if kind.startswith("erase"):  # a sphere there first, so that the erasing removes something
-                        world.apply_edits([SphereEdit(centre, RADIUS, 1 + i % 200)])
+                        world.apply_edits([SphereEdit(centre, args.radius, 1 + i % 200)])
                         world.recompute()
-                    world.apply_edits([SphereEdit(centre, RADIUS, 0 if kind.startswith("erase") else 1 + i % 200)])
+                    world.apply_edits([SphereEdit(centre, args.radius, 0 if kind.startswith("erase") else 1 + i % 200)])
                     if kind.endswith("full transform"):  # the transform of the whole cap-grown region
                         world._lowering_boxes = lambda *_: None
                         world._rising_regions = lambda regions, runs: regions
@@ -64,7 +63,7 @@ def main() -> None:
                     "device_ms_median": statistics.median(device), "device_ms_max": max(device),
                     "wall_ms_median": statistics.median(wall), "wall_ms_max": max(wall)}
         world.release()
-    print(f"{gpu.device_name}; {n}^3, cap {args.cap}, a radius-{RADIUS:g} sphere, {args.reps} each")
+    print(f"{gpu.device_name}; {n}^3, cap {args.cap}, a radius-{args.radius:g} sphere, {args.reps} each")
     print("| brush | device ms, median / max | wall ms, median / max |")
     print("| --- | --- | --- |")
     for name, r in rows.items():

@@ -6,12 +6,15 @@ minimum the field is and changes nothing else. Its work is the rounded octahedro
 of D, not the cap-grown, chunk-snapped region the full transform rewrites (about a sixth of it).
 A Euclidean world's three stages (kernels/edt.cl) are each a minimum too, so each is lowered the
 same way and stays current for the next recompute (``lower(..., euclidean=True)``).
+Each Manhattan stage costs O(1) an output whatever the box's size (the sweeps of kernels/lower.cl);
+a Euclidean world's reads the box's extent along its axis for each output.
 Used by dense worlds without a sign, a focus or padded borders whose algorithm is ``exact``,
-when each edited box is small (``MAX_BOX_VOXELS``). Where an edit erased (a removed solid can
-raise distances) a Manhattan world first transforms only the box of the voxels whose nearest
-solid may have been removed (``raise_bounds``), then lowers around what was added; a Euclidean
-world whose batches only erased runs its incremental transform with that box as the last
-stage's, and one that erased and added runs it whole.
+when each edited box is small enough (``MAX_BOX_VOXELS``; in a batch that erased,
+``MAX_ERASING_BOX_VOXELS``; in a Euclidean world, ``MAX_EUCLIDEAN_BOX_VOXELS``). Where an edit
+erased (a removed solid can raise distances) a Manhattan world first transforms only the box of
+the voxels whose nearest solid may have been removed (``raise_bounds``), then lowers around what
+was added; a Euclidean world whose batches only erased runs its incremental transform with that
+box as the last stage's, and one that erased and added runs it whole.
 Scratch: a Manhattan world's ``work`` and ``work2``; a Euclidean world's ``work2`` and
 ``edt_stack`` (its ``work`` and ``edt_plane`` hold stages it keeps).
 """
@@ -25,21 +28,36 @@ from sdfserver.algorithms.base import AlgorithmRun, WorldBuffers, grid, int4
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
 
-# Each output voxel reads D's extent along its stage's axis, so D stays small; past these the
-# whole-region transform is cheaper.
-MAX_BOX_VOXELS = 64 ** 3
+# Lowering a box costs about its cap-grown octahedron and the transform its cap-grown box, so
+# lowering pays for large boxes too; past MAX_BOX_VOXELS (as far as that was timed) boxes take the
+# transform. A batch that erased first transforms the box where the field can rise, which can be
+# nearly the whole region after reducing it on the device: past MAX_ERASING_BOX_VOXELS that costs
+# more than the region's transform. A Euclidean world's stages read the box's extent along their
+# axis for each output, so its boxes stay small.
+MAX_BOX_VOXELS = 256 ** 3
+MAX_ERASING_BOX_VOXELS = 200 ** 3
+MAX_EUCLIDEAN_BOX_VOXELS = 64 ** 3
 MAX_BOXES = 16
 # Lowering pays where it spares the device a large transform; under this many voxels of regions
 # the transform's few launches (prepared once, replayed while its regions repeat) cost the engine
 # thread less than three launches per box and, where a batch erased, a wait for raise_bounds.
 LOWER_ABOVE_REGION_VOXELS = 1 << 24
-# Work-items sharing one (x, y) column of the last stage: up to 2·cap + D's depth voxels each.
+# Work-items sharing one line of lower_y or lower_z, or one (x, y) column of raise_bounds (a
+# thread walking a long column alone is bound by latency, not bandwidth). A share of lower_y or
+# lower_z first reads the rest of the box's depth, so it takes at least SHARE_DEPTHS times that
+# depth in outputs, and at least SHARE_MIN_VOX.
 COLUMN_SHARES = 16
+SHARE_DEPTHS = 3
+SHARE_MIN_VOX = 64
+# lower_x's work-group, the lanes sharing one row (ROW_LANES in kernels/lower.cl).
+ROW_LANES = 64
 
 
-def lowering_boxes(boxes: list[Box], regions: list[Box]) -> list[Box] | None:
-    """The boxes to lower, or None where lowering does not pay: many or large boxes, or a transform
-    of ``regions`` (what the recompute would rewrite instead) small enough to run as it is."""
+def lowering_boxes(boxes: list[Box], regions: list[Box], euclidean: bool = False,
+                   erased: bool = False) -> list[Box] | None:
+    """The boxes to lower, or None where lowering does not pay: many or large boxes (``euclidean``:
+    a Euclidean world's; ``erased``: a batch that erased), or a transform of ``regions`` (what the
+    recompute would rewrite instead) small enough to run as it is."""
     if sum(r.volume for r in regions) <= LOWER_ABOVE_REGION_VOXELS:
         return None
     if len(boxes) > MAX_BOXES:
@@ -47,7 +65,8 @@ def lowering_boxes(boxes: list[Box], regions: list[Box]) -> list[Box] | None:
         hi = tuple(max(b.hi[a] for b in boxes) for a in range(3))
         boxes = [Box(lo, hi)]
     boxes = [b for b in boxes if not b.empty]
-    if not boxes or any(b.volume > MAX_BOX_VOXELS for b in boxes):
+    limit = MAX_EUCLIDEAN_BOX_VOXELS if euclidean else MAX_ERASING_BOX_VOXELS if erased else MAX_BOX_VOXELS
+    if not boxes or any(b.volume > limit for b in boxes):
         return None
     return boxes
 
@@ -65,18 +84,25 @@ def lower(gpu: GpuContext, buffers: WorldBuffers, boxes: list[Box], cap: int, eu
         (_, dy, dz), (gx, gy, gz) = d.shape_xyz, g.shape_xyz
         box = (int4(d.lo), int4(d.shape_xyz), int4(g.lo), int4(g.shape_xyz), cap_arg)
         if euclidean:
-            stages = (("elower_x", (gx, dy, dz), (b.voxels, b.work2, b.work, dims)),
-                      ("elower_z", (gx, dy, gz), (b.work2, b.edt_stack, b.edt_plane, dims)),
-                      ("elower_y", (gx, gz, COLUMN_SHARES), (b.edt_stack, b.field, dims)))
+            stages = (("elower_x", (b.voxels, b.work2, b.work, dims)),
+                      ("elower_z", (b.work2, b.edt_stack, b.edt_plane, dims)),
+                      ("elower_y", (b.edt_stack, b.field, dims)))
+            sizes = (grid((gx, dy, dz)), grid((gx, dy, gz)), grid((gx, gz, COLUMN_SHARES), (32, 4, 2)))
         else:
-            stages = (("lower_x", (gx, dy, dz), (b.voxels, b.work2, dims)),
-                      ("lower_y", (gx, gy, dz), (b.work2, b.work)),
-                      ("lower_z", (gx, gy, COLUMN_SHARES), (b.work, b.voxels, b.field, dims)))
-        for name, shape, args in stages:
-            local = (32, 4, 2) if shape[2] == COLUMN_SHARES else None
-            sizes = grid(shape, local) if local else grid(shape)
-            run.events.append(kernel("lower.cl", name)(gpu.queue, *sizes, *args, *box))
+            stages = (("lower_x", (b.voxels, b.work2, dims)),
+                      ("lower_y", (b.work2, b.work)),
+                      ("lower_z", (b.work, b.work2, b.voxels, b.field, dims)))
+            sizes = (((ROW_LANES, dy, dz), (ROW_LANES, 1, 1)),
+                     grid((gx, dz, shares(gy, dy)), (32, 4, 2)),
+                     grid((gx, gy, shares(gz, dz)), (32, 4, 2)))
+        for (name, args), size in zip(stages, sizes):
+            run.events.append(kernel("lower.cl", name)(gpu.queue, *size, *args, *box))
     return run
+
+
+def shares(line_vox: int, depth_vox: int) -> int:
+    """Work-items for each line of ``line_vox`` outputs through a box ``depth_vox`` deep."""
+    return max(1, min(COLUMN_SHARES, -(-line_vox // max(SHARE_DEPTHS * depth_vox, SHARE_MIN_VOX))))
 
 
 def raise_bounds(gpu: GpuContext, buffers: WorldBuffers, boxes: list[Box], cap: int, run: AlgorithmRun,

@@ -212,3 +212,79 @@ def test_adding_solids_lowers_a_euclidean_field_and_its_stages(gpu, cap):
         check()
     finally:
         world.release()
+
+
+def rows_of_solids(rng, size, count: int, colour_low: int = 1) -> dict:
+    """Voxels in a few rows along x, several separated solids each (gaps inside the rows, rows
+    left empty between them), and on every face of the world: their chunks' boxes are many, so
+    the batch is lowered as one box spanning about the whole world."""
+    sx, sy, sz = size
+    rows = np.column_stack([rng.integers(0, sy, count), rng.integers(0, sz, count)])
+    rows[:2] = [[0, 0], [sy - 1, sz - 1]]
+    voxels = []
+    for y, z in rows:
+        xs = np.unique(rng.integers(0, sx, int(rng.integers(2, 6))))
+        voxels += [[int(x), int(y), int(z)] for x in xs]
+    voxels += [[0, int(rng.integers(0, sy)), int(rng.integers(0, sz))], [sx - 1, 0, sz - 1]]
+    voxels = np.array(voxels)
+    return {"op": "voxels", "voxels": np.column_stack([voxels, rng.integers(colour_low, 256, len(voxels))])}
+
+
+@pytest.mark.parametrize("cap", [3, 30, 255])
+@pytest.mark.parametrize("shares", ["as planned", "fewest", "many"])
+def test_boxes_spanning_the_world_lower_exactly(gpu, cap, shares, monkeypatch):
+    """A box longer than a row's work-group (several scans of lower_x), spanning the world and
+    touching its faces, with separated solids in some of its rows and none in others, a sphere
+    across most of it; lines of lower_y and lower_z in as few shares as a launch takes, or cut into
+    many parts that each start from the rest of the box. Exact after adding, and after erasing and adding
+    (the rising box transformed, then lowered), past the 64³ a Euclidean world's box keeps to."""
+    if shares == "fewest":
+        monkeypatch.setattr(lower, "COLUMN_SHARES", 1)
+    elif shares == "many":
+        monkeypatch.setattr(lower, "SHARE_DEPTHS", 0)
+        monkeypatch.setattr(lower, "SHARE_MIN_VOX", 1)
+    rng = np.random.default_rng()
+    size = (int(rng.integers(17, 21)) * 8, 48, int(rng.integers(6, 8)) * 8)
+    world = World(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap))
+    expected = np.zeros(size[::-1], np.uint8)
+    try:
+        sphere = {"op": "sphere", "center": [s / 2 + float(rng.uniform(-3, 3)) for s in size],
+                  "radius": float(min(size) * 0.45), "colour": int(rng.integers(1, 256))}
+        for step in range(3):
+            batch = [rows_of_solids(rng, size, 12)] + [[], [sphere], []][step]
+            if step == 2:  # erasing too
+                solids = np.argwhere(expected > 0)[rng.permutation(int((expected > 0).sum()))[:30]]  # (z, y, x)
+                batch.append({"op": "voxels", "voxels": [[int(x), int(y), int(z), 0] for z, y, x in solids]})
+            world.apply_edits(parse_edits(batch))
+            apply_reference(expected, batch)
+            boxes = world._lowering_boxes()
+            assert boxes is not None and len(boxes) == 1 and boxes[0].volume > 64 ** 3, step
+            assert world.dirty.erased == (step == 2)
+            world.recompute()
+            field = world.read_field()
+            assert np.array_equal(field & 0xFF, expected), step
+            assert np.array_equal(distances(field, world.config, expected), oracle_distance(expected, cap)), step
+    finally:
+        world.release()
+
+
+def test_boxes_past_the_limit_are_transformed(gpu, monkeypatch):
+    """Past ``MAX_BOX_VOXELS`` a Manhattan world's box takes the transform, past
+    ``MAX_ERASING_BOX_VOXELS`` where its batch erased; a Euclidean world's past its own
+    ``MAX_EUCLIDEAN_BOX_VOXELS``."""
+    adding = [{"op": "box", "min": [2, 3, 4], "max": [12, 11, 10], "colour": 5}]  # 10 x 8 x 6
+    erasing = [{"op": "box", "min": [2, 3, 4], "max": [12, 11, 10], "colour": 0}]
+    for metric, batch, limit in (("manhattan", adding, "MAX_BOX_VOXELS"), ("manhattan", erasing, "MAX_ERASING_BOX_VOXELS"),
+                                 ("euclidean", adding, "MAX_EUCLIDEAN_BOX_VOXELS")):
+        world = World(gpu, WorldConfig(size=(32, 24, 40), chunk_size=8, max_distance=12, metric=metric))
+        try:
+            world.recompute()
+            world.apply_edits(parse_edits(batch))
+            monkeypatch.setattr(lower, limit, 480)
+            assert world._lowering_boxes() is not None, limit
+            monkeypatch.setattr(lower, limit, 479)
+            assert world._lowering_boxes() is None, limit
+        finally:
+            world.release()
+        monkeypatch.undo()
+        monkeypatch.setattr(lower, "LOWER_ABOVE_REGION_VOXELS", 0)

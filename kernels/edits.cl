@@ -39,15 +39,18 @@ __kernel void fill_sphere(__global uchar *voxels, int4 dims, int4 origin, int4 l
 }
 
 /* Several box and sphere edits in one launch, in the order given; where two overlap, the later
- * one wins. Brush i is three int4: (lo.xyz, colour), (n.xyz, first work-item), and its sphere
- * as float bits (center.xyz, radius^2; radius^2 < 0 for a box). Brush i owns work-items
- * first_i .. first_{i+1} - 1 over its clipped box lo..lo+n, x fastest; ``total`` is the sum. */
+ * one wins. Brush i is four int4: (lo.xyz, colour), (n.xyz, first work-item), its sphere as
+ * float bits (center.xyz, radius^2; radius^2 < 0 for a box), and (slot, end): the worlds of a
+ * slot pool take one launch together (gpu/slots.py), brush i writing the world `slot`
+ * voxel_stride voxels on, whose brushes end before brush `end` (a lone world: slot 0, end
+ * count). Brush i owns work-items first_i .. first_{i+1} - 1 over its clipped box lo..lo+n,
+ * x fastest; ``total`` is the sum. */
 inline int brush_covers(__global const int4 *brushes, int j, int x, int y, int z)
 {
-    const int4 lo = brushes[3 * j], n = brushes[3 * j + 1];
+    const int4 lo = brushes[4 * j], n = brushes[4 * j + 1];
     if (x < lo.x || y < lo.y || z < lo.z || x >= lo.x + n.x || y >= lo.y + n.y || z >= lo.z + n.z)
         return 0;
-    const float4 sphere = as_float4(brushes[3 * j + 2]);
+    const float4 sphere = as_float4(brushes[4 * j + 2]);
     if (sphere.w < 0.0f)
         return 1;
     const float3 p = (float3)((float)x, (float)y, (float)z);
@@ -55,7 +58,8 @@ inline int brush_covers(__global const int4 *brushes, int j, int x, int y, int z
     return dot(d, d) <= sphere.w;
 }
 
-__kernel void fill_brushes(__global uchar *voxels, int4 dims, int4 origin, __global const int4 *brushes, int count, uint total)
+__kernel void fill_brushes(__global uchar *voxels, int4 dims, int4 origin, __global const int4 *brushes, int count, uint total,
+                           long voxel_stride)
 {
     const uint gid = get_global_id(0);
     if (gid >= total)
@@ -63,20 +67,20 @@ __kernel void fill_brushes(__global uchar *voxels, int4 dims, int4 origin, __glo
     int a = 0, b = count;  /* first_a <= gid < first_b (first_count = total) */
     while (b - a > 1) {
         const int m = (a + b) / 2;
-        if ((uint)brushes[3 * m + 1].w <= gid)
+        if ((uint)brushes[4 * m + 1].w <= gid)
             a = m;
         else
             b = m;
     }
-    const int4 lo = brushes[3 * a], n = brushes[3 * a + 1];
+    const int4 lo = brushes[4 * a], n = brushes[4 * a + 1], world = brushes[4 * a + 3];
     const uint k = gid - (uint)n.w;
     const int x = lo.x + (int)(k % (uint)n.x);
     const int y = lo.y + (int)((k / (uint)n.x) % (uint)n.y);
     const int z = lo.z + (int)(k / ((uint)n.x * (uint)n.y));
     if (!brush_covers(brushes, a, x, y, z))
         return;
-    for (int j = a + 1; j < count; ++j)
+    for (int j = a + 1; j < world.y; ++j)
         if (brush_covers(brushes, j, x, y, z))
             return;  /* a later brush writes this voxel */
-    voxels[world_index(x - origin.x, y - origin.y, z - origin.z, dims)] = (uchar)lo.w;
+    voxels[(size_t)world.x * (size_t)voxel_stride + world_index(x - origin.x, y - origin.y, z - origin.z, dims)] = (uchar)lo.w;
 }

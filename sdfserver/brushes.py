@@ -17,8 +17,14 @@ from sdfserver.edits import BoxEdit, Edit, SphereEdit, VoxelsEdit
 from sdfserver.geometry import Box, Vec3
 from sdfserver.gpu import GpuContext
 from sdfserver.gpu.launches import KernelCopies
+from sdfserver.gpu.slots import Slot
 
 WORLD_ORIGIN = bytes(16)  # int4(0, 0, 0): a dense world's buffer starts at the world's corner
+NO_STRIDE = np.int64(0)  # one world's buffer: every brush writes it (kernels/edits.cl)
+# Each work-item of fill_brushes checks the later brushes of its world in its launch; the launch
+# counts its work-items in 32 bits.
+BRUSHES_PER_LAUNCH = 256
+WORK_ITEMS_PER_LAUNCH = 1 << 30
 # The n brushes of a launch are first checked for brushes a later box hides whole (``visible``)
 # when they cover more than this many voxels per pair of brushes, summed: the check's host time
 # grows with the pairs, the launch's device time with the voxels, and past this the launch costs
@@ -60,8 +66,16 @@ def enqueue_brushes(gpu: GpuContext, voxels: cl.Buffer, dims: bytes, brushes: li
         return
     if not brushes:
         return
+    records, first = brush_records(brushes)
+    _launch_records(gpu, kernels, voxels, dims, origin, records, first, NO_STRIDE)
+
+
+def brush_records(brushes: list[tuple[Edit, Box]], slot: int = 0, base: int = 0,
+                  first: int = 0) -> tuple[np.ndarray, int]:
+    """fill_brushes's records of ``brushes`` (kernels/edits.cl): the world in ``slot``, the
+    records numbered from ``base``, the work-items from ``first``; and the work-items' end."""
     # Built as tuples and converted once: element-wise numpy stores cost 4x as much host time.
-    ints, floats, first = [], [], 0
+    ints, floats = [], []
     for edit, box in brushes:
         (x0, y0, z0), (x1, y1, z1) = box.lo, box.hi
         ints.append((x0, y0, z0, edit.colour, x1 - x0, y1 - y0, z1 - z0, first))
@@ -70,13 +84,44 @@ def enqueue_brushes(gpu: GpuContext, voxels: cl.Buffer, dims: bytes, brushes: li
         else:
             floats.append((0.0, 0.0, 0.0, -1.0))  # a negative radius²: a box
         first += (x1 - x0) * (y1 - y0) * (z1 - z0)
-    records = np.empty((len(brushes), 12), dtype=np.int32)
+    records = np.zeros((len(brushes), 16), dtype=np.int32)
     records[:, :8] = ints
-    records[:, 8:].view(np.float32)[:] = floats
+    records[:, 8:12].view(np.float32)[:] = floats
+    records[:, 12] = slot
+    records[:, 13] = base + len(brushes)  # the world's brushes end there
+    return records, first
+
+
+def _launch_records(gpu: GpuContext, kernels: KernelCopies | None, voxels: cl.Buffer, dims: bytes, origin: bytes,
+                    records: np.ndarray, total: int, voxel_stride: np.int64) -> None:
     local = 64
     with gpu.uploads.staged(records) as record_buf:
-        _launch(gpu, kernels, "fill_brushes", (-(-first // local) * local,), (local,), voxels, dims, origin,
-                record_buf, np.int32(len(brushes)), np.uint32(first))
+        _launch(gpu, kernels, "fill_brushes", (-(-total // local) * local,), (local,), voxels, dims, origin,
+                record_buf, np.int32(len(records)), np.uint32(total), voxel_stride)
+
+
+def enqueue_pooled_brushes(gpu: GpuContext, pooled: list[tuple[Slot, list[tuple[Edit, Box]]]]) -> None:
+    """Each world's brushes in ``pooled`` (its slot, its last brushes, after every launch it
+    made itself: ``World.apply_plans``) into its slot, one fill_brushes launch per pool for the
+    worlds that fit one (BRUSHES_PER_LAUNCH brushes, WORK_ITEMS_PER_LAUNCH work-items)."""
+    by_pool: dict[int, list] = {}
+    for slot, brushes in pooled:
+        if len(brushes) > 1 and sum(box.volume for _, box in brushes) > CULL_PER_PAIR_VOXELS * len(brushes) ** 2:
+            brushes = visible(brushes)
+        by_pool.setdefault(id(slot.pool), []).append((slot, brushes))
+    for members in by_pool.values():
+        pool = members[0][0].pool
+        dims, stride = int4(pool.dims), np.int64(pool.sizes[0])
+        parts, count, first = [], 0, 0
+        for slot, brushes in members:
+            volume = sum(box.volume for _, box in brushes)
+            if parts and (count + len(brushes) > BRUSHES_PER_LAUNCH or first + volume > WORK_ITEMS_PER_LAUNCH):
+                _launch_records(gpu, pool.kernels, pool.voxels, dims, WORLD_ORIGIN, np.concatenate(parts), first, stride)
+                parts, count, first = [], 0, 0
+            records, first = brush_records(brushes, slot.index, count, first)
+            parts.append(records)
+            count += len(brushes)
+        _launch_records(gpu, pool.kernels, pool.voxels, dims, WORLD_ORIGIN, np.concatenate(parts), first, stride)
 
 
 def visible(brushes: list[tuple[Edit, Box]]) -> list[tuple[Edit, Box]]:

@@ -29,7 +29,7 @@ import numpy as np
 import pyopencl as cl
 
 from sdfserver import bulk
-from sdfserver.brushes import enqueue_brushes, enqueue_voxels
+from sdfserver.brushes import BRUSHES_PER_LAUNCH, WORK_ITEMS_PER_LAUNCH, enqueue_brushes, enqueue_voxels
 from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, WorldBuffers
 from sdfserver.algorithms.base import WORK_PLANE_PAD, Pieces, int4, prepared, run_pieces
 from sdfserver.algorithms.euclidean import EUCLIDEAN_EXACT, StageBoxes
@@ -38,6 +38,7 @@ from sdfserver.algorithms.stats import summarize
 from sdfserver.recompute import PendingRecompute, RecomputeResult
 from sdfserver.recompute_cost import visits_per_voxel
 from sdfserver.small_edits import SmallEdits
+from sdfserver.stacked import Stacked
 from sdfserver.dirty import SMALL_DIRTY_CHUNKS, DirtySet  # noqa: F401  (SMALL_DIRTY_CHUNKS: read by tests)
 from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, validate_batch, writes
 from sdfserver.errors import InvalidInput
@@ -47,8 +48,6 @@ from sdfserver.gpu import GpuContext
 from sdfserver.gpu.launches import KernelCopies
 from sdfserver.world_config import CHUNK_SIZES, MAX_SIDE_VOX, MAX_WORLD_VOXELS, Focus, WorldConfig
 
-BRUSHES_PER_LAUNCH = 256  # each work-item of fill_brushes checks the later brushes of its launch
-WORK_ITEMS_PER_LAUNCH = 1 << 30  # fill_brushes counts its work-items in 32 bits
 PREPARED_PER_WORLD = 16  # dirty-region lists whose runs a world keeps prepared (World._launches)
 # A recompute of more voxel visits than this may run in pieces (World.begin_recompute): below it,
 # the wait for the device after each piece would cost more than the pause could give back.
@@ -90,7 +89,7 @@ def field_defines(config: WorldConfig) -> dict[str, int]:
     return {"FIELD_EUCLID": int(config.euclidean), "FIELD_SIGNED": int(config.signed)}
 
 
-class World(SmallEdits):
+class World(SmallEdits, Stacked):
     def __init__(self, gpu: GpuContext, config: WorldConfig, limits: EditLimits = EditLimits()):
         self.config = config = config.validated()
         self.gpu = gpu
@@ -98,9 +97,18 @@ class World(SmallEdits):
         sx, sy, sz = config.size
         self.voxel_count = sx * sy * sz
         sizes = self.buffer_bytes(config)
-        gpu.check_fits(sizes, f"a {sx}x{sy}x{sz} world")
         self._sizes = sizes
-        self.buffers = WorldBuffers(config.size, *self.gpu.allocate_all(sizes[:4]), kernels=KernelCopies())
+        # voxels, field and work in a pool's slot where one is free or can be made (gpu/slots.py)
+        self.slot = gpu.slot_pools.take(config.size, sizes[:3])
+        try:
+            gpu.check_fits(sizes[3:] if self.slot else sizes, f"a {sx}x{sy}x{sz} world")
+            own = self.gpu.allocate_all(sizes[3:4] if self.slot else sizes[:4])
+        except BaseException:
+            if self.slot is not None:
+                gpu.slot_pools.give_back(self.slot)
+            raise
+        self.buffers = WorldBuffers(config.size, *(list(self.slot.buffers) + own if self.slot else own),
+                                    kernels=KernelCopies())
         self._optional_sizes = optional_sizes(config)
         for name, buf in zip(self._optional_sizes, self.gpu.allocate_all(sizes[4:]) if len(sizes) > 4 else []):
             setattr(self.buffers, name, buf)
@@ -140,8 +148,13 @@ class World(SmallEdits):
         b = self.buffers
         if b is None:
             return
-        for buf, n in zip((b.voxels, b.field, b.work, b.work2), self._sizes):
-            self.gpu.release(buf, n)
+        if self.slot is not None:
+            self.gpu.slot_pools.give_back(self.slot)
+            self.slot = None
+            self.gpu.release(b.work2, self._sizes[3])
+        else:
+            for buf, n in zip((b.voxels, b.field, b.work, b.work2), self._sizes):
+                self.gpu.release(buf, n)
         for name, n in self._optional_sizes.items():
             self.gpu.release(getattr(b, name), n)
         self.buffers = None
@@ -169,11 +182,13 @@ class World(SmallEdits):
         """Write a planned batch on the device and mark its boxes dirty; returns the new version."""
         return self.apply_plans([plan])[0]
 
-    def apply_plans(self, plans: list["EditPlan"]) -> list[int]:
+    def apply_plans(self, plans: list["EditPlan"], pooled: list | None = None) -> list[int]:
         """Write planned batches in order; returns their versions. Consecutive box and sphere
         edits, across batches, go to the device in one launch (later ones win where they
         overlap), up to BRUSHES_PER_LAUNCH: a launch costs the engine thread more host time than
-        a brush costs the device."""
+        a brush costs the device. ``pooled``: a world in a slot pool leaves its last brushes
+        there, (slot, brushes), for one launch with its pool's other worlds
+        (``brushes.enqueue_pooled_brushes``), which must follow before anything else is enqueued."""
         versions, brushes, volume = [], [], 0
         for plan in plans:
             if plan.world is not self:
@@ -194,7 +209,10 @@ class World(SmallEdits):
                 self.dirty.add(boxes, *writes(edit))
             self.version += 1
             versions.append(self.version)
-        self._enqueue_brushes(brushes)
+        if pooled is not None and self.slot is not None and brushes:
+            pooled.append((self.slot, brushes))
+        else:
+            self._enqueue_brushes(brushes)
         return versions
 
     def apply_edits(self, edits: list[Edit]) -> int:

@@ -15,8 +15,9 @@ acknowledged (its log record synced), which is not counted.
 Each phase is timed by wrapping the function that does it (``time.perf_counter`` for wall time,
 ``time.thread_time`` for the calling thread's CPU): per batch the input handling, planning, the
 log record, the brushes' launch, the engine thread's acknowledgement work and the reply (on the
-committer's thread); per step the recompute, split into the dirty regions, the launches, the
-wait for the device (``queue.finish``, not host work: the CPU OpenCL device runs the kernels
+committer's thread) and the pooled worlds' brushes (one launch a slot pool); per step the
+recompute, split into the dirty regions, the launches, the stacked runs of pooled worlds
+(``sdfserver/stacked.py``), the wait for the device (``queue.finish``, not host work: the CPU OpenCL device runs the kernels
 then) and the summaries, and the metrics. ``--profile`` adds cProfile's top functions over the
 measured steps. Phases nest (indented): a parent's time includes its children's.
 """
@@ -41,6 +42,8 @@ import pyopencl as cl
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import sdfserver.engine.batches as batches_module  # noqa: E402
+import sdfserver.engine.core as core_module  # noqa: E402
 import sdfserver.engine.service as service_module  # noqa: E402
 import sdfserver.world as world_module  # noqa: E402
 from sdfserver.engine import Engine  # noqa: E402
@@ -69,12 +72,14 @@ PHASES = [
     ("log record (record_batches)", 1, "batch"),
     ("start_syncs (waits for the committer)", 1, "batch"),
     ("apply/launch (World.apply_plans)", 1, "batch"),
+    ("pooled brushes (enqueue_pooled_brushes)", 1, "batch"),
     ("acknowledge (engine thread)", 1, "batch"),
     ("reply (committer thread)", 0, "batch"),
     ("step (Engine.step)", 0, "step"),
     ("recompute (Engine._recompute)", 1, "step"),
     ("dirty regions", 2, "step"),
     ("region launches (World.begin_recompute)", 2, "step"),
+    ("stacked runs (begin_stacked)", 2, "step"),
     ("queue.finish (device wait)", 2, "step"),
     ("summarize", 2, "step"),
     ("recompute host (less queue.finish)", 1, "step"),
@@ -147,6 +152,8 @@ def instrument(clock: Clock) -> None:
     clock.wrap(EngineMetrics, "observe_recomputes", "metrics (observe_recompute[s])")
     clock.wrap(EngineMetrics, "observe_recompute", "metrics (observe_recompute[s])")
     clock.wrap(World, "begin_recompute", "region launches (World.begin_recompute)")
+    clock.wrap(batches_module, "enqueue_pooled_brushes", "pooled brushes (enqueue_pooled_brushes)")
+    clock.wrap(core_module, "begin_stacked", "stacked runs (begin_stacked)")
 
 
 def timed_gpu(device: str | None, clock: Clock) -> GpuContext:

@@ -137,6 +137,9 @@ class AlgorithmRun:
     # a count made on the device (one-launch fim) is read when asked for, so that enqueueing
     # the run does not wait for it.
     arriving: list[tuple[np.ndarray, cl.Event]] = field(default_factory=list)
+    # The part of its launches' device time that is this run's: a stacked run's launches serve
+    # several worlds (exact.run_slots), each of which counts its share.
+    share: float = 1.0
 
     @property
     def iterations(self) -> int:

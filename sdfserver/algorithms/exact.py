@@ -25,8 +25,10 @@ import numpy as np
 
 from sdfserver.algorithms.base import WORK_PLANE_PAD, AlgorithmRun, RegionJob, int4
 from sdfserver.gpu import GpuContext
+from sdfserver.gpu.slots import SlotPool
 
 MAX_GROUP = 1024  # work-items per work-group
+NO_STRIDE = np.int64(0)  # a run of one world: no slots (kernels/exact.cl, SLOT_PROLOGUE)
 
 
 @dataclass(frozen=True)
@@ -200,10 +202,34 @@ class Exact:
         return run
 
 
+def run_slots(gpu: GpuContext, pool: SlotPool, slots: list[int], job: RegionJob) -> AlgorithmRun:
+    """The whole-world transform of the worlds in ``slots`` of ``pool``, one launch a pass for all
+    of them (kernels/exact.cl, SLOT_PROLOGUE). ``job``: the whole-world job of any one of them
+    (unsigned, borders exact): the worlds share its shape, cap and arguments but for their
+    buffers, which are the pool's."""
+    if job.region != job.world_box or job.invert or job.signed or job.chunk:
+        raise ValueError("a stacked run transforms whole unsigned worlds with exact borders")
+    voxel_stride, _, work_stride = pool.sizes
+    args = list(pass_args(job))
+    args[:3] = pool.work, pool.voxels, pool.field
+    table = np.array(slots, dtype=np.int32)
+    run = AlgorithmRun(bytes_moved=bytes_moved(job) * len(slots))
+    with gpu.uploads.staged(table) as table_buf:
+        args[-3:] = table_buf, np.int64(voxel_stride), np.int64(work_stride)
+        args = tuple(args)
+        for kernel, _, global_, local in EXACT_PASSES.passes(gpu, job.work_box.shape_xyz):
+            run.events.append(pool.kernels.enqueue(gpu.queue, kernel, (*global_, len(slots)), (*local, 1), args))
+    return run
+
+
 def pass_args(job: RegionJob) -> tuple:
     """The arguments of every pass over ``job`` (kernels/exact.cl)."""
     b, work_box = job.buffers, job.work_box
     world = job.world_box
     return (b.work, b.voxels, b.field, int4(b.dims), int4(work_box.lo), int4(work_box.shape_xyz),
             int4(job.region.lo), int4(job.region.hi),
-            np.int32(job.seeded), np.int32(job.cap), np.int32(work_plane(job)), int4(world.lo), int4(world.hi))
+            np.int32(job.seeded), np.int32(job.cap), np.int32(work_plane(job)), int4(world.lo), int4(world.hi),
+            None, NO_STRIDE, NO_STRIDE)
+
+
+EXACT_PASSES = Exact()  # run_slots's pass shapes, memoized per device like any Exact's

@@ -40,7 +40,7 @@ def summarize(runs: list[tuple[str, AlgorithmRun]]) -> tuple[list[float], dict[s
     kernel_ms: list[float] = []
     by_name: dict[str, AlgorithmStats] = {}
     for name, run in runs:
-        each = [event_ms(e) or 0.0 for e in run.events]
+        each = [(event_ms(e) or 0.0) * run.share for e in run.events]
         kernel_ms.extend(each)
         stats = by_name.setdefault(name, AlgorithmStats())
         stats.regions += 1

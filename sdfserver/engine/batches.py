@@ -18,6 +18,7 @@ from typing import Callable
 
 import pyopencl as cl
 
+from sdfserver.brushes import enqueue_pooled_brushes
 from sdfserver.engine.commands import ApplyEdits, StepReport
 from sdfserver.engine.journal import Journal
 from sdfserver.engine.metrics import EngineMetrics
@@ -98,12 +99,12 @@ class BatchPipeline:
             self.journal.start_syncs(wait=not self.more_queued())
         logged = time.perf_counter()
         report.apply_ms["log"] += (logged - started) * 1e3
-        launch_ms, applied = 0.0, []
+        launch_ms, applied, pooled = 0.0, [], []
         try:
             for world_id, world, items, durable in journaled:
                 launch = time.perf_counter()
-                try:
-                    versions = world.apply_plans([plan for _, _, plan in items])  # the step's brushes in few launches
+                try:  # the step's brushes in few launches; pooled worlds' last ones after the loop
+                    versions = world.apply_plans([plan for _, _, plan in items], pooled)
                 except cl.Error:
                     raise
                 except Exception as exc:  # logged but not applied: not acknowledged, the other worlds go on
@@ -113,6 +114,9 @@ class BatchPipeline:
                 finally:
                     launch_ms += (time.perf_counter() - launch) * 1e3
                 applied.append((world_id, items, versions, durable))
+            launch = time.perf_counter()
+            enqueue_pooled_brushes(self.table.gpu, pooled)  # one launch per slot pool
+            launch_ms += (time.perf_counter() - launch) * 1e3
         finally:  # what was applied is acknowledged, even when the device failed on a later world
             self._acknowledge(applied, touched, report)
         report.apply_ms["launch"] += launch_ms

@@ -64,6 +64,7 @@ from sdfserver.engine.tickets import OnDone, Ticket
 from sdfserver.engine.worlds import WorldTable, new_world_id, world_config_dict
 from sdfserver.errors import DeviceMemoryExceeded, NotReady
 from sdfserver.gpu import GpuContext
+from sdfserver.stacked import begin_stacked
 from sdfserver.world import RecomputeResult, World, WorldConfig
 
 log = logging.getLogger("sdfserver.engine")
@@ -350,7 +351,9 @@ class Engine(EngineLifetime, CommandCalls):
         # Every world's work goes to the device before the step waits, once, for all of it: a
         # wait per world would leave the device idle while the next world's launches are made.
         piece_s = self.limits.step_budget_ms / 1e3 / PIECES_PER_BUDGET
-        pending = {world_id: world.begin_recompute(piece_s) for world_id, world in worlds.items()}
+        pending = begin_stacked(self.gpu, worlds)  # pooled worlds side by side: one run per pool
+        pending.update((world_id, world.begin_recompute(piece_s)) for world_id, world in worlds.items()
+                       if world_id not in pending)
         for world_id, started in list(pending.items()):
             if started.in_pieces:
                 self.long.start(world_id, pending.pop(world_id), worlds[world_id].config.algorithm)

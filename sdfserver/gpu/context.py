@@ -19,6 +19,7 @@ import pyopencl as cl
 from sdfserver.errors import DeviceMemoryExceeded
 from sdfserver.gpu.device import choose_device
 from sdfserver.gpu.programs import ProgramCache, device_defines
+from sdfserver.gpu.slots import SlotPools
 from sdfserver.gpu.uploads import UploadRing, read_only_copy
 
 # Leave room for the driver, programs and transient transfers.
@@ -43,6 +44,7 @@ class GpuContext:
         self.max_allocation_bytes = int(device.max_mem_alloc_size)
         self._allocated_bytes = 0
         self._lock = threading.Lock()
+        self.slot_pools = SlotPools(self)  # small worlds side by side (gpu/slots.py)
 
     @classmethod
     def create(cls, device_spec: str | None = None, memory_budget_bytes: int | None = None):

@@ -251,9 +251,10 @@ class SparseWorld(SparseSnapshots):
     def apply_plan(self, plan: EditPlan) -> int:
         return self.apply_plans([plan])[0]
 
-    def apply_plans(self, plans: list[EditPlan]) -> list[int]:
+    def apply_plans(self, plans: list[EditPlan], pooled: list | None = None) -> list[int]:
         """Accept planned batches in order: they are written into the scratch box at the next
-        recompute, each region's edits in order. Returns their versions."""
+        recompute, each region's edits in order. Returns their versions. ``pooled`` is for
+        dense worlds in slot pools (``World.apply_plans``): a sparse world takes no slot."""
         versions = []
         for plan in plans:
             if plan.world is not self:
@@ -292,6 +293,10 @@ class SparseWorld(SparseSnapshots):
         enqueue_brushes(self.gpu, s.voxels, dims, brushes, origin)
 
     # -- recompute -----------------------------------------------------------------------------
+
+    def stacking_job(self) -> None:
+        """Never: a sparse world's bricks are not in a slot pool (``sdfserver/stacked.py``)."""
+        return None
 
     def begin_recompute(self, piece_s: float | None = None) -> "DoneRecompute":
         """A sparse world's recompute waits for the device as it goes (each region's bricks are

@@ -9,6 +9,7 @@ import pytest
 from scipy.ndimage import distance_transform_cdt
 
 from sdfserver.edits import BoxEdit, SphereEdit, VoxelsEdit
+from sdfserver.gpu import slots
 from sdfserver.errors import InvalidInput
 from sdfserver.world import World, WorldConfig
 from sdfserver.world_config import CHUNK_SIZES
@@ -144,7 +145,7 @@ def test_borders_are_validated(gpu):
         world.release()
 
 
-def test_seed_buffers_only_for_worlds_that_flood(gpu):
+def test_seed_buffers_only_for_worlds_that_flood(gpu, monkeypatch):
     """An exact world keeps its 5 bytes per voxel; flooding worlds add 8, counted before allocation,
     and a reconfigure allocates or releases them."""
     size = (32, 16, 16)
@@ -155,6 +156,7 @@ def test_seed_buffers_only_for_worlds_that_flood(gpu):
         assert World.buffer_bytes(WorldConfig(size, chunk, algorithm="jfa").validated()) == base + [4 * n, 4 * n]
     from sdfserver.world import Focus
     assert World.buffer_bytes(WorldConfig(size, 8, focus=Focus((1, 1, 1), (1, 1, 1))).validated()) == base + [4 * n] * 2
+    monkeypatch.setattr(slots, "POOLED_MAX_VOXELS", 0)  # the world's own buffers, counted alone
     before = gpu.allocated_bytes
     world = World(gpu, WorldConfig(size, 8))
     try:

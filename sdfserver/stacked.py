@@ -1,0 +1,63 @@
+"""Many pooled worlds' transforms in one stacked run (``gpu/slots.py``, ``exact.run_slots``), as a
+part of ``World`` (which of its recomputes can join one, and its pending recompute when it has)
+and for the engine (``begin_stacked``: a step's stacked runs, one per pool)."""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+from sdfserver.algorithms import AlgorithmRun, RegionJob
+from sdfserver.algorithms.exact import bytes_moved, run_slots
+from sdfserver.gpu import GpuContext
+from sdfserver.recompute import PendingRecompute
+
+if TYPE_CHECKING:
+    from sdfserver.world import World
+
+
+class Stacked:
+    """Mixed into ``World``, whose config, slot, dirty set and buffers it uses."""
+
+    def stacking_job(self) -> RegionJob | None:
+        """This recompute's one job where it can join its pool's stacked run (``exact.run_slots``):
+        a pooled, unsigned Manhattan world with exact borders and no focus whose algorithm is
+        ``exact`` and whose dirty regions are the whole world (as under a cap near its side);
+        else None."""
+        cfg = self.config
+        if self.slot is None or not self.dirty or cfg.algorithm != "exact" or cfg.euclidean or cfg.signed \
+                or cfg.focus is not None or cfg.borders != "exact":
+            return None
+        regions = self.dirty_regions()
+        if regions != [self.world_box] or self._lowering_boxes(regions) is not None:
+            return None
+        return RegionJob.seeded_region(self.buffers, self.world_box, cfg.max_distance)
+
+    def begin_stacked(self, run: AlgorithmRun) -> "PendingRecompute":
+        """``begin_recompute`` for a world whose transform ``run`` (its share of a stacked run)
+        has been enqueued for it: after ``stacking_job`` said it can join one."""
+        start = time.perf_counter()
+        self.dirty.clear()
+        return PendingRecompute(self, [self.world_box], [("exact", run)], start, self.version)
+
+
+def begin_stacked(gpu: GpuContext, worlds: dict[str, "World"]) -> dict[str, PendingRecompute]:
+    """Start the recomputes of those of ``worlds`` that can share a stacked run (each a whole-world
+    transform in a slot of one pool: ``World.stacking_job``), one run per pool that two or more
+    of them share; returns their pending recomputes, each counting its share of the run's device
+    time. The others are left to ``begin_recompute``."""
+    groups: dict[int, list] = {}
+    for world_id, world in worlds.items():
+        job = world.stacking_job()
+        if job is not None:
+            groups.setdefault(id(world.slot.pool), []).append((world_id, world, job))
+    pending = {}
+    for members in groups.values():
+        if len(members) < 2:  # alone, its own prepared launches cost the same
+            continue
+        _, first, job = members[0]
+        run = run_slots(gpu, first.slot.pool, [world.slot.index for _, world, _ in members], job)
+        share = 1.0 / len(members)
+        for world_id, world, job in members:
+            pending[world_id] = world.begin_stacked(AlgorithmRun(run.events, bytes_moved=bytes_moved(job), share=share))
+    return pending

@@ -66,29 +66,30 @@ def enqueue_brushes(gpu: GpuContext, voxels: cl.Buffer, dims: bytes, brushes: li
         return
     if not brushes:
         return
-    records, first = brush_records(brushes)
+    records, first = brush_records([(0, brushes)])
     _launch_records(gpu, kernels, voxels, dims, origin, records, first, NO_STRIDE)
 
 
-def brush_records(brushes: list[tuple[Edit, Box]], slot: int = 0, base: int = 0,
-                  first: int = 0) -> tuple[np.ndarray, int]:
-    """fill_brushes's records of ``brushes`` (kernels/edits.cl): the world in ``slot``, the
-    records numbered from ``base``, the work-items from ``first``; and the work-items' end."""
+def brush_records(groups: list[tuple[int, list[tuple[Edit, Box]]]]) -> tuple[np.ndarray, int]:
+    """fill_brushes's records (kernels/edits.cl) of each group's brushes, (slot, brushes) a world,
+    in order; and the number of work-items they take."""
     # Built as tuples and converted once: element-wise numpy stores cost 4x as much host time.
-    ints, floats = [], []
-    for edit, box in brushes:
-        (x0, y0, z0), (x1, y1, z1) = box.lo, box.hi
-        ints.append((x0, y0, z0, edit.colour, x1 - x0, y1 - y0, z1 - z0, first))
-        if isinstance(edit, SphereEdit):
-            floats.append((*edit.center, edit.radius * edit.radius))
-        else:
-            floats.append((0.0, 0.0, 0.0, -1.0))  # a negative radius²: a box
-        first += (x1 - x0) * (y1 - y0) * (z1 - z0)
-    records = np.zeros((len(brushes), 16), dtype=np.int32)
+    ints, floats, worlds, first = [], [], [], 0
+    for slot, brushes in groups:
+        world = (slot, len(ints) + len(brushes))  # its brushes end there
+        for edit, box in brushes:
+            (x0, y0, z0), (x1, y1, z1) = box.lo, box.hi
+            ints.append((x0, y0, z0, edit.colour, x1 - x0, y1 - y0, z1 - z0, first))
+            if isinstance(edit, SphereEdit):
+                floats.append((*edit.center, edit.radius * edit.radius))
+            else:
+                floats.append((0.0, 0.0, 0.0, -1.0))  # a negative radius²: a box
+            worlds.append(world)
+            first += (x1 - x0) * (y1 - y0) * (z1 - z0)
+    records = np.zeros((len(ints), 16), dtype=np.int32)
     records[:, :8] = ints
     records[:, 8:12].view(np.float32)[:] = floats
-    records[:, 12] = slot
-    records[:, 13] = base + len(brushes)  # the world's brushes end there
+    records[:, 12:14] = worlds
     return records, first
 
 
@@ -106,22 +107,25 @@ def enqueue_pooled_brushes(gpu: GpuContext, pooled: list[tuple[Slot, list[tuple[
     worlds that fit one (BRUSHES_PER_LAUNCH brushes, WORK_ITEMS_PER_LAUNCH work-items)."""
     by_pool: dict[int, list] = {}
     for slot, brushes in pooled:
-        if len(brushes) > 1 and sum(box.volume for _, box in brushes) > CULL_PER_PAIR_VOXELS * len(brushes) ** 2:
+        volume = sum(box.volume for _, box in brushes)
+        if len(brushes) > 1 and volume > CULL_PER_PAIR_VOXELS * len(brushes) ** 2:
             brushes = visible(brushes)
-        by_pool.setdefault(id(slot.pool), []).append((slot, brushes))
+        by_pool.setdefault(id(slot.pool), []).append((slot, brushes, volume))
     for members in by_pool.values():
         pool = members[0][0].pool
         dims, stride = int4(pool.dims), np.int64(pool.sizes[0])
-        parts, count, first = [], 0, 0
-        for slot, brushes in members:
-            volume = sum(box.volume for _, box in brushes)
-            if parts and (count + len(brushes) > BRUSHES_PER_LAUNCH or first + volume > WORK_ITEMS_PER_LAUNCH):
-                _launch_records(gpu, pool.kernels, pool.voxels, dims, WORLD_ORIGIN, np.concatenate(parts), first, stride)
-                parts, count, first = [], 0, 0
-            records, first = brush_records(brushes, slot.index, count, first)
-            parts.append(records)
+        launches, group, count, items = [], [], 0, 0
+        for slot, brushes, volume in members:
+            if group and (count + len(brushes) > BRUSHES_PER_LAUNCH or items + volume > WORK_ITEMS_PER_LAUNCH):
+                launches.append(group)
+                group, count, items = [], 0, 0
+            group.append((slot.index, brushes))
             count += len(brushes)
-        _launch_records(gpu, pool.kernels, pool.voxels, dims, WORLD_ORIGIN, np.concatenate(parts), first, stride)
+            items += volume
+        launches.append(group)
+        for group in launches:
+            records, total = brush_records(group)
+            _launch_records(gpu, pool.kernels, pool.voxels, dims, WORLD_ORIGIN, records, total, stride)
 
 
 def visible(brushes: list[tuple[Edit, Box]]) -> list[tuple[Edit, Box]]:

@@ -16,6 +16,9 @@ if TYPE_CHECKING:
     from sdfserver.world import World
 
 
+STACKING_JOB = "stacking job"  # World._prepared's key for its whole-world job
+
+
 class Stacked:
     """Mixed into ``World``, whose config, slot, dirty set and buffers it uses."""
 
@@ -31,7 +34,10 @@ class Stacked:
         regions = self.dirty_regions()
         if regions != [self.world_box] or self._lowering_boxes(regions) is not None:
             return None
-        return RegionJob.seeded_region(self.buffers, self.world_box, cfg.max_distance)
+        job = self._prepared.get(STACKING_JOB)  # kept with the prepared launches, gone with them
+        if job is None:
+            job = self._prepared[STACKING_JOB] = RegionJob.seeded_region(self.buffers, self.world_box, cfg.max_distance)
+        return job
 
     def begin_stacked(self, run: AlgorithmRun) -> "PendingRecompute":
         """``begin_recompute`` for a world whose transform ``run`` (its share of a stacked run)
@@ -57,7 +63,7 @@ def begin_stacked(gpu: GpuContext, worlds: dict[str, "World"]) -> dict[str, Pend
             continue
         _, first, job = members[0]
         run = run_slots(gpu, first.slot.pool, [world.slot.index for _, world, _ in members], job)
-        share = 1.0 / len(members)
-        for world_id, world, job in members:
-            pending[world_id] = world.begin_stacked(AlgorithmRun(run.events, bytes_moved=bytes_moved(job), share=share))
+        share, times, moved = 1.0 / len(members), [], bytes_moved(job)
+        for world_id, world, _ in members:
+            pending[world_id] = world.begin_stacked(AlgorithmRun(run.events, bytes_moved=moved, share=share, times=times))
     return pending

@@ -40,7 +40,14 @@ def summarize(runs: list[tuple[str, AlgorithmRun]]) -> tuple[list[float], dict[s
     kernel_ms: list[float] = []
     by_name: dict[str, AlgorithmStats] = {}
     for name, run in runs:
-        each = [(event_ms(e) or 0.0) * run.share for e in run.events]
+        if run.times is None:
+            each = [event_ms(e) or 0.0 for e in run.events]
+        else:
+            if len(run.times) != len(run.events):
+                run.times[:] = [event_ms(e) or 0.0 for e in run.events]
+            each = run.times
+        if run.share != 1.0:
+            each = [t * run.share for t in each]
         kernel_ms.extend(each)
         stats = by_name.setdefault(name, AlgorithmStats())
         stats.regions += 1

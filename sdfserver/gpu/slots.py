@@ -13,6 +13,10 @@ last world goes. A pool is made only while it takes at most ``POOL_BUDGET_SHARE`
 budget still free, so that its empty slots never decide how many worlds fit; otherwise the world
 allocates its own buffers, as larger worlds do. Used only on the engine thread (through
 ``World``), like every other allocation of the world table.
+
+OpenCL leaves concurrent use of a buffer and its sub-buffers undefined. Every command that
+touches a world's buffers or a pool's goes to the one in-order work queue (``download_later``'s
+transfer queue reads only its private staging copy), so none runs beside another.
 """
 
 from __future__ import annotations

@@ -50,13 +50,13 @@ class Stacked:
 def begin_stacked(gpu: GpuContext, worlds: dict[str, "World"]) -> dict[str, PendingRecompute]:
     """Start the recomputes of those of ``worlds`` that can share a stacked run (each a whole-world
     transform in a slot of one pool: ``World.stacking_job``), one run per pool that two or more
-    of them share; returns their pending recomputes, each counting its share of the run's device
+    of them share, with one cap; returns their pending recomputes, each counting its share of the run's device
     time. The others are left to ``begin_recompute``."""
-    groups: dict[int, list] = {}
+    groups: dict[tuple[int, int], list] = {}  # (pool, cap): a run has one cap
     for world_id, world in worlds.items():
         job = world.stacking_job()
         if job is not None:
-            groups.setdefault(id(world.slot.pool), []).append((world_id, world, job))
+            groups.setdefault((id(world.slot.pool), job.cap), []).append((world_id, world, job))
     pending = {}
     for members in groups.values():
         if len(members) < 2:  # alone, its own prepared launches cost the same

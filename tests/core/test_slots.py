@@ -73,27 +73,30 @@ def test_a_pool_is_not_made_from_a_large_share_of_the_budget(gpu, monkeypatch):
 
 
 def test_a_stacked_run_gives_each_world_its_own_field(gpu, rng):
-    """Six worlds in one pool: four edited and stacked, one edited but recomputed with fim, one
-    clean; every field equals scipy's, over rounds of edits that add and erase."""
-    configs = [dict()] * 4 + [dict(algorithm="fim"), dict()]
+    """Seven worlds in one pool: four edited and stacked, one edited but recomputed with fim, one
+    clean, and one with another cap, which runs apart; every field equals scipy's, over rounds of
+    edits that add and erase."""
+    configs = [dict()] * 4 + [dict(algorithm="fim"), dict(), dict(max_distance=40)]
     worlds = [World(gpu, WorldConfig(SIZE, 8, **c)) for c in configs]
     expected = [np.zeros(SIZE[::-1], np.uint8) for _ in worlds]
     try:
         assert len({id(w.slot.pool) for w in worlds}) == 1
+        edited = worlds[:5] + worlds[6:]
         for _ in range(3):
-            for world, voxels in zip(worlds[:5], expected):
+            for world in edited:
                 batch = random_batch(rng, SIZE)
                 world.apply_edits(parse_edits(batch))
-                apply_reference(voxels, batch)
-            assert [w.stacking_job() is not None for w in worlds] == [True] * 4 + [False, False]
+                apply_reference(expected[worlds.index(world)], batch)
+            assert [w.stacking_job() is not None for w in worlds] == [True] * 4 + [False, False, True]
             pending = stacked.begin_stacked(gpu, dict(enumerate(worlds)))
-            assert sorted(pending) == [0, 1, 2, 3]
-            results = [pending[i].finish() for i in range(4)] + [worlds[4].recompute()]
+            assert sorted(pending) == [0, 1, 2, 3]  # the cap-40 world alone: its own launches
+            results = [pending[i].finish() for i in range(4)] + [worlds[4].recompute(), worlds[6].recompute()]
             shares = [r.algorithms["exact"].device_ms for r in results[:4]]
             assert len(set(shares)) == 1  # each counts a quarter of the run's kernel time
             for world, voxels in zip(worlds, expected):
                 assert not world.dirty
-                assert np.array_equal(field_of(world, voxels), oracle_distance(voxels, 255))
+                cap = world.config.max_distance
+                assert np.array_equal(field_of(world, voxels), oracle_distance(voxels, cap))
                 assert np.array_equal(world.read_voxels(), voxels)
     finally:
         for world in worlds:

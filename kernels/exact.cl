@@ -82,17 +82,18 @@ inline uint4 min_u16x2_v4(uint4 a, uint4 b) { return (uint4)(min_u16x2_v2(a.lo, 
 #define GROUP_SHAPE __attribute__((reqd_work_group_size(LOCAL_X, LOCAL_Y, 1)))
 
 /* A stacked run transforms whole worlds of one slot pool in one launch (exact.py, run_slots):
- * the launch's third dimension names an entry of `slots`, and that slot's world and work box lie
+ * the launch's third dimension picks an entry of `slots`, and that slot's world and work box lie
  * that many strides further on (voxel_stride voxels, work_stride bytes); the rest of the pass
- * sees one world. A run of one world passes no slots. */
+ * sees one world. The table is passed by value (a pool has at most 8 slots), so a run that
+ * repeats sets no argument; a run of one world passes zeros. */
 #define SLOT_PROLOGUE                                                           \
     do {                                                                        \
-        if (slots != 0) {                                                       \
-            const size_t slot_ = (size_t)slots[get_group_id(2)];               \
-            work += slot_ * (size_t)work_stride;                                \
-            voxels += slot_ * (size_t)voxel_stride;                             \
-            field += slot_ * (size_t)voxel_stride;                              \
-        }                                                                       \
+        int table_[8];                                                          \
+        vstore8(slots, 0, table_);                                              \
+        const size_t slot_ = (size_t)table_[get_group_id(2)];                   \
+        work += slot_ * (size_t)work_stride;                                    \
+        voxels += slot_ * (size_t)voxel_stride;                                 \
+        field += slot_ * (size_t)voxel_stride;                                  \
     } while (0)
 
 /* The 1-D transform of one line cut into NSEG segments of SEG elements, one
@@ -230,7 +231,7 @@ inline void pack8(__global ushort *field, __global const uchar *voxels, ushort8 
 __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *voxels,
                      __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
                      int4 r_lo, int4 r_hi, int seeded, int cap, int plane, int4 world_lo, int4 world_hi,
-                     __global const int *slots, long voxel_stride, long work_stride)
+                     int8 slots, long voxel_stride, long work_stride)
 {
     SLOT_PROLOGUE;
     __local uint scan[4 * LOCAL_X * LOCAL_Y];
@@ -341,7 +342,7 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
 __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *voxels,
                       __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
                       int4 r_lo, int4 r_hi, int seeded, int cap, int plane, int4 world_lo, int4 world_hi,
-                      __global const int *slots, long voxel_stride, long work_stride)
+                      int8 slots, long voxel_stride, long work_stride)
 {
     SLOT_PROLOGUE;
     __local wordV scan[4 * LOCAL_X * LOCAL_Y];

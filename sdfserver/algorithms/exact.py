@@ -29,6 +29,9 @@ from sdfserver.gpu.slots import SlotPool
 
 MAX_GROUP = 1024  # work-items per work-group
 NO_STRIDE = np.int64(0)  # a run of one world: no slots (kernels/exact.cl, SLOT_PROLOGUE)
+SLOT_TABLE_SIZE = 8  # the passes' slot table, an int8 (gpu/slots.py's POOL_SLOTS at most)
+NO_SLOTS = bytes(4 * SLOT_TABLE_SIZE)
+RUNS_KEPT_PER_POOL = 64  # stacked runs' arguments kept per pool (subsets of its slots, caps)
 
 
 @dataclass(frozen=True)
@@ -205,21 +208,32 @@ class Exact:
 def run_slots(gpu: GpuContext, pool: SlotPool, slots: list[int], job: RegionJob) -> AlgorithmRun:
     """The whole-world transform of the worlds in ``slots`` of ``pool``, one launch a pass for all
     of them (kernels/exact.cl, SLOT_PROLOGUE). ``job``: the whole-world job of any one of them
-    (unsigned, borders exact): the worlds share its shape, cap and arguments but for their
-    buffers, which are the pool's."""
+    (unsigned, borders exact; one cap for all): the worlds share its shape, cap and arguments but
+    for their buffers, which are the pool's. The arguments are kept per pool while the slots and
+    the cap repeat, so the kernel copies set none."""
     if job.region != job.world_box or job.invert or job.signed or job.chunk:
         raise ValueError("a stacked run transforms whole unsigned worlds with exact borders")
-    voxel_stride, _, work_stride = pool.sizes
-    args = list(pass_args(job))
-    args[:3] = pool.work, pool.voxels, pool.field
-    table = np.array(slots, dtype=np.int32)
+    key = (tuple(slots), job.cap)
+    args = pool.runs.get(key)
+    if args is None:
+        if len(pool.runs) >= RUNS_KEPT_PER_POOL:
+            pool.runs.clear()
+        voxel_stride, _, work_stride = pool.sizes
+        args = list(pass_args(job))
+        args[:3] = pool.work, pool.voxels, pool.field
+        args[-3:] = slot_table(slots), np.int64(voxel_stride), np.int64(work_stride)
+        args = pool.runs[key] = tuple(args)
     run = AlgorithmRun(bytes_moved=bytes_moved(job) * len(slots))
-    with gpu.uploads.staged(table) as table_buf:
-        args[-3:] = table_buf, np.int64(voxel_stride), np.int64(work_stride)
-        args = tuple(args)
-        for kernel, _, global_, local in EXACT_PASSES.passes(gpu, job.work_box.shape_xyz):
-            run.events.append(pool.kernels.enqueue(gpu.queue, kernel, (*global_, len(slots)), (*local, 1), args))
+    for kernel, _, global_, local in EXACT_PASSES.passes(gpu, job.work_box.shape_xyz):
+        run.events.append(pool.kernels.enqueue(gpu.queue, kernel, (*global_, len(slots)), (*local, 1), args))
     return run
+
+
+def slot_table(slots: list[int]) -> bytes:
+    """The passes' ``int8 slots`` argument: the slots a stacked run's launch covers, in order."""
+    if len(slots) > SLOT_TABLE_SIZE:
+        raise ValueError(f"a stacked run covers at most {SLOT_TABLE_SIZE} slots, got {len(slots)}")
+    return np.array(list(slots) + [0] * (SLOT_TABLE_SIZE - len(slots)), dtype=np.int32).tobytes()
 
 
 def pass_args(job: RegionJob) -> tuple:
@@ -229,7 +243,7 @@ def pass_args(job: RegionJob) -> tuple:
     return (b.work, b.voxels, b.field, int4(b.dims), int4(work_box.lo), int4(work_box.shape_xyz),
             int4(job.region.lo), int4(job.region.hi),
             np.int32(job.seeded), np.int32(job.cap), np.int32(work_plane(job)), int4(world.lo), int4(world.hi),
-            None, NO_STRIDE, NO_STRIDE)
+            NO_SLOTS, NO_STRIDE, NO_STRIDE)
 
 
 EXACT_PASSES = Exact()  # run_slots's pass shapes, memoized per device like any Exact's

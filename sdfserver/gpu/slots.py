@@ -41,8 +41,10 @@ class SlotPool:
     field: cl.Buffer
     work: cl.Buffer
     free: list[int]
-    # The stacked runs' own kernel copies: their arguments repeat from one step to the next.
+    # The stacked runs' own kernel copies, and their arguments by (slots, cap) (exact.run_slots):
+    # they repeat from one step to the next.
     kernels: KernelCopies = field(default_factory=KernelCopies)
+    runs: dict[tuple, tuple] = field(default_factory=dict)
 
     @property
     def used(self) -> int:

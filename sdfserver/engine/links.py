@@ -160,11 +160,11 @@ class LinkLimits:
 
 
 def largest_request_bytes(s: Settings) -> int:
-    """The largest payload an API process sends: a dense world imported whole (a compressed
-    snapshot within max_request_bytes may hold max_world_voxels voxels, a byte each), a sparse
-    world's snapshot file as uploaded, an edit batch re-encoded from its body, or a query's rows
+    """The largest payload an API process sends: a dense world imported whole (its voxels, at
+    most max_world_voxels, a byte each), a sparse world's snapshot file as uploaded (an import's
+    body, at most max_import_bytes), an edit batch re-encoded from its body, or a query's rows
     as float64."""
-    return max(s.max_world_voxels, upload_limit_bytes("snapshot", s.max_request_bytes),
+    return max(s.max_world_voxels, s.max_import_bytes, upload_limit_bytes("snapshot", s.max_request_bytes),
                EDIT_RECORD_GROWTH * s.max_request_bytes, s.max_query_points * QUERY_COLUMNS_MAX * 8)
 
 

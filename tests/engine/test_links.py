@@ -176,9 +176,10 @@ def test_a_frame_header_announcing_4_gb_closes_the_connection_and_the_engine_sti
 
 
 def test_a_proven_peer_may_send_a_request_as_large_as_the_settings_allow(engine):
-    """The limit after the proof is the settings' (an import of max_world_voxels voxels), not
-    the proof's: an edit batch of 4 MB is read, applied and answered."""
-    assert engine.limits.request_bytes >= engine.settings.max_world_voxels
+    """The limit after the proof is the settings' (an import of max_world_voxels voxels, or a
+    sparse world's file of max_import_bytes as uploaded), not the proof's: an edit batch of 4 MB
+    is read, applied and answered."""
+    assert engine.limits.request_bytes >= max(engine.settings.max_world_voxels, engine.settings.max_import_bytes)
     world = alices_world(engine)
     rng = np.random.default_rng()
     voxels = np.column_stack([rng.integers(0, 16, (250_000, 3)), rng.integers(1, 256, 250_000)]).astype(np.int32)

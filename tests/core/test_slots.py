@@ -60,6 +60,24 @@ def test_worlds_of_one_size_share_a_pool_that_goes_with_the_last(gpu):
     assert SIZE not in gpu.slot_pools.pools and gpu.allocated_bytes == before
 
 
+def test_a_freed_slot_starts_the_next_world_empty(gpu, rng):
+    """A world made in the slot another left holds air and the cap, not what the other held."""
+    worlds = [World(gpu, WorldConfig(SIZE, 8)) for _ in range(2)]
+    try:
+        left = worlds.pop(0)
+        left.apply_edits(parse_edits(random_batch(rng, SIZE, count=20)))
+        left.recompute()
+        index = left.slot.index
+        left.release()
+        worlds.append(World(gpu, WorldConfig(SIZE, 8)))
+        assert worlds[-1].slot.index == index
+        assert not worlds[-1].read_voxels().any()
+        assert (field_of(worlds[-1], None) == 255).all()
+    finally:
+        for world in worlds:
+            world.release()
+
+
 def test_a_pool_is_not_made_from_a_large_share_of_the_budget(gpu, monkeypatch):
     monkeypatch.setattr(slots, "POOL_BUDGET_SHARE", 0.0)
     world = World(gpu, WorldConfig(SIZE, 8))
@@ -104,8 +122,9 @@ def test_a_stacked_run_gives_each_world_its_own_field(gpu, rng):
 
 
 def test_many_pooled_worlds_in_one_step_equal_one_by_one(gpu, rng, monkeypatch):
-    """An engine step that edits eight worlds stacks their transforms; another engine that takes
-    the same batches a world a step gets the same fields, and both equal scipy's."""
+    """An engine step that edits ten worlds (two pools) stacks their transforms, a run per pool;
+    another engine that takes the same batches a world a step gets the same fields, and both
+    equal scipy's."""
     stacked_slots, pooled_brushes = [], []
     real = stacked.run_slots
     monkeypatch.setattr(stacked, "run_slots", lambda gpu, pool, at, job: stacked_slots.append(len(at)) or
@@ -117,13 +136,13 @@ def test_many_pooled_worlds_in_one_step_equal_one_by_one(gpu, rng, monkeypatch):
     try:
         ids = {}
         for engine in (together, alone):
-            futures = [engine.submit(CreateWorld(WorldConfig(SIZE, 8))) for _ in range(8)]
+            futures = [engine.submit(CreateWorld(WorldConfig(SIZE, 8))) for _ in range(10)]  # two pools
             engine.step()
             ids[engine] = [f.result()["id"] for f in futures]
-        expected = [np.zeros(SIZE[::-1], np.uint8) for _ in range(8)]
+        expected = [np.zeros(SIZE[::-1], np.uint8) for _ in range(10)]
         for round in range(3):
             # two batches a world: the second's overlapping box wins where they meet
-            sent = [[random_batch(rng, SIZE), overlapping_boxes(rng, SIZE)] for _ in range(8)]
+            sent = [[random_batch(rng, SIZE), overlapping_boxes(rng, SIZE)] for _ in range(10)]
             for voxels, pair in zip(expected, sent):
                 for batch in pair:
                     apply_reference(voxels, batch)
@@ -135,8 +154,8 @@ def test_many_pooled_worlds_in_one_step_equal_one_by_one(gpu, rng, monkeypatch):
                 for batch in pair:
                     alone.submit(ApplyEdits(world_id, parse_edits(batch), batch))
                 alone.step()
-        assert stacked_slots and max(stacked_slots) == 8
-        assert pooled_brushes and max(pooled_brushes) == 8
+        assert stacked_slots and sorted(set(stacked_slots)) == [2, 8]  # a run per pool
+        assert pooled_brushes and max(pooled_brushes) == 10
         for engine in (together, alone):
             reads = [engine.submit(Read(world_id, "distance")) for world_id in ids[engine]]
             engine.step()

@@ -59,8 +59,7 @@ def enqueue_brushes(gpu: GpuContext, voxels: cl.Buffer, dims: bytes, brushes: li
     """Box and sphere edits, each with its clipped box: one alone with its own kernel, several
     with fill_brushes (their records in one small buffer). ``kernels``: the world's kernel
     copies, if it has them."""
-    if len(brushes) > 1 and sum(box.volume for _, box in brushes) > CULL_PER_PAIR_VOXELS * len(brushes) ** 2:
-        brushes = visible(brushes)
+    brushes = culled(brushes)
     if len(brushes) == 1:
         enqueue_brush(gpu, voxels, dims, *brushes[0], origin, kernels)
         return
@@ -107,10 +106,8 @@ def enqueue_pooled_brushes(gpu: GpuContext, pooled: list[tuple[Slot, list[tuple[
     worlds that fit one (BRUSHES_PER_LAUNCH brushes, WORK_ITEMS_PER_LAUNCH work-items)."""
     by_pool: dict[int, list] = {}
     for slot, brushes in pooled:
-        volume = sum(box.volume for _, box in brushes)
-        if len(brushes) > 1 and volume > CULL_PER_PAIR_VOXELS * len(brushes) ** 2:
-            brushes = visible(brushes)
-        by_pool.setdefault(id(slot.pool), []).append((slot, brushes, volume))
+        brushes = culled(brushes)
+        by_pool.setdefault(id(slot.pool), []).append((slot, brushes, sum(box.volume for _, box in brushes)))
     for members in by_pool.values():
         pool = members[0][0].pool
         dims, stride = int4(pool.dims), np.int64(pool.sizes[0])
@@ -126,6 +123,14 @@ def enqueue_pooled_brushes(gpu: GpuContext, pooled: list[tuple[Slot, list[tuple[
         for group in launches:
             records, total = brush_records(group)
             _launch_records(gpu, pool.kernels, pool.voxels, dims, WORLD_ORIGIN, records, total, stride)
+
+
+def culled(brushes: list[tuple[Edit, Box]]) -> list[tuple[Edit, Box]]:
+    """``brushes``, less those a later box hides whole (``visible``) where they cover enough voxels
+    for the check to pay (CULL_PER_PAIR_VOXELS)."""
+    if len(brushes) > 1 and sum(box.volume for _, box in brushes) > CULL_PER_PAIR_VOXELS * len(brushes) ** 2:
+        return visible(brushes)
+    return brushes
 
 
 def visible(brushes: list[tuple[Edit, Box]]) -> list[tuple[Edit, Box]]:

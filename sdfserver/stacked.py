@@ -1,4 +1,4 @@
-"""Many pooled worlds' transforms in one stacked run (``gpu/slots.py``, ``exact.run_slots``), as a
+"""Many pooled worlds' transforms in one stacked run (``gpu/slots.py``, ``Exact.run_slots``), as a
 part of ``World`` (which of its recomputes can join one, and its pending recompute when it has)
 and for the engine (``begin_stacked``: a step's stacked runs, one per pool)."""
 
@@ -7,8 +7,8 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING
 
-from sdfserver.algorithms import AlgorithmRun, RegionJob
-from sdfserver.algorithms.exact import bytes_moved, run_slots
+from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, RegionJob
+from sdfserver.algorithms.exact import bytes_moved
 from sdfserver.gpu import GpuContext
 from sdfserver.recompute import PendingRecompute
 
@@ -23,7 +23,7 @@ class Stacked:
     """Mixed into ``World``, whose config, slot, dirty set and buffers it uses."""
 
     def stacking_job(self) -> RegionJob | None:
-        """This recompute's one job where it can join its pool's stacked run (``exact.run_slots``):
+        """This recompute's one job where it can join its pool's stacked run (``Exact.run_slots``):
         a pooled, unsigned Manhattan world with exact borders and no focus whose algorithm is
         ``exact`` and whose dirty regions are the whole world (as under a cap near its side);
         else None."""
@@ -62,7 +62,8 @@ def begin_stacked(gpu: GpuContext, worlds: dict[str, "World"]) -> dict[str, Pend
         if len(members) < 2:  # alone, its own prepared launches cost the same
             continue
         _, first, job = members[0]
-        run = run_slots(gpu, first.slot.pool, [world.slot.index for _, world, _ in members], job)
+        slots = [world.slot.index for _, world, _ in members]
+        run = ALGORITHMS["exact"].run_slots(gpu, first.slot.pool, slots, job)
         share, times, moved = 1.0 / len(members), [], bytes_moved(job)
         for world_id, world, _ in members:
             pending[world_id] = world.begin_stacked(AlgorithmRun(run.events, bytes_moved=moved, share=share, times=times))

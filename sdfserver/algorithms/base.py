@@ -138,7 +138,7 @@ class AlgorithmRun:
     # the run does not wait for it.
     arriving: list[tuple[np.ndarray, cl.Event]] = field(default_factory=list)
     # The part of its launches' device time that is this run's: a stacked run's launches serve
-    # several worlds (exact.run_slots), each of which counts its share.
+    # several worlds (Exact.run_slots), each of which counts its share.
     share: float = 1.0
     # Its launches' kernel times once read (stats.summarize): the worlds of a stacked run share
     # one list, so the events' profiling is asked once.

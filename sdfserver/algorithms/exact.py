@@ -187,6 +187,29 @@ class Exact:
                 run.events.append(own.enqueue(queue, kernel, global_, local, args))
         return run
 
+    def run_slots(self, gpu: GpuContext, pool: SlotPool, slots: list[int], job: RegionJob) -> AlgorithmRun:
+        """The whole-world transform of the worlds in ``slots`` of ``pool``, one launch a pass for all
+        of them (kernels/exact.cl, SLOT_PROLOGUE). ``job``: the whole-world job of any one of them
+        (unsigned, borders exact; one cap for all): the worlds share its shape, cap and arguments but
+        for their buffers, which are the pool's. The arguments are kept per pool while the slots and
+        the cap repeat, so the kernel copies set none."""
+        if job.region != job.world_box or job.invert or job.signed or job.chunk:
+            raise ValueError("a stacked run transforms whole unsigned worlds with exact borders")
+        key = (tuple(slots), job.cap)
+        args = pool.runs.get(key)
+        if args is None:
+            if len(pool.runs) >= RUNS_KEPT_PER_POOL:
+                pool.runs.clear()
+            voxel_stride, _, work_stride = pool.sizes
+            args = list(pass_args(job))
+            args[:3] = pool.work, pool.voxels, pool.field
+            args[-3:] = slot_table(slots), np.int64(voxel_stride), np.int64(work_stride)
+            args = pool.runs[key] = tuple(args)
+        run = AlgorithmRun(bytes_moved=bytes_moved(job) * len(slots))
+        for kernel, _, global_, local in self.passes(gpu, job.work_box.shape_xyz):
+            run.events.append(pool.kernels.enqueue(gpu.queue, kernel, (*global_, len(slots)), (*local, 1), args))
+        return run
+
     def prepare(self, gpu: GpuContext, job: RegionJob) -> Callable[[], AlgorithmRun]:
         """``run(gpu, job)`` worked out once, for a world that runs the same job step after step
         (``World`` keeps it while the dirty regions repeat): each call only enqueues the three
@@ -205,30 +228,6 @@ class Exact:
         return run
 
 
-def run_slots(gpu: GpuContext, pool: SlotPool, slots: list[int], job: RegionJob) -> AlgorithmRun:
-    """The whole-world transform of the worlds in ``slots`` of ``pool``, one launch a pass for all
-    of them (kernels/exact.cl, SLOT_PROLOGUE). ``job``: the whole-world job of any one of them
-    (unsigned, borders exact; one cap for all): the worlds share its shape, cap and arguments but
-    for their buffers, which are the pool's. The arguments are kept per pool while the slots and
-    the cap repeat, so the kernel copies set none."""
-    if job.region != job.world_box or job.invert or job.signed or job.chunk:
-        raise ValueError("a stacked run transforms whole unsigned worlds with exact borders")
-    key = (tuple(slots), job.cap)
-    args = pool.runs.get(key)
-    if args is None:
-        if len(pool.runs) >= RUNS_KEPT_PER_POOL:
-            pool.runs.clear()
-        voxel_stride, _, work_stride = pool.sizes
-        args = list(pass_args(job))
-        args[:3] = pool.work, pool.voxels, pool.field
-        args[-3:] = slot_table(slots), np.int64(voxel_stride), np.int64(work_stride)
-        args = pool.runs[key] = tuple(args)
-    run = AlgorithmRun(bytes_moved=bytes_moved(job) * len(slots))
-    for kernel, _, global_, local in EXACT_PASSES.passes(gpu, job.work_box.shape_xyz):
-        run.events.append(pool.kernels.enqueue(gpu.queue, kernel, (*global_, len(slots)), (*local, 1), args))
-    return run
-
-
 def slot_table(slots: list[int]) -> bytes:
     """The passes' ``int8 slots`` argument: the slots a stacked run's launch covers, in order."""
     if len(slots) > SLOT_TABLE_SIZE:
@@ -244,6 +243,3 @@ def pass_args(job: RegionJob) -> tuple:
             int4(job.region.lo), int4(job.region.hi),
             np.int32(job.seeded), np.int32(job.cap), np.int32(work_plane(job)), int4(world.lo), int4(world.hi),
             NO_SLOTS, NO_STRIDE, NO_STRIDE)
-
-
-EXACT_PASSES = Exact()  # run_slots's pass shapes, memoized per device like any Exact's

@@ -41,7 +41,7 @@ class SlotPool:
     field: cl.Buffer
     work: cl.Buffer
     free: list[int]
-    # The stacked runs' own kernel copies, and their arguments by (slots, cap) (exact.run_slots):
+    # The stacked runs' own kernel copies, and their arguments by (slots, cap) (Exact.run_slots):
     # they repeat from one step to the next.
     kernels: KernelCopies = field(default_factory=KernelCopies)
     runs: dict[tuple, tuple] = field(default_factory=dict)

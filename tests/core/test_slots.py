@@ -1,5 +1,5 @@
 """Small worlds side by side in slot pools (gpu/slots.py) and their stacked transform
-(sdfserver/stacked.py, exact.run_slots): the pool's memory comes and goes with its worlds, a
+(sdfserver/stacked.py, Exact.run_slots): the pool's memory comes and goes with its worlds, a
 world's writes stay in its slot, and a stacked run gives each world the field scipy gives it,
 whichever slots run together, with clean and differently configured neighbours left alone."""
 
@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from sdfserver import stacked
+from sdfserver.algorithms.exact import Exact
 from sdfserver.edits import parse_edits
 from sdfserver.engine import Engine, batches
 from sdfserver.engine.commands import ApplyEdits, CreateWorld, Read
@@ -126,9 +127,9 @@ def test_many_pooled_worlds_in_one_step_equal_one_by_one(gpu, rng, monkeypatch):
     another engine that takes the same batches a world a step gets the same fields, and both
     equal scipy's."""
     stacked_slots, pooled_brushes = [], []
-    real = stacked.run_slots
-    monkeypatch.setattr(stacked, "run_slots", lambda gpu, pool, at, job: stacked_slots.append(len(at)) or
-                        real(gpu, pool, at, job))
+    real = Exact.run_slots
+    monkeypatch.setattr(Exact, "run_slots", lambda self, gpu, pool, at, job: stacked_slots.append(len(at)) or
+                        real(self, gpu, pool, at, job))
     real_brushes = batches.enqueue_pooled_brushes
     monkeypatch.setattr(batches, "enqueue_pooled_brushes", lambda gpu, pooled: pooled_brushes.append(len(pooled)) or
                         real_brushes(gpu, pooled))

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from sdfserver.bench.reference import scipy_distances
-from sdfserver.bench.run import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts, source_commit
+from sdfserver.bench.run import Results, progress, source_commit, stoppable
 from sdfserver.bench.scene import populate
 from sdfserver.bench.timing import cupy_event_ms, summarize
 from sdfserver.edits import EditLimits, SphereEdit
@@ -265,23 +265,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.cupy is None:
         results.data["notes"].append("no cupyx anchor: CuPy is not importable or sees no CUDA device"
                                      if not args.no_cupy else "no cupyx anchor: --no-cupy")
-    status = 0
-    with sigterm_interrupts():
-        try:
-            progress("opening the OpenCL device")
-            budget = None if args.memory_budget_mib is None else args.memory_budget_mib << 20
-            gpu = GpuContext.create(args.device, budget)
-            results.data["device"] = gpu.device_name
-            progress(f"device: {gpu.device_name}")
-            run(gpu, args, results)
-            progress("done")
-        except KeyboardInterrupt:
-            results.data["interrupted"] = True
-            progress("interrupted: the tables and metrics.json hold what was measured")
-            status = INTERRUPTED_EXIT
+    with stoppable(results, "the tables and metrics.json hold what was measured") as outcome:
+        progress("opening the OpenCL device")
+        budget = None if args.memory_budget_mib is None else args.memory_budget_mib << 20
+        gpu = GpuContext.create(args.device, budget)
+        results.data["device"] = gpu.device_name
+        progress(f"device: {gpu.device_name}")
+        run(gpu, args, results)
+        progress("done")
     results.data.setdefault("device", "(not opened)")
     report = format_markdown(results.data)
     print(report)
     (out / "metrics.md").write_text(report + "\n")
     results.save()
-    return status
+    return outcome.status

@@ -49,6 +49,27 @@ def sigterm_interrupts() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+class Outcome:
+    """How a run inside ``stoppable`` ended: its exit ``status``."""
+
+    status = 0
+
+
+@contextlib.contextmanager
+def stoppable(results: "Results", kept: str) -> Iterator[Outcome]:
+    """Measure inside; a stop (Ctrl-C or SIGTERM) marks ``results`` interrupted, says that
+    ``kept`` (the files and tables that hold what was measured), and sets the exit status to
+    INTERRUPTED_EXIT, so the caller still writes out what it has."""
+    outcome = Outcome()
+    with sigterm_interrupts():
+        try:
+            yield outcome
+        except KeyboardInterrupt:
+            results.data["interrupted"] = True
+            progress(f"interrupted: {kept}")
+            outcome.status = INTERRUPTED_EXIT
+
+
 class Results:
     """A benchmark's results, written to ``path`` (if any) after each measurement."""
 
@@ -73,4 +94,4 @@ class Results:
         os.replace(partial, path)
 
 
-__all__ = ["INTERRUPTED_EXIT", "Results", "progress", "sigterm_interrupts", "source_commit"]
+__all__ = ["INTERRUPTED_EXIT", "Outcome", "Results", "progress", "sigterm_interrupts", "source_commit", "stoppable"]

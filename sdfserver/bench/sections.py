@@ -30,7 +30,7 @@ import numpy as np
 
 from sdfserver.algorithms import ALGORITHMS
 from sdfserver.bench.reference import compare, scipy_distances
-from sdfserver.bench.run import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts, source_commit
+from sdfserver.bench.run import Results, progress, source_commit, stoppable
 from sdfserver.bench.scene import populate
 from sdfserver.bench.timing import cupy_event_ms, measure_chunk, summarize, time_full
 from sdfserver.edits import EditLimits, SphereEdit
@@ -255,23 +255,17 @@ def main(argv: list[str]) -> int:
     results = Results({"date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                        "host": platform.node(), "commit": source_commit(), "argv": sys.argv, "seed": args.seed},
                       args.json)
-    status = 0
-    with sigterm_interrupts():
-        try:
-            progress("opening the OpenCL device")
-            gpu = GpuContext.create(args.device)
-            results.data["device"] = gpu.device_name
-            progress(f"device: {gpu.device_name}" + ("" if args.quick else "; --quick is the short run"))
-            run_sections(gpu, args, results)
-            progress("done")
-        except KeyboardInterrupt:
-            results.data["interrupted"] = True
-            progress("interrupted: the tables and --json hold what was measured")
-            status = INTERRUPTED_EXIT
+    with stoppable(results, "the tables and --json hold what was measured") as outcome:
+        progress("opening the OpenCL device")
+        gpu = GpuContext.create(args.device)
+        results.data["device"] = gpu.device_name
+        progress(f"device: {gpu.device_name}" + ("" if args.quick else "; --quick is the short run"))
+        run_sections(gpu, args, results)
+        progress("done")
     results.data.setdefault("device", "(not opened)")
     print(format_tables(results.data))
     results.save()
-    return status
+    return outcome.status
 
 
 def run_sections(gpu: GpuContext, args: argparse.Namespace, results: Results) -> None:

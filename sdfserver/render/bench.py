@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from sdfserver.algorithms import ALGORITHMS
-from sdfserver.bench.run import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts
+from sdfserver.bench.run import Results, progress, stoppable
 from sdfserver.bench.schedule import DEFAULT_SEED, EDIT_INTERVAL_MS, Schedule
 from sdfserver.edits import parse_edits
 from sdfserver.gpu import GpuContext
@@ -248,8 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     results = Results({"scenario": "render", "device": "(not opened)", "edit_interval_ms": args.edit_interval_ms,
                        "duration_s": args.duration, "width": args.width, "height": args.height, "runs": []},
                       None if args.json in (None, "-") else args.json)
-    status = 0
-    with sigterm_interrupts():
+    with stoppable(results, "the table and --json hold the runs that finished") as outcome:
         try:
             progress("opening the OpenCL device")
             gpu = GpuContext.create(args.device)
@@ -263,16 +262,12 @@ def main(argv: list[str] | None = None) -> int:
             progress("done")
         except NotAvailable as exc:
             parser.error(str(exc))
-        except KeyboardInterrupt:
-            results.data["interrupted"] = True
-            progress("interrupted: the table and --json hold the runs that finished")
-            status = INTERRUPTED_EXIT
     if args.json == "-":
         print(json.dumps(results.data, indent=2))
     else:
         print(format_table(results.data))
         results.save()
-    return status
+    return outcome.status
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from sdfserver.algorithms import ALGORITHMS
-from sdfserver.bench.run import INTERRUPTED_EXIT, Results, progress, sigterm_interrupts, source_commit
+from sdfserver.bench.run import Results, progress, source_commit, stoppable
 from sdfserver.bench.schedule import DEFAULT_SEED
 from sdfserver.bench.seed import measure as measuring
 from sdfserver.bench.seed.report import write_report
@@ -82,25 +82,19 @@ def main(argv: list[str] | None = None) -> int:
                                 "quick": args.quick, "seed": args.seed, "borders": args.borders,
                                 "device": "(not opened)", "algorithms": sorted(ALGORITHMS)}},
                       str(out_dir / "results.json"))
-    status = 0
-    with sigterm_interrupts():
-        try:
-            from sdfserver.gpu import GpuContext  # after the signal handler: opening a device takes a while
+    with stoppable(results, "report.md and results.json hold what was measured") as outcome:
+        from sdfserver.gpu import GpuContext  # after the signal handler: opening a device takes a while
 
-            progress("opening the OpenCL device")
-            gpu = GpuContext.create(args.device)
-            results.data["meta"]["device"] = gpu.device_name
-            progress(f"device: {gpu.device_name}")
-            measuring.measure(gpu, measuring.QUICK if args.quick else measuring.FULL, args.seed, args.borders,
-                              results, out_dir, args.only)
-            progress("measured; writing the report")
-        except KeyboardInterrupt:
-            results.data["interrupted"] = True
-            progress("interrupted: report.md and results.json hold what was measured")
-            status = INTERRUPTED_EXIT
+        progress("opening the OpenCL device")
+        gpu = GpuContext.create(args.device)
+        results.data["meta"]["device"] = gpu.device_name
+        progress(f"device: {gpu.device_name}")
+        measuring.measure(gpu, measuring.QUICK if args.quick else measuring.FULL, args.seed, args.borders,
+                          results, out_dir, args.only)
+        progress("measured; writing the report")
     finish(results.data, out_dir, plots=not args.no_plots)
     results.save()
-    return status
+    return outcome.status
 
 
 __all__ = ["SECTIONS", "main"]

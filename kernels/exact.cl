@@ -82,15 +82,31 @@ inline uint4 min_u16x2_v4(uint4 a, uint4 b) { return (uint4)(min_u16x2_v2(a.lo, 
 #define GROUP_SHAPE __attribute__((reqd_work_group_size(LOCAL_X, LOCAL_Y, 1)))
 
 /* A stacked run transforms whole worlds of one slot pool in one launch (exact.py, run_slots):
- * the launch's third dimension picks an entry of `slots`, and that slot's world and work box lie
- * that many strides further on (voxel_stride voxels, work_stride bytes); the rest of the pass
- * sees one world. The table is passed by value (a pool has at most 8 slots), so a run that
+ * `slots` is a mask of the pool's slots it covers (slot s is bit s % 32 of lane s / 32), the
+ * launch's third dimension picks the k-th of them in order, and that slot's world and work box
+ * lie that many strides further on (voxel_stride voxels, work_stride bytes); the rest of the pass
+ * sees one world. The mask is passed by value (a pool has at most 256 slots), so a run that
  * repeats sets no argument; a run of one world passes zeros. */
+inline size_t kth_slot(int8 slots, int k)
+{
+    int lanes[8];
+    vstore8(slots, 0, lanes);
+    for (int lane = 0; lane < 8; ++lane) {
+        uint bits = (uint)lanes[lane];
+        const int count = popcount(bits);
+        if (k < count) {
+            for (int j = 0; j < k; ++j)
+                bits &= bits - 1u;  /* drop the lowest set bit */
+            return (size_t)(32 * lane + 31 - clz(bits & (0u - bits)));
+        }
+        k -= count;
+    }
+    return 0;
+}
+
 #define SLOT_PROLOGUE                                                           \
     do {                                                                        \
-        int table_[8];                                                          \
-        vstore8(slots, 0, table_);                                              \
-        const size_t slot_ = (size_t)table_[get_group_id(2)];                   \
+        const size_t slot_ = kth_slot(slots, get_group_id(2));                  \
         work += slot_ * (size_t)work_stride;                                    \
         voxels += slot_ * (size_t)voxel_stride;                                 \
         field += slot_ * (size_t)voxel_stride;                                  \

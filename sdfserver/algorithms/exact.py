@@ -29,8 +29,8 @@ from sdfserver.gpu.slots import SlotPool
 
 MAX_GROUP = 1024  # work-items per work-group
 NO_STRIDE = np.int64(0)  # a run of one world: no slots (kernels/exact.cl, SLOT_PROLOGUE)
-SLOT_TABLE_SIZE = 8  # the passes' slot table, an int8 (gpu/slots.py's POOL_SLOTS at most)
-NO_SLOTS = bytes(4 * SLOT_TABLE_SIZE)
+SLOT_MASK_BITS = 256  # the passes' slot mask, an int8 (gpu/slots.py's POOL_MAX_SLOTS at most)
+NO_SLOTS = bytes(SLOT_MASK_BITS // 8)
 RUNS_KEPT_PER_POOL = 64  # stacked runs' arguments kept per pool (subsets of its slots, caps)
 
 
@@ -229,10 +229,14 @@ class Exact:
 
 
 def slot_table(slots: list[int]) -> bytes:
-    """The passes' ``int8 slots`` argument: the slots a stacked run's launch covers, in order."""
-    if len(slots) > SLOT_TABLE_SIZE:
-        raise ValueError(f"a stacked run covers at most {SLOT_TABLE_SIZE} slots, got {len(slots)}")
-    return np.array(list(slots) + [0] * (SLOT_TABLE_SIZE - len(slots)), dtype=np.int32).tobytes()
+    """The passes' ``int8 slots`` argument: the mask of the slots a stacked run's launch covers
+    (kernels/exact.cl, kth_slot), which it runs in ascending order."""
+    mask = np.zeros(SLOT_MASK_BITS // 32, dtype=np.uint32)
+    for slot in slots:
+        if not 0 <= slot < SLOT_MASK_BITS:
+            raise ValueError(f"a stacked run covers slots 0 to {SLOT_MASK_BITS - 1}, got {slot}")
+        mask[slot // 32] |= np.uint32(1 << (slot % 32))
+    return mask.tobytes()
 
 
 def pass_args(job: RegionJob) -> tuple:

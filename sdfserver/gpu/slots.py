@@ -8,8 +8,10 @@ of them (``Exact.run_slots``), which is what lets many small worlds cost about w
 
 Only worlds of at most ``POOLED_MAX_VOXELS`` take a slot, and only where each of their buffers
 is a whole number of the device's sub-buffer alignment (``MEM_BASE_ADDR_ALIGN``). A pool holds
-``POOL_SLOTS`` worlds; a pool is made when a world finds no free slot, and released when its
-last world goes. A pool is made only while it takes at most ``POOL_BUDGET_SHARE`` of the memory
+as many worlds as fit ``POOL_BYTES``, from ``POOL_MIN_SLOTS`` to ``POOL_MAX_SLOTS`` (a stacked
+run and a pooled brush launch cover one pool, so the fewer pools a step's worlds are in, the
+fewer launches the step makes); a pool is made when a world finds no free slot, and released
+when its last world goes. A pool is made only while it takes at most ``POOL_BUDGET_SHARE`` of the memory
 budget still free, so that its empty slots never decide how many worlds fit; otherwise the world
 allocates its own buffers, as larger worlds do. Used only on the engine thread (through
 ``World``), like every other allocation of the world table.
@@ -28,7 +30,9 @@ import pyopencl as cl
 from sdfserver.errors import DeviceMemoryExceeded
 from sdfserver.gpu.launches import KernelCopies
 
-POOL_SLOTS = 8
+POOL_MIN_SLOTS = 8
+POOL_MAX_SLOTS = 64  # kernels/exact.cl's slot mask has room for 256
+POOL_BYTES = 512 << 20  # 64 worlds of 128³ (8 MiB each: voxels, field, work)
 POOLED_MAX_VOXELS = 1 << 21  # 128³: past it a world's transform costs the device more than its launches cost the host
 POOL_BUDGET_SHARE = 0.25
 
@@ -40,6 +44,7 @@ class SlotPool:
     voxels: cl.Buffer
     field: cl.Buffer
     work: cl.Buffer
+    slots: int
     free: list[int]
     # The stacked runs' own kernel copies, and their arguments by (slots, cap) (Exact.run_slots):
     # they repeat from one step to the next.
@@ -48,7 +53,7 @@ class SlotPool:
 
     @property
     def used(self) -> int:
-        return POOL_SLOTS - len(self.free)
+        return self.slots - len(self.free)
 
 
 @dataclass
@@ -70,6 +75,11 @@ class SlotPools:
         """Whether a world of ``dims`` whose voxels, field and work take ``sizes`` bytes may take a slot."""
         return dims[0] * dims[1] * dims[2] <= POOLED_MAX_VOXELS and all(s % self.align == 0 for s in sizes)
 
+    @staticmethod
+    def slots_per_pool(sizes: list[int]) -> int:
+        """How many worlds whose voxels, field and work take ``sizes`` bytes a pool holds."""
+        return max(POOL_MIN_SLOTS, min(POOL_MAX_SLOTS, POOL_BYTES // sum(sizes)))
+
     def take(self, dims: tuple[int, int, int], sizes: list[int]) -> Slot | None:
         """A free slot for a world of ``dims`` (``sizes``: its voxels, field and work bytes), a new
         pool made if none has one; None where the world may not take a slot or no pool fits."""
@@ -78,13 +88,14 @@ class SlotPools:
         pools = self.pools.setdefault(dims, [])
         pool = next((p for p in pools if p.free), None)
         if pool is None:
-            if sum(sizes) * POOL_SLOTS > POOL_BUDGET_SHARE * (self.gpu.memory_budget_bytes - self.gpu.allocated_bytes):
+            count = self.slots_per_pool(sizes)
+            if sum(sizes) * count > POOL_BUDGET_SHARE * (self.gpu.memory_budget_bytes - self.gpu.allocated_bytes):
                 return None
             try:
-                parents = self.gpu.allocate_all([s * POOL_SLOTS for s in sizes])
+                parents = self.gpu.allocate_all([s * count for s in sizes])
             except DeviceMemoryExceeded:
                 return None
-            pool = SlotPool(dims, tuple(sizes), *parents, free=list(range(POOL_SLOTS - 1, -1, -1)))
+            pool = SlotPool(dims, tuple(sizes), *parents, slots=count, free=list(range(count - 1, -1, -1)))
             pools.append(pool)
         index = pool.free.pop()
         subs = tuple(parent.get_sub_region(index * size, size)
@@ -102,4 +113,4 @@ class SlotPools:
             if not self.pools[pool.dims]:
                 del self.pools[pool.dims]
             for parent, size in zip((pool.voxels, pool.field, pool.work), pool.sizes):
-                self.gpu.release(parent, size * POOL_SLOTS)
+                self.gpu.release(parent, size * pool.slots)

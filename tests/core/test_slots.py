@@ -49,7 +49,8 @@ def test_worlds_of_one_size_share_a_pool_that_goes_with_the_last(gpu):
         assert len(pools) == 1 and all(w.slot.pool is pools[0] for w in worlds)
         assert sorted(w.slot.index for w in worlds) == [0, 1, 2]
         voxels, field, work, work2 = World.buffer_bytes(WorldConfig(SIZE, 8).validated())[:4]
-        assert gpu.allocated_bytes - before == (voxels + field + work) * slots.POOL_SLOTS + 3 * work2
+        assert pools[0].slots == slots.POOL_MAX_SLOTS  # small worlds: as many as a pool may hold
+        assert gpu.allocated_bytes - before == (voxels + field + work) * pools[0].slots + 3 * work2
         worlds.pop(1).release()
         assert pools[0].used == 2
         other = World(gpu, WorldConfig((SIZE[0], SIZE[1], 2 * SIZE[2]), 8))  # another size, another pool
@@ -122,10 +123,35 @@ def test_a_stacked_run_gives_each_world_its_own_field(gpu, rng):
             world.release()
 
 
+def test_a_stacked_run_reaches_every_slot_of_a_large_pool(gpu, rng):
+    """Forty worlds in one pool, every third left clean: one stacked run covers slots in every
+    32-bit lane of its slot mask, each world gets scipy's field and the clean ones keep theirs."""
+    worlds = [World(gpu, WorldConfig(SIZE, 8)) for _ in range(40)]
+    expected = [np.zeros(SIZE[::-1], np.uint8) for _ in worlds]
+    try:
+        assert len({id(w.slot.pool) for w in worlds}) == 1 and worlds[0].slot.pool.slots >= 40
+        for round in range(2):
+            edited = [i for i in range(len(worlds)) if (i + round) % 3]
+            for i in edited:
+                batch = random_batch(rng, SIZE)
+                worlds[i].apply_edits(parse_edits(batch))
+                apply_reference(expected[i], batch)
+            pending = stacked.begin_stacked(gpu, {i: worlds[i] for i in edited})
+            assert sorted(pending) == edited and max(worlds[i].slot.index for i in edited) >= 32
+            for p in pending.values():
+                p.finish()
+            for world, voxels in zip(worlds, expected):
+                assert np.array_equal(field_of(world, voxels), oracle_distance(voxels, 255))
+    finally:
+        for world in worlds:
+            world.release()
+
+
 def test_many_pooled_worlds_in_one_step_equal_one_by_one(gpu, rng, monkeypatch):
-    """An engine step that edits ten worlds (two pools) stacks their transforms, a run per pool;
-    another engine that takes the same batches a world a step gets the same fields, and both
-    equal scipy's."""
+    """An engine step that edits ten worlds (two pools of eight slots) stacks their transforms, a
+    run per pool; another engine that takes the same batches a world a step gets the same fields,
+    and both equal scipy's."""
+    monkeypatch.setattr(slots, "POOL_MAX_SLOTS", 8)
     stacked_slots, pooled_brushes = [], []
     real = Exact.run_slots
     monkeypatch.setattr(Exact, "run_slots", lambda self, gpu, pool, at, job: stacked_slots.append(len(at)) or

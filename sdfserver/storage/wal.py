@@ -213,15 +213,21 @@ class Committer:
                 self._taken = taken = self._queued
                 self._cond.notify_all()  # an append waiting for the hand-over goes on
             files = {fd: path for fd, path, _, _ in batch}
-            # Several files (worlds) sync side by side, so the file system can merge them; one file
-            # syncs right here (a pool round trip costs two more waits for the GIL under load).
-            if len(files) == 1:
-                results = [self._sync_one(next(iter(files.items())))]
+            # Several files (worlds) sync side by side, so the file system can merge them, each
+            # sync thread taking its share of the files in turn (a pool task a file cost the
+            # engine's GIL a hand-off a file); one share syncs right here (a pool round trip
+            # costs two more waits for the GIL under load).
+            shares = _shares(list(files.items()), SYNC_THREADS)
+            if len(shares) == 1:
+                results = [self._sync_share(shares[0])]
             else:
-                results = list(self._pool.map(self._sync_one, files.items()))
-            errors = [e for e in results if e is not None]
-            if not errors:
-                errors = [e for e in (self._after_sync(files),) if e is not None]
+                results = list(self._pool.map(self._sync_share, shares))
+            # a failed sync first, then the guard's cause (the data directory moved), then a
+            # deleted log file
+            errors = sorted((e for e in results if e is not None), key=lambda e: e[1] != "fdatasync")
+            if not errors or errors[0][1] != "fdatasync":
+                problem = self.guard() if self.guard is not None else None
+                errors = [problem] if problem is not None else errors
             with self.completing():
                 if errors:
                     failure = self.fail(*errors[0])
@@ -248,6 +254,16 @@ class Committer:
             return path, "fdatasync", exc
         return None
 
+    @staticmethod
+    def _sync_share(items: list[tuple[int, str]]) -> SyncError | None:
+        """Sync each file of ``items`` in turn, then check each is still linked (``_linked``);
+        the first failed sync, else the first file unlinked, or None."""
+        for item in items:
+            problem = Committer._sync_one(item)
+            if problem is not None:
+                return problem
+        return next(filter(None, (_linked(*item) for item in items)), None)
+
     def _after_sync(self, files: dict[int, str]) -> SyncError | None:
         """Why records just synced would still be lost at the next start: the guard's cause (the
         data directory moved), or a log file deleted; None when they are safe."""
@@ -255,13 +271,9 @@ class Committer:
         if problem is not None:
             return problem
         for fd, path in files.items():
-            try:
-                if os.fstat(fd).st_nlink > 0:
-                    continue
-            except OSError as exc:
-                return path, "fstat", exc
-            return path, "the check", FileNotFoundError(errno.ENOENT, "the log file was deleted while the "
-                                                        "server ran, so what it holds would be lost")
+            problem = _linked(fd, path)
+            if problem is not None:
+                return problem
         return None
 
     def close(self) -> None:
@@ -270,6 +282,23 @@ class Committer:
             self._cond.notify_all()
         self._thread.join()
         self._pool.shutdown()
+
+
+def _linked(fd: int, path: str) -> SyncError | None:
+    """A log file deleted while the server ran: what it holds would be lost at the next start."""
+    try:
+        if os.fstat(fd).st_nlink > 0:
+            return None
+    except OSError as exc:
+        return path, "fstat", exc
+    return path, "the check", FileNotFoundError(errno.ENOENT, "the log file was deleted while the "
+                                                "server ran, so what it holds would be lost")
+
+
+def _shares(items: list, count: int) -> list[list]:
+    """``items`` dealt into at most ``count`` lists of nearly equal length, none empty."""
+    count = max(1, min(count, len(items)))
+    return [items[i::count] for i in range(count)]
 
 
 def _complete(future: Future, refusal: Exception | None) -> None:

@@ -36,22 +36,27 @@ RUNS_KEPT_PER_POOL = 64  # stacked runs' arguments kept per pool (subsets of its
 
 @dataclass(frozen=True)
 class PassShape:
-    """How one pass cuts its lines: measured on an H200 at 512^3 with tools/tune_exact.py
-    (docs/benchmarks.md). With the carries scanned in log2(segments) steps, 32 segments of
-    16 won in every pass; the y pass sweeps 8 x-columns per work-item, the z pass (rows a
-    whole slice apart) 4."""
+    """How one pass cuts its lines: measured with tools/tune_exact.py (docs/benchmarks.md). With the carries scanned in log2(segments) steps,
+    32 segments of 16 won in every pass; the y pass sweeps 8 x-columns per work-item, the z pass
+    (rows a whole slice apart) 4. Four x-lanes a work-group won everywhere but in the z pass of
+    lines of 1024 and more, where eight do (a warp then reads whole 32-byte sectors of a row)."""
 
     segments: int  # target work-items per line
     min_seg: int
     max_seg: int  # elements per work-item (registers)
     vec: int = 1  # x-columns per work-item (y and z passes)
     lanes: int = 1  # work-items across x per work-group (y and z passes)
+    long_lanes: int = 0  # lanes for lines of at least long_line voxels (0: lanes)
+    long_line: int = 1024
+
+    def lanes_for(self, line_len: int) -> int:
+        return self.long_lanes if self.long_lanes and line_len >= self.long_line else self.lanes
 
 
 PASS_SHAPES = {
     0: PassShape(segments=32, min_seg=8, max_seg=16),
     1: PassShape(segments=32, min_seg=4, max_seg=16, vec=8, lanes=4),
-    2: PassShape(segments=32, min_seg=4, max_seg=16, vec=4, lanes=4),
+    2: PassShape(segments=32, min_seg=4, max_seg=16, vec=4, lanes=4, long_lanes=8),
 }
 # The first pass derives initial distances from voxels and the seed shell, the last packs the
 # field; the order is free (the transform is separable). Measured on the H200 at 512^3.
@@ -60,12 +65,12 @@ X_PASS_THREADS = 128  # work-items per work-group for the x pass (tuned on the H
 PASSES_MEMO_SIZE = 1024  # work-box shapes remembered per device; region shapes repeat
 
 
-def segment_length(line_len: int, shape: PassShape) -> int:
+def segment_length(line_len: int, shape: PassShape, lanes: int | None = None) -> int:
     """A power of two near line_len / segments, within the shape's bounds and the group limit."""
     seg = shape.min_seg
     while seg < shape.max_seg and seg * shape.segments < line_len:
         seg *= 2
-    while -(-line_len // seg) * max(1, shape.lanes) > MAX_GROUP:
+    while -(-line_len // seg) * max(1, lanes or shape.lanes_for(line_len)) > MAX_GROUP:
         seg *= 2
     return seg
 
@@ -116,7 +121,8 @@ class Exact:
         tuned shape (tools/tune_exact.py).
         """
         shape = PASS_SHAPES[axis]
-        seg = seg or segment_length(line_len, shape)
+        lanes = lanes or shape.lanes_for(line_len)
+        seg = seg or segment_length(line_len, shape, lanes)
         nseg = segment_count(line_len, seg, shape)
         if axis == 0:
             per_group = max(1, x_threads // nseg)  # line pairs: two lines share each word
@@ -128,7 +134,7 @@ class Exact:
                                          **({"WORLD_OUT": 1} if world_out else {}),
                                          **({"SIGNED_WORLD": 1} if signed_world else {}))
         else:
-            lanes, vec = lanes or shape.lanes, vec or shape.vec
+            vec = vec or shape.vec
             local = (lanes, nseg)
             columns = -(-nx // vec)
             global_ = (-(-columns // lanes) * lanes, nseg * (nz if axis == 1 else ny))

@@ -6,9 +6,11 @@
     python tools/cpu_use.py diff before.json after.json [--requests N]
 
 ``snap`` records /proc/stat's totals and the CPU seconds of the server (the launcher), its
-first child (the engine process, with one engine) and its other children (the API processes).
+first child (the engine process, with one engine) and its other children (the API processes),
+and the engine process's CPU seconds by thread name (the server names its threads:
+``sdfserver/threadnames.py``; threads of the OpenCL driver keep the process's name).
 ``diff`` prints the host's busy share over the interval, each part's cores, and with
-``--requests`` each part's CPU per request.
+``--requests`` each part's CPU per request and the engine process's threads' CPU per request.
 """
 
 from __future__ import annotations
@@ -31,7 +33,31 @@ def snap(pid: int) -> dict:
     kids = children(pid)
     return {"at": time.monotonic(), "host_busy_s": (sum(values[:8]) - idle) / TICK, "host_total_s": sum(values[:8]) / TICK,
             "cpus": os.cpu_count(), "launcher_s": cpu_seconds(pid), "engine_s": children_cpu_seconds(kids[:1]),
-            "api_s": children_cpu_seconds(kids[1:])}
+            "api_s": children_cpu_seconds(kids[1:]), "engine_threads_s": thread_seconds(kids[0]) if kids else {}}
+
+
+def thread_seconds(pid: int) -> dict[str, float]:
+    """CPU seconds of each of ``pid``'s threads, summed by thread name (a pool's threads, numbered,
+    under one name)."""
+    out: dict[str, float] = {}
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            name = open(f"/proc/{pid}/task/{tid}/comm").read().strip().rstrip("0123456789").rstrip("_")
+            out[name] = out.get(name, 0.0) + cpu_seconds(pid, int(tid))
+        except OSError:  # the thread ended meanwhile
+            continue
+    return out
+
+
+def thread_split(before: dict, after: dict, requests: int) -> dict[str, float]:
+    """The engine process's threads' CPU per request (µs), by name, busiest first."""
+    old, new = before.get("engine_threads_s", {}), after.get("engine_threads_s", {})
+    used = {name: (new[name] - old.get(name, 0.0)) / requests * 1e6 for name in new}
+    return dict(sorted(((n, u) for n, u in used.items() if u >= 0.5), key=lambda item: -item[1]))
 
 
 def diff(before: dict, after: dict, requests: int) -> None:
@@ -45,6 +71,8 @@ def diff(before: dict, after: dict, requests: int) -> None:
         print(f"{part}: {used / wall:.2f} CPUs{per}")
     if requests:
         print(f"host, all processes: {busy / requests * 1e6:.0f} µs a request")
+        split = thread_split(before, after, requests)
+        print("engine process by thread: " + ", ".join(f"{n} {u:.0f} µs" for n, u in split.items()))
 
 
 def main() -> None:

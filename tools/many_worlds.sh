@@ -49,12 +49,14 @@ for round in $(seq "$rounds"); do
   measure "r$round-new" "$new"
 done
 
-python3 - "$OUT" <<'PY'
+NEW_TREE=$new python3 - "$OUT" <<'PY'
 import glob, json, os, sys
 out = sys.argv[1]
 runs = sorted({os.path.basename(p).rsplit("-load", 1)[0] for p in glob.glob(f"{out}/*-load*.json")})
-print("| run | worlds | batches/s (sum) | worst p99 (ms) | errors | against 1 world | engine CPU a batch |")
-print("| --- | --- | --- | --- | --- | --- | --- |")
+sys.path.insert(0, os.path.join(os.environ["NEW_TREE"], "tools"))
+from cpu_use import thread_split
+print("| run | worlds | batches/s (sum) | worst p99 (ms) | errors | against 1 world | engine CPU a batch | by thread |")
+print("| --- | --- | --- | --- | --- | --- | --- | --- |")
 one = {}
 for run in runs:
     loads = []
@@ -72,12 +74,13 @@ for run in runs:
     if worlds == "1":
         one[build] = total
     ratio = f"{total / one[build]:.2f}x" if build in one and worlds != "1" else ""
-    engine = ""
+    engine = threads = ""
     try:
         before, after = (json.load(open(f"{out}/{run}-cpu-{when}.json")) for when in ("before", "after"))
         batches = sum(r["requests"] for r in loads)
         engine = f"{(after['engine_s'] - before['engine_s']) / batches * 1e6:.0f} us"
+        threads = ", ".join(f"{n} {u:.0f}" for n, u in thread_split(before, after, batches).items())
     except (OSError, ValueError, KeyError, ZeroDivisionError):
         pass
-    print(f"| {build} | {worlds} | {total:,.0f} | {p99:.1f} | {errors} | {ratio} | {engine} |")
+    print(f"| {build} | {worlds} | {total:,.0f} | {p99:.1f} | {errors} | {ratio} | {engine} | {threads} |")
 PY

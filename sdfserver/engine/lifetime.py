@@ -30,6 +30,7 @@ from sdfserver.engine.query import run_query
 from sdfserver.errors import NotReady, SdfServerError
 from sdfserver.geometry import Box
 from sdfserver.gpu import GpuContext
+from sdfserver.threadnames import name_os_thread
 from sdfserver.world import MAX_SIDE_VOX, World, WorldConfig
 
 log = logging.getLogger("sdfserver.engine")
@@ -138,6 +139,7 @@ class EngineLifetime:
         return True
 
     def _run(self, warm_up: bool) -> None:
+        name_os_thread()
         try:
             self._warm_up_once(warm_up)
             self._loop()

@@ -46,6 +46,7 @@ from sdfserver.engine import messages as msg
 from sdfserver.engine.answer_frames import framed, small
 from sdfserver.engine.gate import LinkGate, Peer
 from sdfserver.engine.service import EngineService, SubscriptionNews
+from sdfserver.threadnames import name_os_thread
 
 log = logging.getLogger("sdfserver.engine")
 IDLE_POLL_S = 0.05  # how often an idle thread looks at whether the transport is stopping
@@ -134,6 +135,7 @@ class EngineTransport:
     # -- input -----------------------------------------------------------------------------------
 
     def _read(self) -> None:
+        name_os_thread()
         selector = selectors.DefaultSelector()
         selector.register(self._input, selectors.EVENT_READ)
         buffer = bytearray(READ_BUFFER)
@@ -202,6 +204,7 @@ class EngineTransport:
     # -- output ----------------------------------------------------------------------------------
 
     def _write(self) -> None:
+        name_os_thread()
         selector = self._selector
         selector.register(self._wake, selectors.EVENT_READ, "wake")
         selector.register(self._output, selectors.EVENT_READ, "listen")

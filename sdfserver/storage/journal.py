@@ -38,6 +38,7 @@ import numpy as np
 
 from sdfserver.errors import NotFound, SdfServerError
 from sdfserver.storage.store import Storage, WorldStore
+from sdfserver.threadnames import name_os_thread
 
 log = logging.getLogger("sdfserver.storage")
 
@@ -53,7 +54,7 @@ class StorageJournal:
         self.stores: dict[str, WorldStore] = {}
         self.owners: dict[str, str | None] = {}
         self._snapshotting: dict[str, Future] = {}
-        self._snapshots = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sdfserver-snapshot")
+        self._snapshots = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sdfserver-snapshot", initializer=name_os_thread)
 
     def _store(self, world_id: str) -> WorldStore:
         try:

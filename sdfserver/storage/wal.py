@@ -50,6 +50,7 @@ from typing import Any, Callable, ContextManager
 from sdfserver.errors import WritesDisabled
 from sdfserver.storage.framing import encode_record, encode_segment_header
 from sdfserver.storage.fsutil import fsync_dir, write_atomic
+from sdfserver.threadnames import name_os_thread
 
 SEGMENT_PATTERN = "wal-*.log"
 SYNC_THREADS = 8
@@ -97,7 +98,8 @@ class Committer:
         self._settled = 0  # durable (or failed) and their futures completed
         self.syncs = 0  # fdatasync calls made
         self.records = 0  # records made durable
-        self._pool = ThreadPoolExecutor(max_workers=SYNC_THREADS, thread_name_prefix="sdfserver-fdatasync")
+        self._pool = ThreadPoolExecutor(max_workers=SYNC_THREADS, thread_name_prefix="sdfserver-fdatasync",
+                                        initializer=name_os_thread)
         # a round's futures are completed inside this: the engine process's transport sends the
         # acknowledgements they release together (EngineTransport.holding)
         self.completing: Callable[[], ContextManager[Any]] = contextlib.nullcontext
@@ -198,6 +200,7 @@ class Committer:
             return self._cond.wait_for(lambda: self._settled >= queued or self._closed, timeout_s)
 
     def _run(self) -> None:
+        name_os_thread()
         while True:
             with self._cond:
                 self._idle = True

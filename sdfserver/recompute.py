@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 import pyopencl as cl
 
-from sdfserver.algorithms.stats import AlgorithmStats
+from sdfserver.algorithms.stats import AlgorithmStats, summarize
 from sdfserver.geometry import Box
 
 if TYPE_CHECKING:
@@ -70,6 +70,17 @@ class PendingRecompute:
     version: int  # the version the field will reflect
     pieces: "Pieces | None" = None  # the work not yet enqueued; None: all of it is
     pieces_run: int = 0
+    # The worlds of a stacked run (``stacked.py``) share one list that holds their runs' summary
+    # once the first of them has made it: the same launches, the same share of each.
+    shared_summary: list | None = None
+
+    def summary(self) -> tuple[list[float], dict[str, AlgorithmStats]]:
+        """``stats.summarize`` of the runs (the device done with them), made once for a stacked run."""
+        if self.shared_summary is None:
+            return summarize(self.runs)
+        if not self.shared_summary:
+            self.shared_summary.append(summarize(self.runs))
+        return self.shared_summary[0]
 
     @property
     def in_pieces(self) -> bool:

@@ -39,12 +39,14 @@ class Stacked:
             job = self._prepared[STACKING_JOB] = RegionJob.seeded_region(self.buffers, self.world_box, cfg.max_distance)
         return job
 
-    def begin_stacked(self, run: AlgorithmRun) -> "PendingRecompute":
+    def begin_stacked(self, run: AlgorithmRun, shared_summary: list) -> "PendingRecompute":
         """``begin_recompute`` for a world whose transform ``run`` (its share of a stacked run)
-        has been enqueued for it: after ``stacking_job`` said it can join one."""
+        has been enqueued for it: after ``stacking_job`` said it can join one. ``shared_summary``:
+        the run's worlds' one list for its summary (``PendingRecompute.summary``)."""
         start = time.perf_counter()
         self.dirty.clear()
-        return PendingRecompute(self, [self.world_box], [("exact", run)], start, self.version)
+        return PendingRecompute(self, [self.world_box], [("exact", run)], start, self.version,
+                                shared_summary=shared_summary)
 
 
 def begin_stacked(gpu: GpuContext, worlds: dict[str, "World"]) -> dict[str, PendingRecompute]:
@@ -64,7 +66,8 @@ def begin_stacked(gpu: GpuContext, worlds: dict[str, "World"]) -> dict[str, Pend
         _, first, job = members[0]
         slots = [world.slot.index for _, world, _ in members]
         run = ALGORITHMS["exact"].run_slots(gpu, first.slot.pool, slots, job)
-        share, times, moved = 1.0 / len(members), [], bytes_moved(job)
+        shared = AlgorithmRun(run.events, bytes_moved=bytes_moved(job), share=1.0 / len(members))
+        summary: list = []
         for world_id, world, _ in members:
-            pending[world_id] = world.begin_stacked(AlgorithmRun(run.events, bytes_moved=moved, share=share, times=times))
+            pending[world_id] = world.begin_stacked(shared, summary)
     return pending

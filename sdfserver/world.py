@@ -34,7 +34,6 @@ from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, WorldBuffers
 from sdfserver.algorithms.base import WORK_PLANE_PAD, Pieces, int4, prepared, run_pieces
 from sdfserver.algorithms.euclidean import EUCLIDEAN_EXACT, StageBoxes
 from sdfserver.algorithms.region_jobs import region_jobs
-from sdfserver.algorithms.stats import summarize
 from sdfserver.recompute import PendingRecompute, RecomputeResult
 from sdfserver.recompute_cost import visits_per_voxel
 from sdfserver.small_edits import SmallEdits
@@ -123,6 +122,7 @@ class World(SmallEdits, Stacked):
             bulk.fill(gpu, self.buffers.field, np.uint16, config.max_distance << 8, self.voxel_count)
         gpu.queue.finish()
         self._dims_int4 = int4(config.size)
+        self._world_box = Box.of_size(config.size)
         self.dirty = DirtySet()  # what edits may have changed since the last recompute
         # dirty regions -> their runs, prepared (_launches); emptied when the configuration changes
         self._prepared: dict[tuple[Box, ...], list[tuple[str, Callable[[], AlgorithmRun]]]] = {}
@@ -284,7 +284,7 @@ class World(SmallEdits, Stacked):
 
     @property
     def world_box(self) -> Box:
-        return Box.of_size(self.config.size)
+        return self._world_box
 
     def dirty_regions(self) -> list[Box]:
         """The regions the next recompute will rewrite."""
@@ -360,7 +360,7 @@ class World(SmallEdits, Stacked):
         if not device_done:
             self.gpu.queue.finish()
         self.field_version = pending.version
-        each, by_algorithm = summarize(pending.runs)
+        each, by_algorithm = pending.summary()
         self.last_recompute = RecomputeResult(pending.regions, self.config.chunk_size, sum(each),
                                               (time.perf_counter() - pending.started) * 1e3,
                                               sum(run.iterations for _, run in pending.runs), each, by_algorithm)

@@ -140,9 +140,6 @@ class AlgorithmRun:
     # The part of its launches' device time that is this run's: a stacked run's launches serve
     # several worlds (Exact.run_slots), each of which counts its share.
     share: float = 1.0
-    # Its launches' kernel times once read (stats.summarize): the worlds of a stacked run share
-    # one list, so the events' profiling is asked once.
-    times: list[float] | None = None
 
     @property
     def iterations(self) -> int:

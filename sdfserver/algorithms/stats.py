@@ -40,12 +40,7 @@ def summarize(runs: list[tuple[str, AlgorithmRun]]) -> tuple[list[float], dict[s
     kernel_ms: list[float] = []
     by_name: dict[str, AlgorithmStats] = {}
     for name, run in runs:
-        if run.times is None:
-            each = [event_ms(e) or 0.0 for e in run.events]
-        else:
-            if len(run.times) != len(run.events):
-                run.times[:] = [event_ms(e) or 0.0 for e in run.events]
-            each = run.times
+        each = [event_ms(e) or 0.0 for e in run.events]
         if run.share != 1.0:
             each = [t * run.share for t in each]
         kernel_ms.extend(each)

@@ -10,8 +10,12 @@ kernels/, untracked):
 
 Variants (``--variants``, comma-separated): ``jfa`` (World.recompute, as the bench times it);
 ``w0:XxYxZ`` or ``w1:XxYxZ`` (the weight-0 or the weighted passes in work-groups of that shape;
-``:scalar`` for a voxel a work-item); ``before`` (``--before``'s kernels, with their arguments and
-work-groups of 8x4x4, one launch each for its seed set-up and resolve).
+``:scalar`` for a voxel a work-item, ``:bXYZ`` for blocks of X groups of four along x, Y
+and Z voxels along y and z, a stride apart, e.g. ``:b222``; ``:k=FILE`` for jfa.cl's kernels
+built from another file in kernels/); ``before`` (``--before``'s kernels, with their arguments and
+work-groups of 8x4x4, one launch each for its seed set-up and resolve); ``head`` (today's flood
+with ``--head``'s kernel file in place of jfa.cl, e.g. ``git show HEAD:kernels/jfa.cl >
+kernels/jfa_head.cl``, one voxel along y and z an item).
 """
 
 from __future__ import annotations
@@ -47,24 +51,42 @@ def flood_before(gpu: GpuContext, job: RegionJob, run: AlgorithmRun, filename: s
     run.events.append(kernel(filename, "jfa_resolve")(gpu.queue, gsize, lsize, b.work, src, b.work2, w_n, cap))
 
 
-def variant(spec: str, before: str | None) -> Callable[[GpuContext, RegionJob, AlgorithmRun], None] | None:
+def with_kernel_file(gpu: GpuContext, filename: str, body: Callable[[], None]) -> None:
+    """``body`` with jfa.cl's kernels built from ``filename`` (in kernels/) instead."""
+    kernel = gpu.programs.kernel
+    gpu.programs.kernel = lambda f, name, **defines: kernel(filename if f == "jfa.cl" else f, name, **defines)
+    try:
+        body()
+    finally:
+        gpu.programs.kernel = kernel
+
+
+def variant(spec: str, before: str | None, head: str | None = None
+            ) -> Callable[[GpuContext, RegionJob, AlgorithmRun], None] | None:
     """The flood ``spec`` names (None: ``jfa``, timed through the World)."""
     if spec == "jfa":
         return None
+    if spec == "head":
+        if head is None:
+            raise SystemExit("variant 'head' needs --head FILE (a kernel file in kernels/)")
+        return lambda gpu, job, run: with_kernel_file(gpu, head, lambda: run_whole(
+            flood(gpu, job, run, job.buffers.work2, layout=PassLayout(block=(1, 1, 1)))))
     if spec == "before":
         if before is None:
             raise SystemExit("variant 'before' needs --before FILE (a kernel file in kernels/)")
         return lambda gpu, job, run: flood_before(gpu, job, run, before)
     weights, shape, *flags = spec.split(":")
-    layout = PassLayout(tuple(int(v) for v in shape.split("x")), "scalar" not in flags)
-    return lambda gpu, job, run: run_whole(flood(gpu, job, run, job.buffers.work2, weighted=weights == "w1",
-                                                 layout=layout))
+    block = next((tuple(int(c) for c in f[1:]) for f in flags if f.startswith("b") and len(f) == 4), (1, 1, 1))
+    layout = PassLayout(tuple(int(v) for v in shape.split("x")), "scalar" not in flags, block)
+    filename = next((f[2:] for f in flags if f.startswith("k=")), "jfa.cl")
+    return lambda gpu, job, run: with_kernel_file(gpu, filename, lambda: run_whole(
+        flood(gpu, job, run, job.buffers.work2, weighted=weights == "w1", layout=layout)))
 
 
 def time_variant(gpu: GpuContext, world: World, spec: str, before: str | None,
-                 reps: int) -> tuple[list, list, np.ndarray]:
+                 reps: int, head: str | None = None) -> tuple[list, list, np.ndarray]:
     """Device ms of each rep, the last rep's launches (ms), and the field's distances."""
-    run_flood = variant(spec, before)
+    run_flood = variant(spec, before, head)
     times, launches = [], []
     for _ in range(reps + 1):
         if run_flood is None:
@@ -90,6 +112,7 @@ def main() -> None:
     p.add_argument("--sizes", default="256,512")
     p.add_argument("--reps", type=int, default=7)
     p.add_argument("--before", default=None, help="a kernel file in kernels/ with the old jfa.cl")
+    p.add_argument("--head", default=None, help="a kernel file in kernels/ with another jfa.cl (variant 'head')")
     p.add_argument("--variants", default=None,
                    help="default: before (with --before), jfa, w0:16x4x2:scalar, w1:16x4x2")
     p.add_argument("--json", default=None, help="write every figure here")
@@ -111,7 +134,7 @@ def main() -> None:
             finally:
                 reference.release()
             for spec in specs:
-                times, launches, field = time_variant(gpu, world, spec, args.before, args.reps)
+                times, launches, field = time_variant(gpu, world, spec, args.before, args.reps, args.head)
                 error = field.astype(np.int32) - truth
                 row = {"size": n, "variant": spec, "median_ms": statistics.median(times), "min_ms": min(times),
                        "times_ms": times, "launches_ms": launches, "exact_share": float((error == 0).mean()),

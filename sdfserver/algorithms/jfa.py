@@ -15,9 +15,10 @@ Kernel: kernels/jfa.cl (+ region.cl), one launch a pass: the first finds the
 seeds in the initial distances, the last writes distances. Where every seed is
 a solid (a whole world, a halo, padded chunks: ``seeds_weigh_nothing``) a
 candidate's cost is its offset's length and no weight is read, and a work-item
-takes four voxels along x; otherwise the passes read the winning seeds'
-weights, a voxel an item. Both find the same seeds, in the same order, with the
-same ties. Scratch: two uint nearest-seed buffers (WorldBuffers.seeds/seeds2,
+takes a block of voxels a step apart (up to 2 x 2 x 2 groups of four along x),
+whose shared rows of neighbours it reads once; otherwise the passes read the
+winning seeds' weights, a voxel an item. Both find the same seeds, in the same
+order, with the same ties. Scratch: two uint nearest-seed buffers (WorldBuffers.seeds/seeds2,
 8 bytes per voxel), held only by worlds that flood.
 A box that fits one work-group's local memory floods there in one launch, with
 the same passes and ties (one_launch.py).
@@ -77,15 +78,58 @@ def seeds_weigh_nothing(job: RegionJob) -> bool:
 
 @dataclass(frozen=True)
 class PassLayout:
-    """How a pass's work-items cover the box: ``group`` items a work-group (x, y, z), and with
-    ``vector`` four voxels along x an item where the job allows it (weight 0, the x side and
-    the chunk multiples of 4)."""
+    """How a pass's work-items cover the box: ``group`` items a work-group (x, y, z); with
+    ``vector`` groups of four voxels along x where the job allows it (weight 0, the x side and
+    the chunk multiples of 4), and then ``block`` of them along x, y and z (1 or 2 each, a
+    stride apart: jfa.cl), which read the rows of neighbours they share once and share the
+    arithmetic on each seed read."""
 
     group: tuple[int, int, int] = (16, 4, 2)
     vector: bool = True
+    block: tuple[int, int, int] = (2, 2, 2)
+
+
+def block_items(side: int, stride: int, per_item: int) -> int:
+    """Work-items along an axis of ``side`` (voxels, or groups of four along x) with
+    ``per_item`` (1 or 2) an item a ``stride`` apart: item j starts at j // stride * 2 *
+    stride + j % stride (jfa.cl's BLOCK_FIRST)."""
+    if per_item == 1:
+        return side
+    return side // (2 * stride) * stride + min(side % (2 * stride), stride)
+
+
+def pass_block(layout: PassLayout, shape_xyz: tuple[int, int, int], step: int,
+               chunk: int) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+    """The block of a pass of ``step`` and the work-items that cover the box with it: the
+    layout's, but 1 along an axis where two a stride apart would not share a chunk or the box
+    has no second, and along x below a step of 4 (two groups of four side by side share reads
+    but no arithmetic, and took longer than one)."""
+    strides = (max(step, 4), step, step)  # x: a group of four, or the step when it is longer
+    block, items = [], []
+    for axis, (want, side, stride) in enumerate(zip(layout.block, shape_xyz, strides)):
+        fits = step > 0 and side > stride and (chunk == 0 or chunk % (2 * stride) == 0)
+        block.append(want if fits and (axis > 0 or step >= 4) else 1)
+    for axis, (side, stride) in enumerate(zip((shape_xyz[0] // 4, *shape_xyz[1:]), (strides[0] // 4, step, step))):
+        items.append(block_items(side, stride, block[axis]))
+    return tuple(block), tuple(items)
 
 
 LAYOUT = PassLayout()
+
+
+def pass_kernel(gpu: GpuContext, shape_xyz: tuple[int, int, int], step: int, chunk: int, layout: PassLayout,
+                vector: bool, weighted: bool, wide: int, first: bool, last: bool) -> tuple[cl.Kernel, tuple, tuple]:
+    """One pass's kernel, global and local sizes: with ``vector``, groups of four voxels along x
+    in ``layout``'s blocks (weight 0 only), else a voxel an item."""
+    if vector:
+        block, items = pass_block(layout, shape_xyz, step, chunk)
+        name, defines = "jfa_seed_pass4", dict(zip(("JFA_BX", "JFA_BY", "JFA_BZ"), block))
+    else:
+        items, name, defines = shape_xyz, "jfa_seed_pass", {}
+    gsize, lsize = grid(items, layout.group)
+    kernel = gpu.programs.kernel("jfa.cl", name, JFA_STEP=step, JFA_WEIGHTED=int(weighted), JFA_WIDE=wide,
+                                 JFA_FIRST=int(first), JFA_LAST=int(last), **defines)
+    return kernel, gsize, lsize
 
 
 def flood(gpu: GpuContext, job: RegionJob, run: AlgorithmRun, out: cl.Buffer, extra_passes: int = 0,
@@ -104,17 +148,15 @@ def flood(gpu: GpuContext, job: RegionJob, run: AlgorithmRun, out: cl.Buffer, ex
     w_n, cap, chunk = int4(shape), np.int32(job.cap), np.int32(job.chunk)
     steps = step_sizes(job, extra_passes)
     passes = steps or [0]  # a box too small for any pass: one that only finds and resolves the seeds
-    wide = int(max(passes) * (shape[0] * shape[1] + shape[0] + 1) >= 2 ** 31)
+    wide = int(2 * max(passes) * (shape[0] * shape[1] + shape[0] + 1) >= 2 ** 31)  # a block reaches 2 steps
     vector = layout.vector and not weighted and shape[0] % 4 == 0 and job.chunk % 4 == 0
-    name, per_item_x = ("jfa_seed_pass4", 4) if vector else ("jfa_seed_pass", 1)
-    gsize, lsize = grid((-(-shape[0] // per_item_x), shape[1], shape[2]), layout.group)
-    pace = None if piece_s is None else SlabPace(piece_s, lsize[2])
+    pace = None if piece_s is None else SlabPace(piece_s, layout.group[2])
     src, dst = b.seeds, b.seeds2
     for n, step in enumerate(passes):
-        seed_pass = gpu.programs.kernel("jfa.cl", name, JFA_STEP=step, JFA_WEIGHTED=int(weighted), JFA_WIDE=wide,
-                                        JFA_FIRST=int(n == 0), JFA_LAST=int(n == len(passes) - 1))
+        seed_pass, gsize, lsize = pass_kernel(gpu, shape, step, job.chunk, layout, vector, weighted, wide,
+                                              first=n == 0, last=n == len(passes) - 1)
 
-        def launch(z0: int, planes: int, src=src, dst=dst) -> cl.Event:
+        def launch(z0: int, planes: int, src=src, dst=dst, gsize=gsize, lsize=lsize) -> cl.Event:
             return seed_pass(gpu.queue, (gsize[0], gsize[1], planes), lsize, b.work, src, dst, out, w_n,
                              cap, chunk, global_offset=(0, 0, z0))
         yield from slabs(run, launch, gsize[2], pace)

@@ -87,6 +87,10 @@ class PassLayout:
     group: tuple[int, int, int] = (16, 4, 2)
     vector: bool = True
     block: tuple[int, int, int] = (2, 2, 2)
+    # Blocks only where a pass without them has at least this many work-items: below it the
+    # device is not full, and an item's longer run is the pass's time (a 32³ flood took 1.7x
+    # as long in blocks).
+    min_items: int = 0
 
 
 def block_items(side: int, stride: int, per_item: int) -> int:
@@ -103,18 +107,20 @@ def pass_block(layout: PassLayout, shape_xyz: tuple[int, int, int], step: int,
     """The block of a pass of ``step`` and the work-items that cover the box with it: the
     layout's, but 1 along an axis where two a stride apart would not share a chunk or the box
     has no second, and along x below a step of 4 (two groups of four side by side share reads
-    but no arithmetic, and took longer than one)."""
+    but no arithmetic, and took longer than one); none in a box of fewer than
+    ``layout.min_items`` groups of four."""
     strides = (max(step, 4), step, step)  # x: a group of four, or the step when it is longer
     block, items = [], []
+    large = shape_xyz[0] // 4 * shape_xyz[1] * shape_xyz[2] >= layout.min_items
     for axis, (want, side, stride) in enumerate(zip(layout.block, shape_xyz, strides)):
-        fits = step > 0 and side > stride and (chunk == 0 or chunk % (2 * stride) == 0)
+        fits = large and step > 0 and side > stride and (chunk == 0 or chunk % (2 * stride) == 0)
         block.append(want if fits and (axis > 0 or step >= 4) else 1)
     for axis, (side, stride) in enumerate(zip((shape_xyz[0] // 4, *shape_xyz[1:]), (strides[0] // 4, step, step))):
         items.append(block_items(side, stride, block[axis]))
     return tuple(block), tuple(items)
 
 
-LAYOUT = PassLayout()
+LAYOUT = PassLayout(min_items=1 << 18)  # about what an H100 or H200 holds at once
 
 
 def pass_kernel(gpu: GpuContext, shape_xyz: tuple[int, int, int], step: int, chunk: int, layout: PassLayout,

@@ -88,3 +88,6 @@ def test_blocks_cut_short_at_the_far_edges():
     # A side no longer than the stride, or a padded chunk that is not a multiple of twice it: 1.
     assert jfa.pass_block(jfa.PassLayout(block=(2, 2, 2)), (12, 70, 9), 64, 0) == ((1, 2, 1), (3, 64, 9))
     assert jfa.pass_block(jfa.PassLayout(block=(2, 2, 2)), (48, 48, 48), 8, 8) == ((1, 1, 1), (12, 48, 48))
+    # a box too small to fill the device takes no blocks (the default layout)
+    assert jfa.pass_block(jfa.LAYOUT, (64, 64, 64), 8, 0) == ((1, 1, 1), (16, 64, 64))
+    assert jfa.pass_block(jfa.LAYOUT, (128, 128, 128), 8, 0)[0] == (2, 2, 2)

@@ -120,8 +120,8 @@ def install_engine_steps(events: list, clock) -> None:
     from sdfserver.engine.reads import Reads
     from sdfserver.engine.service import EngineService
     from sdfserver.engine.subscriptions import Subscriptions
+    from sdfserver.storage.committer import Committer
     from sdfserver.storage.journal import StorageJournal
-    from sdfserver.storage.wal import Committer
     from sdfserver.world import World
 
     def mark(name):

@@ -102,6 +102,10 @@ class BatchPipeline:
         launch_ms, applied, pooled = 0.0, [], []
         try:
             for world_id, world, items, durable in journaled:
+                if durable is not None and durable.done() and durable.exception() is not None:
+                    for _, future, _ in items:  # its log record failed before it was applied
+                        self.reject(future, durable.exception(), report)
+                    continue
                 launch = time.perf_counter()
                 try:  # the step's brushes in few launches; pooled worlds' last ones after the loop
                     versions = world.apply_plans([plan for _, _, plan in items], pooled)

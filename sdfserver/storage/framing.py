@@ -62,7 +62,7 @@ class SegmentScan:
         return self.records[-1][0] if self.records else self.base_version
 
 
-def _record_at(data: memoryview, offset: int) -> tuple[int, int, str]:
+def record_at(data: memoryview, offset: int) -> tuple[int, int, str]:
     """(version, end offset, "") for a valid record at ``offset``, else (0, 0, why not)."""
     if len(data) - offset < RECORD_HEADER.size:
         return 0, 0, f"{len(data) - offset} bytes left, too short for a record header"
@@ -97,7 +97,7 @@ def _valid_record_after(data: memoryview, start: int, min_version: int) -> int |
                      & (version <= np.uint64(max_version)))
         for candidate in np.flatnonzero(plausible):  # CRC-check plausible headers only
             offset = first + int(candidate)
-            if _record_at(data, offset)[2] == "":
+            if record_at(data, offset)[2] == "":
                 return offset
     return None
 
@@ -116,7 +116,7 @@ def scan_segment(data: bytes, path: str, expected_base: int | None = None) -> Se
     offset = SEGMENT_HEADER.size
     expected = base + 1
     while offset < len(view):
-        version, end, why = _record_at(view, offset)
+        version, end, why = record_at(view, offset)
         if why:
             later = _valid_record_after(view, offset, expected)
             if later is not None:

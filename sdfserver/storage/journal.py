@@ -43,6 +43,18 @@ from sdfserver.threadnames import name_os_thread
 log = logging.getLogger("sdfserver.storage")
 
 
+def _settle(durable: Future, step: list[tuple[WorldStore, list, Future]]) -> None:
+    """Complete each world's future of a step once its record is durable: with the record's
+    error, or the world's fence (another engine took it), else done."""
+    error = durable.exception()
+    for store, _, future in step:
+        refusal = error or store.check_fence()
+        if refusal is None:
+            future.set_result(None)
+        else:
+            future.set_exception(refusal)
+
+
 class StorageJournal:
     def __init__(self, storage: Storage, *, snapshot_every_batches: int = 5000,
                  snapshot_min_interval_s: float = 0.0, clock: Callable[[], float] = time.monotonic):
@@ -54,6 +66,7 @@ class StorageJournal:
         self.stores: dict[str, WorldStore] = {}
         self.owners: dict[str, str | None] = {}
         self._snapshotting: dict[str, Future] = {}
+        self._step: list[tuple[WorldStore, list, Future]] = []  # record_batches since start_syncs
         self._snapshots = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sdfserver-snapshot", initializer=name_os_thread)
 
     def _store(self, world_id: str) -> WorldStore:
@@ -78,9 +91,26 @@ class StorageJournal:
 
     def record_batches(self, world_id: str, first_version: int,
                        batches: list[list[dict[str, Any]] | bytes]) -> Future:
-        return self._store(world_id).append_many(first_version, batches, wake=False)  # see start_syncs
+        store = self._store(world_id)
+        if self.storage.steps is None:
+            return store.append_many(first_version, batches, wake=False)  # see start_syncs
+        payloads = store.append_unsynced(first_version, batches)  # durable with the step's record
+        future: Future = Future()
+        self._step.append((store, [world_id, store.epoch, first_version, payloads], future))
+        return future
 
     def start_syncs(self, wait: bool = True) -> None:
+        """The step's batches to the committer: with the step log, one record of every world's
+        (each world's future completes with that record's sync, or fails with its world's fence)."""
+        step, self._step = self._step, []
+        if step:
+            try:
+                durable = self.storage.steps.append([entry for _, entry, _ in step], [s.log for s, _, _ in step])
+            except Exception as exc:  # not durable: the engine applies none of them (BatchPipeline.run)
+                for _, _, future in step:
+                    future.set_exception(exc)
+                return
+            durable.add_done_callback(lambda done: _settle(done, step))
         self.storage.committer.hand_over(wait)
 
     def wait_durable(self, timeout_s: float) -> bool:

@@ -7,6 +7,8 @@ Layout::
       worlds/<world id>/snap-<version>.sdfsnap  the latest snapshot of its voxels
       worlds/<world id>/wal-<base>-e<epoch>.log log segments, records after <base>
       worlds/<world id>/epoch                   the epoch of the engine that holds the world
+      steps/steps-<n>.log                       the step log: every world's batches of a step,
+                                                synced once for all (``steplog.py``)
 
 A world exists exactly when its directory holds ``world.json``. Creation builds the
 directory under a temporary name and renames it into place (a failure removes the
@@ -58,9 +60,9 @@ from sdfserver.storage.codec import encode_batch
 from sdfserver.storage.fsutil import fsync_dir, write_atomic
 from sdfserver.storage.recovery import Recovered, recover_world
 from sdfserver.storage.snapshot import SNAPSHOT_PATTERN, remove_snapshot_files, write_snapshot
-from sdfserver.storage.wal import (
-    SEGMENT_LIMIT_BYTES, SEGMENT_PATTERN, Committer, SyncError, WorldLog, segment_epoch,
-)
+from sdfserver.storage.steplog import STEP_DIR, StepLog, replay
+from sdfserver.storage.committer import Committer, SyncError
+from sdfserver.storage.wal import SEGMENT_LIMIT_BYTES, SEGMENT_PATTERN, WorldLog, history_order, segment_epoch
 
 log = logging.getLogger("sdfserver.storage")
 DEFAULT_DATA_DIR = "data"  # relative to the working directory; see docs/configuration.md
@@ -113,6 +115,14 @@ class WorldStore:
         future = self.log.append_many(first_version, [encode_batch(b) for b in batches_wire], wake=wake)
         self.records_since_snapshot += len(batches_wire)
         return future
+
+    def append_unsynced(self, first_version: int, batches_wire: list[Any]) -> list[bytes]:
+        """Log consecutive batches with one write and no sync (the step log makes them durable:
+        ``steplog.py``); returns their payloads."""
+        payloads = [encode_batch(b) for b in batches_wire]
+        self.log.append_unsynced(first_version, payloads)
+        self.records_since_snapshot += len(batches_wire)
+        return payloads
 
     def snapshot(self, version: int, config: dict[str, Any], voxels: np.ndarray) -> None:
         """Persist the voxels at ``version`` and trim the log to the records after it.
@@ -171,9 +181,15 @@ class Storage:
         try:  # the opening's number: an engine's epoch, one more each time it starts
             self.epoch = _read_epoch(self.data_dir) + 1
             write_atomic(self.data_dir / EPOCH_FILE, f"{self.epoch}\n".encode())
+            replay(self.data_dir / STEP_DIR, self.worlds_dir)  # before any world's log is read
+            # the step log only where batches are synced: without syncs there is nothing to share
+            self.steps = StepLog(self.data_dir / STEP_DIR, self.committer, self.epoch) if sync else None
         except OSError as exc:
             self.committer.close()
-            raise StorageError(f"cannot write {self.data_dir / EPOCH_FILE}: {exc}") from None
+            raise StorageError(f"cannot open the data directory {self.data_dir}: {exc}") from None
+        except BaseException:
+            self.committer.close()
+            raise
 
     def moved(self) -> SyncError | None:
         """Why the data directory is no longer the one opened (deleted, replaced), or None."""
@@ -270,6 +286,7 @@ class Storage:
         except OSError as exc:
             raise StorageError(f"cannot take world {world_id!r} in {directory}: {exc}") from None
         recovered = recover_world(directory)
+        _sync_newest(directory)  # what its last holder wrote and had not synced yet (steplog.py)
         if recovered.fenced_records:
             log.warning("world %s: ignored %d log records written by an engine after another took the world "
                         "over (none of them was acknowledged)", world_id, recovered.fenced_records)
@@ -291,6 +308,10 @@ class Storage:
         here = self._dir(world_id)
         if not here.exists():
             self._move(Path(source) / "worlds" / check_world_id(world_id), here)
+        try:  # what the holder acknowledged from its step log and had not synced in the world's own
+            replay(Path(source) / STEP_DIR, self.worlds_dir, only_world=world_id)
+        except OSError as exc:
+            raise StorageError(f"cannot read the step log of {source}: {exc}") from None
 
     def _move(self, origin: Path, target: Path) -> None:
         self.check()
@@ -345,7 +366,11 @@ class Storage:
             log.warning("world %s is deleted but %s could not be removed: %s", world_id, doomed, exc)
 
     def close(self) -> None:
-        self.committer.close()
+        try:
+            if self.steps is not None:
+                self.steps.close()
+        finally:
+            self.committer.close()
 
 
 def _identity(st: os.stat_result) -> tuple[int, int]:
@@ -370,6 +395,16 @@ def _truncate(path: Path, length: int) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+def _sync_newest(directory: Path) -> None:
+    newest = max(directory.glob(SEGMENT_PATTERN), key=history_order, default=None)
+    if newest is not None:
+        fd = os.open(newest, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 def _read_epoch(directory: Path) -> int:

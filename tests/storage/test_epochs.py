@@ -7,6 +7,7 @@ import pytest
 from sdfserver.errors import NotFound, WorldFenced
 from sdfserver.storage import Storage, batch_parts, decode_batch
 from sdfserver.storage.framing import encode_record
+from sdfserver.storage.recovery import recover_world
 from sdfserver.storage.wal import segment_epoch
 
 CONFIG = {"size": [8, 8, 16], "chunk_size": 8, "max_distance": 255, "algorithm": "exact"}
@@ -22,13 +23,9 @@ def two(tmp_path):
 
 
 def written(storage: Storage, world_id: str = "w") -> list[tuple[int, bytes]]:
-    fresh = Storage(storage.data_dir)
-    try:
-        store, recovered = fresh.open_world(world_id)
-        store.close()
-        return recovered.records
-    finally:
-        fresh.close()
+    """What a start would recover of the world (read only: a second Storage may not open a data
+    directory that one holds, as the engine's lock ensures)."""
+    return recover_world(storage.worlds_dir / world_id).records
 
 
 def fill(store, versions, tag=b"a"):
@@ -125,7 +122,7 @@ def test_an_older_epochs_torn_tail_before_a_newer_epoch_is_not_damage(tmp_path):
     storage.close()
     assert [p for _, p in written(storage)] == [b"a1", b"a2", b"n3", b"n4"]
     segments = sorted((tmp_path / "data" / "worlds" / "w").glob("wal-*"), key=segment_epoch)
-    assert [segment_epoch(s) for s in segments] == [1, 2, 3]
+    assert [segment_epoch(s) for s in segments] == [1, 2]
 
 
 def test_batch_ids_survive_a_move(two):

@@ -10,7 +10,7 @@ import pytest
 
 from sdfserver.errors import CorruptData, InvalidInput, NotFound, WritesDisabled
 from sdfserver.storage import Storage, decode_batch
-from sdfserver.storage import wal
+from sdfserver.storage import committer, wal
 from sdfserver.storage.framing import encode_record
 from sdfserver.storage.wal import segment_base, segment_name
 
@@ -234,7 +234,7 @@ def test_group_commit_shares_syncs(storage, monkeypatch):
 
 
 def test_hand_over_returns_once_an_idle_committer_has_taken_every_world(storage, monkeypatch):
-    monkeypatch.setattr(wal, "HANDOVER_TIMEOUT_S", 30.0)  # a slow CI machine still hands over
+    monkeypatch.setattr(committer, "HANDOVER_TIMEOUT_S", 30.0)  # a slow CI machine still hands over
     stores = [storage.create_world(name, {"config": CONFIG}) for name in "abc"]
     for version in range(1, 11):
         durable = [store.append_many(version, [b"batch"], wake=False) for store in stores]
@@ -251,7 +251,7 @@ def test_hand_over_returns_once_an_idle_committer_has_taken_every_world(storage,
 def test_a_round_of_syncs_completes_its_futures_inside_one_completing_block(storage, monkeypatch):
     """The engine process sends the acknowledgements a round releases together, as that block
     ends (EngineTransport.holding): every future of the round completes inside one block."""
-    monkeypatch.setattr(wal, "HANDOVER_TIMEOUT_S", 30.0)
+    monkeypatch.setattr(committer, "HANDOVER_TIMEOUT_S", 30.0)
     blocks, inside = [], threading.local()
 
     @contextlib.contextmanager

@@ -31,9 +31,10 @@ def snap(pid: int) -> dict:
     values = [int(v) for v in cpu]
     idle = values[3] + values[4]  # idle + iowait
     kids = children(pid)
-    return {"at": time.monotonic(), "host_busy_s": (sum(values[:8]) - idle) / TICK, "host_total_s": sum(values[:8]) / TICK,
-            "cpus": os.cpu_count(), "launcher_s": cpu_seconds(pid), "engine_s": children_cpu_seconds(kids[:1]),
-            "api_s": children_cpu_seconds(kids[1:]), "engine_threads_s": thread_seconds(kids[0]) if kids else {}}
+    return {"at": time.monotonic(), "host_busy_s": (sum(values[:8]) - idle) / TICK,
+            "host_total_s": sum(values[:8]) / TICK, "cpus": os.cpu_count(), "launcher_s": cpu_seconds(pid),
+            "engine_s": children_cpu_seconds(kids[:1]), "api_s": children_cpu_seconds(kids[1:]),
+            "engine_threads_s": thread_seconds(kids[0]) if kids else {}}
 
 
 def thread_seconds(pid: int) -> dict[str, float]:

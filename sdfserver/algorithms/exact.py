@@ -36,8 +36,8 @@ RUNS_KEPT_PER_POOL = 64  # stacked runs' arguments kept per pool (subsets of its
 
 @dataclass(frozen=True)
 class PassShape:
-    """How one pass cuts its lines: measured with tools/tune_exact.py (docs/benchmarks.md). With the carries scanned in log2(segments) steps,
-    32 segments of 16 won in every pass; the y pass sweeps 8 x-columns per work-item, the z pass
+    """How one pass cuts its lines: measured with tools/tune_exact.py (docs/benchmarks.md). With
+    the carries scanned in log2(segments) steps, 32 segments of 16 won in every pass; the y pass sweeps 8 x-columns per work-item, the z pass
     (rows a whole slice apart) 4. Four x-lanes a work-group won everywhere but in the z pass of
     lines of 1024 and more, where eight do (a warp then reads whole 32-byte sectors of a row)."""
 

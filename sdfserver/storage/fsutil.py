@@ -18,6 +18,26 @@ def fsync_dir(path: str | os.PathLike) -> None:
         os.close(fd)
 
 
+def fsync_file(path: str | os.PathLike) -> None:
+    """Make what was written to ``path`` so far durable."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def truncate_durably(path: str | os.PathLike, length: int) -> None:
+    """Cut ``path`` to ``length`` bytes (a torn last record: what a crash in the middle of an
+    append left), durably."""
+    fd = os.open(path, os.O_WRONLY)
+    try:
+        os.ftruncate(fd, length)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
 def write_atomic(path: str | os.PathLike, data: bytes | memoryview) -> None:
     """Write ``data`` to ``path`` so that a crash leaves the old file or the new one, whole."""
     path = Path(path)

@@ -67,7 +67,8 @@ class StorageJournal:
         self.owners: dict[str, str | None] = {}
         self._snapshotting: dict[str, Future] = {}
         self._step: list[tuple[WorldStore, list, Future]] = []  # record_batches since start_syncs
-        self._snapshots = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sdfserver-snapshot", initializer=name_os_thread)
+        self._snapshots = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sdfserver-snapshot",
+                                             initializer=name_os_thread)
 
     def _store(self, world_id: str) -> WorldStore:
         try:

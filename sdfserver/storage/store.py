@@ -7,7 +7,7 @@ Layout::
       worlds/<world id>/snap-<version>.sdfsnap  the latest snapshot of its voxels
       worlds/<world id>/wal-<base>-e<epoch>.log log segments, records after <base>
       worlds/<world id>/epoch                   the epoch of the engine that holds the world
-      steps/steps-<n>.log                       the step log: every world's batches of a step,
+      steps/steps-<opening>-<n>.log             the step log: every world's batches of a step,
                                                 synced once for all (``steplog.py``)
 
 A world exists exactly when its directory holds ``world.json``. Creation builds the
@@ -57,11 +57,11 @@ import numpy as np
 
 from sdfserver.errors import CorruptData, InvalidInput, NotFound, StorageError, WorldFenced, WritesDisabled
 from sdfserver.storage.codec import encode_batch
-from sdfserver.storage.fsutil import fsync_dir, write_atomic
+from sdfserver.storage.committer import Committer, SyncError
+from sdfserver.storage.fsutil import fsync_dir, fsync_file, truncate_durably, write_atomic
 from sdfserver.storage.recovery import Recovered, recover_world
 from sdfserver.storage.snapshot import SNAPSHOT_PATTERN, remove_snapshot_files, write_snapshot
 from sdfserver.storage.steplog import STEP_DIR, StepLog, replay
-from sdfserver.storage.committer import Committer, SyncError
 from sdfserver.storage.wal import SEGMENT_LIMIT_BYTES, SEGMENT_PATTERN, WorldLog, history_order, segment_epoch
 
 log = logging.getLogger("sdfserver.storage")
@@ -286,12 +286,17 @@ class Storage:
         except OSError as exc:
             raise StorageError(f"cannot take world {world_id!r} in {directory}: {exc}") from None
         recovered = recover_world(directory)
-        _sync_newest(directory)  # what its last holder wrote and had not synced yet (steplog.py)
+        newest = max(directory.glob(SEGMENT_PATTERN), key=history_order, default=None)
+        try:  # what its last holder wrote and had not synced yet (steplog.py)
+            if newest is not None:
+                fsync_file(newest)
+        except OSError as exc:
+            raise StorageError(f"cannot sync {newest}: {exc}") from None
         if recovered.fenced_records:
             log.warning("world %s: ignored %d log records written by an engine after another took the world "
                         "over (none of them was acknowledged)", world_id, recovered.fenced_records)
         if recovered.torn and recovered.segment is not None:
-            _truncate(recovered.segment, recovered.segment_end)
+            truncate_durably(recovered.segment, recovered.segment_end)
         recovered.segment = None  # the new epoch writes a segment of its own
         return self._attach(world_id, directory, recovered, epoch), recovered
 
@@ -385,26 +390,6 @@ def _file_identity(path: str | Path) -> tuple[int, int, int] | None:
     except OSError:
         return None
     return st.st_dev, st.st_ino, st.st_mtime_ns
-
-
-def _truncate(path: Path, length: int) -> None:
-    """Cut a torn last record (what a crash in the middle of an append left), durably."""
-    fd = os.open(path, os.O_WRONLY)
-    try:
-        os.ftruncate(fd, length)
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _sync_newest(directory: Path) -> None:
-    newest = max(directory.glob(SEGMENT_PATTERN), key=history_order, default=None)
-    if newest is not None:
-        fd = os.open(newest, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
 
 
 def _read_epoch(directory: Path) -> int:

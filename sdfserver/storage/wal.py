@@ -170,6 +170,7 @@ class WorldLog:
         self._flush_locked()  # syncs what append_unsynced wrote too: the old file is closed next
         self.unsynced = False
         path = self.create_segment(self.directory, base, self.epoch)
+        fsync_dir(self.directory)  # its name durable too, before records synced in it are acknowledged
         os.close(self._fd)
         self._fd = os.open(path, os.O_WRONLY | os.O_APPEND)
         self._path, self._end, self.last_version = path, len(encode_segment_header(0)), base

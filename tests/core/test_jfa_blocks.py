@@ -91,3 +91,34 @@ def test_blocks_cut_short_at_the_far_edges():
     # a box too small to fill the device takes no blocks (the default layout)
     assert jfa.pass_block(jfa.LAYOUT, (64, 64, 64), 8, 0) == ((1, 1, 1), (16, 64, 64))
     assert jfa.pass_block(jfa.LAYOUT, (128, 128, 128), 8, 0)[0] == (2, 2, 2)
+
+
+def test_a_world_flooding_in_blocks_and_in_pieces_gets_the_field_it_gets_without_them(gpu, rng, monkeypatch):
+    """A world's own `jfa` recompute with blocks forced on (its box is below the default's
+    threshold), whole and cut into slabs of item rows between pauses (a recompute in pieces),
+    writes the field that the flood without blocks writes."""
+    import sdfserver.world as world_module
+    from sdfserver.edits import parse_edits
+    from sdfserver.world import World, WorldConfig
+
+    size = (48, 32, 48)
+    edits = [{"op": "sphere", "center": [float(rng.uniform(0, s)) for s in size], "radius": float(rng.uniform(1, 5)),
+              "colour": 1 + int(rng.integers(0, 255))} for _ in range(12)]
+    monkeypatch.setattr(world_module, "SLICE_ABOVE_VISITS", 0)  # every recompute may be cut
+    fields = []
+    for layout, piece_s in ((jfa.PassLayout(), None), (jfa.PassLayout(min_items=0), None),
+                            (jfa.PassLayout(min_items=0), 1e-9)):
+        monkeypatch.setattr(jfa, "LAYOUT", layout)
+        world = World(gpu, WorldConfig(size, 16, algorithm="jfa"))
+        try:
+            world.apply_edits(parse_edits(edits))
+            pending = world.begin_recompute(piece_s)
+            assert pending.in_pieces == (piece_s is not None)
+            while not pending.advance(0.0):
+                pass
+            pending.finish()
+            fields.append(world.read_field())
+        finally:
+            world.release()
+    assert jfa.pass_block(jfa.PassLayout(min_items=0), size, 8, 0)[0] == (2, 2, 2)
+    assert np.array_equal(fields[1], fields[0]) and np.array_equal(fields[2], fields[0])

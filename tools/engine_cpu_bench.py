@@ -55,6 +55,7 @@ from sdfserver.engine.metrics import EngineMetrics  # noqa: E402
 from sdfserver.engine.service import EngineService  # noqa: E402
 from sdfserver.gpu import GpuContext  # noqa: E402
 from sdfserver.gpu.uploads import UploadRing  # noqa: E402
+from sdfserver.recompute import PendingRecompute  # noqa: E402
 from sdfserver.storage import Storage  # noqa: E402
 from sdfserver.storage.codec import encode_batch  # noqa: E402
 from sdfserver.storage.journal import StorageJournal  # noqa: E402
@@ -147,7 +148,8 @@ def instrument(clock: Clock) -> None:
     clock.wrap(Engine, "step", "step (Engine.step)")
     clock.wrap(Engine, "_recompute", "recompute (Engine._recompute)")
     clock.wrap(World, "dirty_regions", "dirty regions")
-    clock.wrap(world_module, "summarize", "summarize")
+    clock.wrap(world_module, "summarize", "summarize")  # builds before PendingRecompute.summary
+    clock.wrap(PendingRecompute, "summary", "summarize")
     # the engine calls observe_recomputes once a step (observe_recompute once a world before)
     clock.wrap(EngineMetrics, "observe_recomputes", "metrics (observe_recompute[s])")
     clock.wrap(EngineMetrics, "observe_recompute", "metrics (observe_recompute[s])")

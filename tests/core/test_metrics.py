@@ -6,36 +6,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from references import field_distances
 
-from sdfserver.edits import BoxEdit, SphereEdit, VoxelsEdit
+from sdfserver.edits import BoxEdit, VoxelsEdit
 from sdfserver.errors import InvalidInput
 from sdfserver.field_values import distances
 from sdfserver.world import WorldConfig
 from sdfserver.world_factory import make_world
 
+from .conftest import edit_and_compare, random_batch, stored_field
+
 COMBINATIONS = [(storage, metric, signed) for storage in ("dense", "sparse") for metric in ("manhattan", "euclidean")
                 for signed in (False, True)]
-
-
-def reference(voxels: np.ndarray, cap: int, metric: str, signed: bool) -> np.ndarray:
-    """The stored value scipy gives (references.field_distances): Manhattan (distance << 8) |
-    colour, Euclidean the squared distance; capped; signed solids carry their distance to air."""
-    d = np.abs(field_distances(voxels, metric, signed, cap))
-    if metric == "euclidean":
-        return np.rint(d * d).astype(np.int64)
-    return (d.astype(np.int64) << 8) | voxels
-
-
-def random_batch(rng: np.random.Generator, size, first: bool) -> list:
-    n = int(rng.integers(1, 60))
-    xyz = np.stack([rng.integers(0, s, n) for s in size], axis=1)
-    colours = rng.integers(1 if first else 0, 256, n)
-    centre = tuple(float(rng.uniform(-2, s + 2)) for s in size)  # sometimes past a face
-    lo = [int(rng.integers(0, s - 4)) for s in size]
-    return [VoxelsEdit(np.concatenate([xyz, colours[:, None]], axis=1).astype(np.int64)),
-            SphereEdit(center=centre, radius=float(rng.uniform(1, 10)), colour=int(rng.integers(0, 3))),
-            BoxEdit(min=tuple(lo), max=tuple(v + int(rng.integers(1, 5)) for v in lo), colour=int(rng.integers(0, 2)))]
 
 
 @pytest.mark.parametrize("storage,metric,signed", COMBINATIONS)
@@ -44,19 +25,8 @@ def test_incremental_matches_full_and_scipy(gpu, rng, storage, metric, signed, c
     size = (40, 24, 32)  # chunks of 8: borders everywhere
     world = make_world(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap, metric=metric, signed=signed,
                                         storage=storage))
-    try:
-        for step in range(5):
-            world.apply_edits(random_batch(rng, size, step == 0))
-            world.recompute()
-            got = world.read_field().astype(np.int64)
-            want = reference(world.read_voxels(), cap, metric, signed)
-            bad = np.argwhere(got != want)
-            assert bad.size == 0, f"step {step}: {len(bad)} voxels differ, first (z, y, x) {bad[:3].tolist()}"
-        if storage == "dense":  # the full transform gives the same field
-            incremental = world.read_field()
-            world.mark_all_dirty()
-            world.recompute()
-            assert np.array_equal(world.read_field(), incremental)
+    try:  # in a dense world the full transform gives the same field too
+        edit_and_compare(world, rng, size, 5, cap, metric, signed, full=storage == "dense")
     finally:
         world.release()
 
@@ -74,7 +44,7 @@ def test_sparse_implicit_bricks_read_as_their_values(gpu, metric):
         stored = world.stored_bricks
         assert 0 < stored < (64 // 8) ** 3 - 8  # some solid bricks and most air bricks are implicit
         got = world.read_field().astype(np.int64)
-        assert np.array_equal(got, reference(world.read_voxels(), cap, metric, True))
+        assert np.array_equal(got, stored_field(world.read_voxels(), cap, metric, True))
         d = world.read_distance()
         assert d.min() == -cap and d.max() == cap
     finally:
@@ -110,11 +80,11 @@ def test_patch_switches_metric_and_sign(gpu, rng):
             world.reconfigure(metric=metric, signed=signed)
             world.recompute()
             assert np.array_equal(world.read_field().astype(np.int64),
-                                  reference(world.read_voxels(), 20, metric, signed))
+                                  stored_field(world.read_voxels(), 20, metric, signed))
             world.apply_edits(random_batch(rng, size, False))
             world.recompute()
             assert np.array_equal(world.read_field().astype(np.int64),
-                                  reference(world.read_voxels(), 20, metric, signed))
+                                  stored_field(world.read_voxels(), 20, metric, signed))
         before = world.version, world.field_version
         world.reconfigure(voxel_size=0.25, origin=(1.0, -2.0, 3.5))
         assert not world.dirty and (world.version, world.field_version) == before  # nothing to recompute
@@ -149,7 +119,7 @@ def test_signed_edit_deep_inside_a_solid(gpu, storage, metric):
         world.recompute()
         world.apply_edits([VoxelsEdit(np.array([[32, 20, 32, 9], [33, 20, 32, 0]]))])
         world.recompute()
-        assert np.array_equal(world.read_field().astype(np.int64), reference(world.read_voxels(), cap, metric, True))
+        assert np.array_equal(world.read_field().astype(np.int64), stored_field(world.read_voxels(), cap, metric, True))
     finally:
         world.release()
 
@@ -170,7 +140,7 @@ def test_signed_edit_above_a_floor(gpu, storage, metric):
             world.recompute()
             assert world.last_recompute.regions != [world.world_box]
             assert np.array_equal(world.read_field().astype(np.int64),
-                                  reference(world.read_voxels(), cap, metric, True)), voxel
+                                  stored_field(world.read_voxels(), cap, metric, True)), voxel
     finally:
         world.release()
 
@@ -190,11 +160,11 @@ def test_sparse_switches_metric_and_sign(gpu, rng, cap):
             result = world.recompute()
             assert result.regions and world.field_version == world.version
             assert np.array_equal(world.read_field().astype(np.int64),
-                                  reference(world.read_voxels(), cap, metric, signed)), (metric, signed)
+                                  stored_field(world.read_voxels(), cap, metric, signed)), (metric, signed)
             world.apply_edits(random_batch(rng, size, False))
             world.recompute()
             assert np.array_equal(world.read_field().astype(np.int64),
-                                  reference(world.read_voxels(), cap, metric, signed)), (metric, signed)
+                                  stored_field(world.read_voxels(), cap, metric, signed)), (metric, signed)
         with pytest.raises(InvalidInput, match="cannot change"):
             world.reconfigure(max_distance=5)
     finally:

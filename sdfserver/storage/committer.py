@@ -128,7 +128,7 @@ class Committer:
             if problem is not None:
                 future.set_exception(self.fail(*problem))
             else:
-                _complete(future, fence() if fence is not None else None)
+                complete(future, fence() if fence is not None else None)
             return future
         if self.inline:
             self.check()
@@ -138,7 +138,7 @@ class Committer:
                 return future
             self.syncs += 1
             self.records += 1
-            _complete(future, fence() if fence is not None else None)
+            complete(future, fence() if fence is not None else None)
             return future
         with self._cond:
             self.check()
@@ -215,7 +215,7 @@ class Committer:
                     for fd, _, future, fence in batch:
                         if fence is not None and fd not in refusals:
                             refusals[fd] = fence()
-                        _complete(future, refusals.get(fd))
+                        complete(future, refusals.get(fd))
             with self._cond:
                 self._settled = max(self._settled, taken)
                 self._cond.notify_all()  # an engine waiting for its step's acknowledgements goes on
@@ -276,7 +276,8 @@ def _shares(items: list, count: int) -> list[list]:
     return [items[i::count] for i in range(count)]
 
 
-def _complete(future: Future, refusal: Exception | None) -> None:
+def complete(future: Future, refusal: Exception | None) -> None:
+    """Complete a durable record's future: done, or failed with why it must not be acknowledged."""
     if refusal is None:
         future.set_result(None)
     else:

@@ -37,6 +37,7 @@ from typing import Any, Callable
 import numpy as np
 
 from sdfserver.errors import NotFound, SdfServerError
+from sdfserver.storage.committer import complete
 from sdfserver.storage.store import Storage, WorldStore
 from sdfserver.threadnames import name_os_thread
 
@@ -48,11 +49,7 @@ def _settle(durable: Future, step: list[tuple[WorldStore, list, Future]]) -> Non
     error, or the world's fence (another engine took it), else done."""
     error = durable.exception()
     for store, _, future in step:
-        refusal = error or store.check_fence()
-        if refusal is None:
-            future.set_result(None)
-        else:
-            future.set_exception(refusal)
+        complete(future, error or store.check_fence())
 
 
 class StorageJournal:

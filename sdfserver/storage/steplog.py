@@ -19,7 +19,8 @@ synced first (``WorldLog``), so the checkpoint only ever syncs open files.
 and over another engine's when a world is taken from it (``Storage.take_over``). For each world
 still here at the epoch an entry was written under, what the newest segment of its log lost of
 the entries (a crash took writes that were never synced: a torn tail, or a hole with later
-records after it) is cut and written again from the entries, and synced. A world whose log
+records after it) is cut and written again from the entries; a log that lost nothing is synced
+as it is (a process that died left its writes in the page cache only). A world whose log
 misses versions that the step log does not hold either raises ``CorruptData``.
 """
 
@@ -36,7 +37,7 @@ import msgpack
 
 from sdfserver.errors import CorruptData, WritesDisabled
 from sdfserver.storage.framing import SEGMENT_HEADER, encode_record, encode_segment_header, record_at, scan_segment
-from sdfserver.storage.fsutil import fsync_dir, write_atomic
+from sdfserver.storage.fsutil import fsync_dir, fsync_file, write_atomic
 from sdfserver.storage.wal import SEGMENT_PATTERN, history_order, segment_base, segment_epoch
 from sdfserver.threadnames import name_os_thread
 
@@ -207,7 +208,8 @@ def _restore_world(directory: Path, found: list[tuple[int, int, list[bytes]]]) -
             break
         offset, last = end, version
     missing = [(v, p) for v, p in records if v > last]
-    if not missing:
+    if not missing:  # whole, but perhaps only in the page cache: durable before the step log goes
+        fsync_file(newest)
         return 0
     if missing[0][0] != last + 1:
         raise CorruptData(str(newest), offset, f"the log ends at version {last} and the step log "

@@ -58,11 +58,11 @@ import numpy as np
 from sdfserver.errors import CorruptData, InvalidInput, NotFound, StorageError, WorldFenced, WritesDisabled
 from sdfserver.storage.codec import encode_batch
 from sdfserver.storage.committer import Committer, SyncError
-from sdfserver.storage.fsutil import fsync_dir, fsync_file, truncate_durably, write_atomic
+from sdfserver.storage.fsutil import fsync_dir, truncate_durably, write_atomic
 from sdfserver.storage.recovery import Recovered, recover_world
 from sdfserver.storage.snapshot import SNAPSHOT_PATTERN, remove_snapshot_files, write_snapshot
 from sdfserver.storage.steplog import STEP_DIR, StepLog, replay
-from sdfserver.storage.wal import SEGMENT_LIMIT_BYTES, SEGMENT_PATTERN, WorldLog, history_order, segment_epoch
+from sdfserver.storage.wal import SEGMENT_LIMIT_BYTES, SEGMENT_PATTERN, WorldLog, segment_epoch
 
 log = logging.getLogger("sdfserver.storage")
 DEFAULT_DATA_DIR = "data"  # relative to the working directory; see docs/configuration.md
@@ -286,12 +286,6 @@ class Storage:
         except OSError as exc:
             raise StorageError(f"cannot take world {world_id!r} in {directory}: {exc}") from None
         recovered = recover_world(directory)
-        newest = max(directory.glob(SEGMENT_PATTERN), key=history_order, default=None)
-        try:  # what its last holder wrote and had not synced yet (steplog.py)
-            if newest is not None:
-                fsync_file(newest)
-        except OSError as exc:
-            raise StorageError(f"cannot sync {newest}: {exc}") from None
         if recovered.fenced_records:
             log.warning("world %s: ignored %d log records written by an engine after another took the world "
                         "over (none of them was acknowledged)", world_id, recovered.fenced_records)

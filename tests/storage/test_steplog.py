@@ -10,7 +10,7 @@ import os
 import pytest
 
 from sdfserver.errors import CorruptData
-from sdfserver.storage import Storage
+from sdfserver.storage import Storage, steplog
 from sdfserver.storage.journal import StorageJournal
 from sdfserver.storage.recovery import recover_world
 from sdfserver.storage.steplog import STEP_DIR, step_segments
@@ -51,7 +51,7 @@ def recovered(data_dir, world_id: str) -> list[tuple[int, bytes]]:
     return recover_world(data_dir / "worlds" / world_id).records
 
 
-def test_lost_world_log_writes_come_back_from_the_step_log(tmp_path):
+def test_lost_world_log_writes_come_back_from_the_step_log(tmp_path, monkeypatch):
     data = tmp_path / "data"
     storage = Storage(data)
     journal = StorageJournal(storage)
@@ -74,7 +74,12 @@ def test_lost_world_log_writes_come_back_from_the_step_log(tmp_path):
     with pytest.raises(CorruptData):  # without the step log the hole could not be read past
         recover_world(data / "worlds" / "holed")
 
+    synced = []
+    real_fsync_file = steplog.fsync_file
+    monkeypatch.setattr(steplog, "fsync_file", lambda path: synced.append(path) or real_fsync_file(path))
+    kept = segment_of(journal, "kept")
     Storage(data).close()  # the next start replays the step log into the world logs
+    assert synced == [kept]  # whole, but unsynced since its batches: synced before the step log goes
     for w, world_id in enumerate(ids):
         assert recovered(data, world_id) == [(v, batch(w, v)) for v in range(1, 9)]
     assert not step_segments(data / STEP_DIR)

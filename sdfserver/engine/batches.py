@@ -142,18 +142,9 @@ class BatchPipeline:
                 self.remember(world_id, ids)
                 for future, version in answers:
                     future.set_result(version)
-            else:
-                if ids:  # remembered only once durable: a repeat must not be answered before that
-                    self._remember_when_durable(world_id, ids, durable)
-                acknowledge_when_durable(answers, durable)
+            else:  # remembered only once durable: a repeat must not be answered before that
+                acknowledge_when_durable(answers, durable, lambda: self.remember(world_id, ids) if ids else None)
             touched.add(world_id)
-
-    def _remember_when_durable(self, world_id: str, ids: list[tuple[str, int]], durable: Future) -> None:
-        def done(durable: Future) -> None:
-            if durable.exception() is None:
-                self.remember(world_id, ids)
-
-        durable.add_done_callback(done)
 
     def reject(self, future: Future, exc: BaseException, report: StepReport) -> None:
         report.rejected_batches += 1
@@ -161,12 +152,18 @@ class BatchPipeline:
         fail(future, exc)
 
 
-def acknowledge_when_durable(answers: list[tuple[Future, int]], durable: Future) -> None:
-    """Complete each future with its version once ``durable`` completes (or fail them all with
-    its error): one callback for a world's batches of a step, not one each."""
+def acknowledge_when_durable(answers: list[tuple[Future, int]], durable: Future,
+                             remember: Callable[[], None]) -> None:
+    """Once ``durable`` completes, ``remember`` the batches' ids and complete each future with its
+    version (or fail them all with its error): one callback for a world's batches of a step."""
 
     def done(durable: Future) -> None:
         exc = durable.exception()
+        if exc is None:
+            try:
+                remember()
+            except Exception:  # the answers go out regardless
+                log.exception("remembering acknowledged batch ids failed")
         for future, version in answers:
             try:  # one failing must not keep the others unanswered
                 if exc is not None:

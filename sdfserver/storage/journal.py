@@ -44,12 +44,33 @@ from sdfserver.threadnames import name_os_thread
 log = logging.getLogger("sdfserver.storage")
 
 
-def _settle(durable: Future, step: list[tuple[WorldStore, list, Future]]) -> None:
-    """Complete each world's future of a step once its record is durable: with the record's
-    error, or the world's fence (another engine took it), else done."""
-    error = durable.exception()
-    for store, _, future in step:
-        complete(future, error or store.check_fence())
+class WorldDurable:
+    """A world's share of a step's record in the step log, as a future's ``done``,
+    ``exception``, ``result`` and ``add_done_callback``: durable once the record is, failed with
+    the record's error, or with the world's fence (another engine took it over). The worlds of a
+    step share one future, since a future a world cost the engine thread a lock and a condition
+    each (most of what a world added to a step's log record)."""
+
+    __slots__ = ("_step", "_store")
+
+    def __init__(self, step: Future, store: WorldStore):
+        self._step = step
+        self._store = store
+
+    def done(self) -> bool:
+        return self._step.done()
+
+    def exception(self, timeout: float | None = None) -> BaseException | None:
+        error = self._step.exception(timeout)
+        return error if error is not None else self._store.check_fence()
+
+    def result(self, timeout: float | None = None) -> None:
+        error = self.exception(timeout)
+        if error is not None:
+            raise error
+
+    def add_done_callback(self, fn: Callable[["WorldDurable"], None]) -> None:
+        self._step.add_done_callback(lambda _: fn(self))
 
 
 class StorageJournal:
@@ -63,7 +84,8 @@ class StorageJournal:
         self.stores: dict[str, WorldStore] = {}
         self.owners: dict[str, str | None] = {}
         self._snapshotting: dict[str, Future] = {}
-        self._step: list[tuple[WorldStore, list, Future]] = []  # record_batches since start_syncs
+        self._step: list[tuple[WorldStore, list]] = []  # record_batches since start_syncs
+        self._step_durable: Future = Future()  # completed with the step log's record of them
         self._snapshots = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sdfserver-snapshot",
                                              initializer=name_os_thread)
 
@@ -88,27 +110,26 @@ class StorageJournal:
         self._last_snapshot_at[world_id] = self._clock()
 
     def record_batches(self, world_id: str, first_version: int,
-                       batches: list[list[dict[str, Any]] | bytes]) -> Future:
+                       batches: list[list[dict[str, Any]] | bytes]) -> Future | WorldDurable:
         store = self._store(world_id)
         if self.storage.steps is None:
             return store.append_many(first_version, batches, wake=False)  # see start_syncs
         payloads = store.append_unsynced(first_version, batches)  # durable with the step's record
-        future: Future = Future()
-        self._step.append((store, [world_id, store.epoch, first_version, payloads], future))
-        return future
+        self._step.append((store, [world_id, store.epoch, first_version, payloads]))
+        return WorldDurable(self._step_durable, store)
 
     def start_syncs(self, wait: bool = True) -> None:
-        """The step's batches to the committer: with the step log, one record of every world's
-        (each world's future completes with that record's sync, or fails with its world's fence)."""
+        """The step's batches to the committer: with the step log, one record of every world's,
+        whose sync completes the future the step's worlds share."""
         step, self._step = self._step, []
+        shared, self._step_durable = self._step_durable, Future()
         if step:
             try:
-                durable = self.storage.steps.append([entry for _, entry, _ in step], [s.log for s, _, _ in step])
+                durable = self.storage.steps.append([entry for _, entry in step], [s.log for s, _ in step])
             except Exception as exc:  # not durable: the engine applies none of them (BatchPipeline.run)
-                for _, _, future in step:
-                    future.set_exception(exc)
+                shared.set_exception(exc)
                 return
-            durable.add_done_callback(lambda done: _settle(done, step))
+            durable.add_done_callback(lambda done: complete(shared, done.exception()))
         self.storage.committer.hand_over(wait)
 
     def wait_durable(self, timeout_s: float) -> bool:

@@ -1,8 +1,9 @@
 """One log for every world of an engine: a step's batches made durable by one sync.
 
-Each world's batches still go to its own log (``WorldLog``), in the same write as before, but
-that log is not synced before they are acknowledged. The step's batches of every world are
-written again, as one record, to the engine's step log (``<data_dir>/steps/steps-<o>-<n>.log``,
+Each world's batches still go to its own log (``WorldLog``), but that log holds them in memory
+and writes them only at its next sync (a checkpoint's, a rotation's, ``close``):
+neither written nor synced before they are acknowledged. The step's batches of every world are
+written, as one record, to the engine's step log (``<data_dir>/steps/steps-<o>-<n>.log``,
 ``o`` the data directory's opening: ``Storage.epoch``),
 and that one file is synced by the committer: the acknowledgement waits for one ``fdatasync``
 however many worlds the step touched, where one a world held every acknowledgement of a step
@@ -11,15 +12,15 @@ until the last world's sync.
 A record is the step's entries, ``[world id, epoch, first version, [payload, ...]]`` each, in
 the framing of a log segment (``framing.py``; a step segment's records are numbered from 1).
 When a segment has grown past ``STEP_SEGMENT_LIMIT_BYTES`` the log goes on in the next one and
-a checkpoint thread syncs every world log written while the old one was current, then deletes
-it: from then on those worlds' own logs hold what it held. A world log closed or rotated is
-synced first (``WorldLog``), so the checkpoint only ever syncs open files.
+a checkpoint thread writes and syncs every world log appended to while the old one was current,
+then deletes it: from then on those worlds' own logs hold what it held. A world log closed or
+rotated is written and synced first (``WorldLog``), so the checkpoint only ever syncs open files.
 
 ``replay`` runs before anything reads a world's log: at start-up over this engine's step log,
 and over another engine's when a world is taken from it (``Storage.take_over``). For each world
 still here at the epoch an entry was written under, what the newest segment of its log lost of
-the entries (a crash took writes that were never synced: a torn tail, or a hole with later
-records after it) is cut and written again from the entries; a log that lost nothing is synced
+the entries (a crash took records still held, or writes that were never synced: a torn tail,
+or a hole with later records after it) is cut and written again from the entries; a log that lost nothing is synced
 as it is (a process that died left its writes in the page cache only). A world whose log
 misses versions that the step log does not hold either raises ``CorruptData``.
 """

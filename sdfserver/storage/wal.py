@@ -5,9 +5,10 @@ log's lock, so records of one world are in version order; ``append_many`` writes
 consecutive records with one ``os.write``) and hands the file to the ``Committer``
 (``committer.py``); it returns a ``concurrent.futures.Future`` that completes once the record is
 durable. Block on it with ``.result()`` or await it with ``asyncio.wrap_future``; acknowledge
-the batch only after that. ``append_unsynced`` writes without handing the file over: the step
-log (``steplog.py``) makes those records durable, and the log is synced later (a checkpoint,
-a rotation, ``close``). A segment that has grown past ``segment_limit`` bytes is closed and
+the batch only after that. ``append_unsynced`` takes records that the step log (``steplog.py``)
+makes durable: it holds them in memory, and they are written with the next sync of the file (a
+checkpoint, a rotation, ``close``) in one ``os.write``, so that an engine step that
+touched many worlds makes one write, the step log's, instead of one a world. A segment that has grown past ``segment_limit`` bytes is closed and
 the next append starts a new one, so snapshots never rotate the log (which would hold up the
 appender) and the log is trimmed a whole segment at a time.
 """
@@ -63,9 +64,10 @@ class WorldLog:
         self._end = end
         os.ftruncate(self._fd, end)  # drop a torn tail recovery decided to truncate
         os.fsync(self._fd)
-        self.last_version = last_version
-        self.unsynced = False  # written by append_unsynced since its last sync
+        self.last_version = last_version  # of the records appended, held ones included
+        self.unsynced = False  # appended by append_unsynced since its last sync
         self._unsynced_writes = 0  # append_unsynced calls, so that a sync knows what it covered
+        self._held: list[tuple[int, list[bytes]]] = []  # append_unsynced's records not written yet
 
     @staticmethod
     def create_segment(directory: Path, base_version: int, epoch: int = 0) -> Path:
@@ -88,23 +90,25 @@ class WorldLog:
         """Records ``first_version``, ``first_version + 1``, ... in one write; one future for all
         (``wake`` as in ``Committer.submit``)."""
         with self._lock:
-            self._write_locked(first_version, payloads)
+            self._hold_locked(first_version, payloads)
+            self._write_held_locked()
             return self.committer.submit(self._fd, str(self._path), wake=wake, fence=self.fence)
 
     def append_unsynced(self, first_version: int, payloads: list[bytes]) -> None:
-        """``append_many`` without a sync: the step log (``steplog.py``) makes them durable, and
-        its checkpoint, a rotation or ``close`` syncs this file later."""
+        """``append_many`` without a write or a sync: the step log (``steplog.py``) makes them
+        durable, and its checkpoint, a rotation, a snapshot or ``close`` writes and syncs them."""
         with self._lock:
-            self._write_locked(first_version, payloads)
+            self._hold_locked(first_version, payloads)
             self.unsynced = True
             self._unsynced_writes += 1
 
     def sync_written(self) -> None:
-        """Sync what ``append_unsynced`` wrote, if anything; raises OSError when the sync fails or
-        the file is no longer linked (what it holds would be lost). The sync runs on a copy of
-        the descriptor, outside the lock, so that the engine's appends do not wait for it (a
-        rotation or close meanwhile has synced the file itself)."""
+        """Write and sync what ``append_unsynced`` took, if anything; raises OSError when the
+        write or the sync fails or the file is no longer linked (what it holds would be lost).
+        The sync runs on a copy of the descriptor, outside the lock, so that the engine's appends
+        do not wait for it (a rotation or close meanwhile has synced the file itself)."""
         with self._lock:
+            self._write_held_locked()
             if not self.unsynced or self._fd < 0:
                 return
             fd, path, covered = os.dup(self._fd), str(self._path), self._unsynced_writes
@@ -119,19 +123,28 @@ class WorldLog:
             if self._unsynced_writes == covered:
                 self.unsynced = False
 
-    def _write_locked(self, first_version: int, payloads: list[bytes]) -> None:
-        frame = b"".join(encode_record(first_version + i, p) for i, p in enumerate(payloads))
+    def _hold_locked(self, first_version: int, payloads: list[bytes]) -> None:
         self.committer.check()
         if self._fd < 0:
             raise WritesDisabled(f"the log of {self.directory.name} is closed")
         if first_version != self.last_version + 1:
             raise ValueError(f"log of {self.directory.name}: version {first_version} follows "
                              f"{self.last_version}; versions must be continuous")
+        self._held.append((first_version, payloads))
+        self.last_version = first_version + len(payloads) - 1
+
+    def _write_held_locked(self) -> None:
+        """Write the held records in one ``os.write``, in a new segment if this one is full."""
+        if not self._held or self._fd < 0:
+            return
+        self.committer.check()
         if self._end >= self.segment_limit:
             try:
-                self._rotate_locked(self.last_version)
+                self._rotate_locked(self._held[0][0] - 1)
             except OSError as exc:
                 raise self.committer.fail(str(self.directory), "rotation", exc) from None
+        held, self._held = self._held, []
+        frame = b"".join(encode_record(first + i, p) for first, payloads in held for i, p in enumerate(payloads))
         view = memoryview(frame)
         try:
             while view:
@@ -143,7 +156,6 @@ class WorldLog:
                 pass  # the failed state below refuses every later append anyway
             raise self.committer.fail(str(self._path), "write", exc) from None
         self._end += len(frame)
-        self.last_version = first_version + len(payloads) - 1
 
     def _flush_locked(self) -> None:
         self.committer.submit(self._fd, str(self._path)).result()
@@ -157,6 +169,7 @@ class WorldLog:
         """Continue in a new segment based at ``base_version`` (default: the last version).
         A base above the last version starts over after a snapshot that replaced the world."""
         with self._lock:
+            self._write_held_locked()
             base = self.last_version if base_version is None else base_version
             if base < self.last_version:
                 raise ValueError(f"cannot rotate to base {base} below the last version {self.last_version}")
@@ -166,14 +179,17 @@ class WorldLog:
             self._rotate_locked(base)
 
     def _rotate_locked(self, base: int) -> None:
+        """Continue at ``base``: the last version written, or past the last appended (a world
+        replaced whole); held records stay held for the new segment."""
         self.committer.check()
         self._flush_locked()  # syncs what append_unsynced wrote too: the old file is closed next
-        self.unsynced = False
+        self.unsynced = bool(self._held)
         path = self.create_segment(self.directory, base, self.epoch)
         fsync_dir(self.directory)  # its name durable too, before records synced in it are acknowledged
         os.close(self._fd)
         self._fd = os.open(path, os.O_WRONLY | os.O_APPEND)
-        self._path, self._end, self.last_version = path, len(encode_segment_header(0)), base
+        self._path, self._end = path, len(encode_segment_header(0))
+        self.last_version = max(self.last_version, base)
 
     def trim(self, upto_version: int) -> list[Path]:
         """Delete the segments whose records are all ``<= upto_version``; returns them."""
@@ -192,6 +208,7 @@ class WorldLog:
             if self._fd >= 0:
                 try:
                     if self.committer.failure is None and not self.committer.closed:
+                        self._write_held_locked()
                         self._flush_locked()
                 finally:
                     os.close(self._fd)

@@ -264,7 +264,8 @@ def test_a_steps_batches_share_one_log_write_and_restore_in_order(gpu, tmp_path)
         engine.step()
     finally:
         os.write = real_write
-    assert len(writes) == 3 and len(set(writes)) == 3  # a write per world's log and one to the step log
+    # one write, the step log's: the worlds' own logs take theirs at their next sync
+    assert len(writes) == 1 and writes[0] == journal.storage.steps._fd
     versions = [0, 0]
     for (w, batch), future in zip(batches, futures):
         if batch[0]["op"] == "voxels" and batch[0]["voxels"] == [[99, 0, 0, 1]]:

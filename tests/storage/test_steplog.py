@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
 import pytest
 
 from sdfserver.errors import CorruptData
 from sdfserver.storage import Storage, steplog
+from sdfserver.storage.framing import SEGMENT_HEADER
 from sdfserver.storage.journal import StorageJournal
 from sdfserver.storage.recovery import recover_world
 from sdfserver.storage.steplog import STEP_DIR, step_segments
@@ -60,9 +62,16 @@ def test_lost_world_log_writes_come_back_from_the_step_log(tmp_path, monkeypatch
         journal.record_create(world_id, CONFIG)
     versions = [0, 0, 0]
     step(journal, ids, versions)
+    assert all(os.path.getsize(segment_of(journal, w)) == SEGMENT_HEADER.size for w in ids)  # held
+    for world_id in ids:  # as a checkpoint does: written and synced
+        journal.stores[world_id].log.sync_written()
     synced = {w: os.path.getsize(segment_of(journal, w)) for w in ids}
     for _ in range(3):
         step(journal, ids, versions)
+    with monkeypatch.context() as unsynced:  # a checkpoint's writes whose syncs never held
+        unsynced.setattr(os, "fdatasync", lambda fd: None)
+        for world_id in ids:
+            journal.stores[world_id].log.sync_written()
     assert len(os.listdir(data / STEP_DIR)) == 1
     torn, holed = segment_of(journal, "torn"), segment_of(journal, "holed")
     crash(storage)
@@ -140,3 +149,26 @@ def test_versions_neither_log_holds_are_refused(tmp_path):
     os.truncate(segment_of(journal, "w"), synced_end)  # as if the checkpoint's sync had not held
     with pytest.raises(CorruptData, match="versions in between are lost"):
         Storage(data)
+
+
+def test_held_records_reach_the_world_log_in_order_across_rotations_and_a_snapshot(tmp_path):
+    data = tmp_path / "data"
+    storage = Storage(data, segment_limit=200)  # a world-log segment holds a write or two
+    journal = StorageJournal(storage)
+    journal.record_create("w", CONFIG)
+    store = journal.stores["w"]
+    versions = [0]
+    for round_ in range(6):
+        before = (store.log.segment, os.path.getsize(store.log.segment))
+        step(journal, ["w"], versions, count=3)
+        assert (store.log.segment, os.path.getsize(store.log.segment)) == before  # held, not written
+        if round_ % 2:  # a checkpoint's writes: held records go out, to a new segment once one is full
+            store.log.sync_written()
+            assert os.path.getsize(store.log.segment) > SEGMENT_HEADER.size
+        if round_ == 3:  # a snapshot of a version whose records are partly still held
+            store.snapshot(versions[0] - 1, CONFIG, np.zeros((8, 8, 8), np.uint8))
+    assert len(store.log.segments()) > 1
+    storage.close()
+    found = recover_world(data / "worlds" / "w")
+    assert found.snapshot_version == 11
+    assert found.records == [(v, batch(0, v)) for v in range(12, 19)]

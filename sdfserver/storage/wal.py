@@ -67,7 +67,10 @@ class WorldLog:
         self.last_version = last_version  # of the records appended, held ones included
         self.unsynced = False  # appended by append_unsynced since its last sync
         self._unsynced_writes = 0  # append_unsynced calls, so that a sync knows what it covered
-        self._held: list[tuple[int, list[bytes]]] = []  # append_unsynced's records not written yet
+        # append_unsynced's records not written yet, framed: bytes, which the garbage collector
+        # does not walk (a list of them would make each full collection walk every held record)
+        self._held = bytearray()
+        self._held_after = 0  # the version the first held record follows
 
     @staticmethod
     def create_segment(directory: Path, base_version: int, epoch: int = 0) -> Path:
@@ -130,7 +133,9 @@ class WorldLog:
         if first_version != self.last_version + 1:
             raise ValueError(f"log of {self.directory.name}: version {first_version} follows "
                              f"{self.last_version}; versions must be continuous")
-        self._held.append((first_version, payloads))
+        if not self._held:
+            self._held_after = self.last_version
+        self._held += b"".join([encode_record(first_version + i, p) for i, p in enumerate(payloads)])
         self.last_version = first_version + len(payloads) - 1
 
     def _write_held_locked(self) -> None:
@@ -140,11 +145,10 @@ class WorldLog:
         self.committer.check()
         if self._end >= self.segment_limit:
             try:
-                self._rotate_locked(self._held[0][0] - 1)
+                self._rotate_locked(self._held_after)
             except OSError as exc:
                 raise self.committer.fail(str(self.directory), "rotation", exc) from None
-        held, self._held = self._held, []
-        frame = b"".join(encode_record(first + i, p) for first, payloads in held for i, p in enumerate(payloads))
+        frame, self._held = self._held, bytearray()
         view = memoryview(frame)
         try:
             while view:

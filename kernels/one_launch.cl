@@ -13,11 +13,14 @@
  *                     strict ties, so the same nearest seeds), then its resolve.
  *   ONE_LAUNCH_RELAX  1: FIM passes (fim.cl) until one changes nothing, on the
  *                     initial distances or on the flood's result.
+ *   ONE_LAUNCH_WEIGHTED 0: every seed weighs nothing (jfa.py's
+ *                     seeds_weigh_nothing), so no seed's weight is read.
  * The initial distances are init_work's and the write-back pack_region's
  * (region.cl), so the results are the multi-launch algorithms'.
  *
  * Work-items own column segments: item u of a box's `units` takes column
- * u % (n.x * n.y) and z-segment u / (n.x * n.y), and walks its segment in z.
+ * u % (n.x * n.y) and z-segment u / (n.x * n.y), and walks its segment in z
+ * (a flood pass's items take pieces of chains instead: flood_pass).
  * FIM relaxes in place and alternates the walk's direction pass by pass, so a
  * distance travels a whole segment in one pass; any order of in-place
  * relaxation reaches the same least fixed point.
@@ -73,58 +76,126 @@ inline ushort pack_seed(int x, int y, int z, const Box *b)
     return (ushort)(x | (y << b->bx) | (z << b->bxy));
 }
 
-/* What voxel (x, y, z) pays for seed s: the seed's weight plus the way there. */
+/* What voxel (x, y, z) pays for seed s: the seed's weight (read only where a
+ * seed can weigh something) plus the way there. */
 inline uint seed_cost(__local const uchar *dist, int x, int y, int z, ushort s, const Box *b)
 {
     const int sx = s & ((1 << b->bx) - 1), sy = (s >> b->bx) & ((1 << (b->bxy - b->bx)) - 1), sz = s >> b->bxy;
-    return (uint)dist[local_index(sx, sy, sz, b)] + (uint)(abs(sx - x) + abs(sy - y) + abs(sz - z));
+    const uint way = (uint)(abs(sx - x) + abs(sy - y) + abs(sz - z));
+#if ONE_LAUNCH_WEIGHTED
+    return (uint)dist[local_index(sx, sy, sz, b)] + way;
+#else
+    return way;
+#endif
+}
+
+/* A flood pass's work-item takes a piece of a chain: up to FLOOD_CHAIN voxels
+ * of one column a step apart in z. They share x and y, so each seed read
+ * from a neighbouring column costs its unpacking and its x-y way once for up
+ * to three voxels of the piece (dz = +1, 0, -1), and a plane outside the box
+ * is skipped by the whole piece. A column of n.z voxels has min(step, n.z)
+ * chains: chain r holds z = r, r + step, ...; the first n.z % step chains
+ * hold one voxel more. */
+#ifndef FLOOD_CHAIN
+#define FLOOD_CHAIN 4
+#endif
+
+/* A candidate is ranked by a key: its cost, then its place in jfa.cl's order
+ * (0 the voxel's own seed, then dz, dy, dx from -1 to 1), then the seed. The
+ * least key is the candidate that jfa.cl's strict comparisons keep, ties going
+ * to the earlier one. one_launch.py checks that every cost fits COST_SHIFT's
+ * 11 bits. */
+#define COST_SHIFT 21
+#define PLACE_SHIFT 16
+
+inline uint place_of(int dz, int dy, int dx)
+{
+    const int k = (dz + 1) * 9 + (dy + 1) * 3 + (dx + 1);
+    return (uint)(k < 13 ? k + 1 : k);
+}
+
+/* Column segments of a flood pass of `step`: chain pieces per column. */
+inline int chain_pieces(int step, const Box *b, int *q, int *rem, int *long_pieces, int *short_pieces)
+{
+    *q = b->n.z / step;
+    *rem = b->n.z % step;
+    *long_pieces = (*q + FLOOD_CHAIN) / FLOOD_CHAIN;       /* chains of q + 1 voxels */
+    *short_pieces = (*q + FLOOD_CHAIN - 1) / FLOOD_CHAIN;  /* chains of q */
+    return *rem * *long_pieces + (min(step, b->n.z) - *rem) * *short_pieces;
 }
 
 /* One jfa_seed_pass over the box: src's seeds offered `step` away, into dst. */
 inline void flood_pass(__local const uchar *dist, __local const ushort *src, __local ushort *dst,
                        int step, int cap, const Box *b)
 {
-    for (int u = get_local_id(0); u < b->units; u += get_local_size(0)) {
-        int x, y, z0, z1;
-        unit_span(u, b, &x, &y, &z0, &z1);
-        for (int z = z0; z < z1; ++z) {
-            const int i = local_index(x, y, z, b);
-            ushort best = src[i];
-            uint best_cost = (uint)cap;
-            if (best != SEED_NONE)
-                best_cost = seed_cost(dist, x, y, z, best, b);
-            if (best_cost > 0u) {
-                for (int dz = -1; dz <= 1; ++dz) {
-                    const int nz = z + dz * step;
-                    if (nz < 0 || nz >= b->n.z)
+    int q, rem, long_pieces, short_pieces;
+    const int pieces = chain_pieces(step, b, &q, &rem, &long_pieces, &short_pieces);
+    const int units = b->nxy * pieces;
+    const uint mx = (1u << b->bx) - 1u, my = (1u << (b->bxy - b->bx)) - 1u;
+    for (int u = get_local_id(0); u < units; u += get_local_size(0)) {
+        const int c = u % b->nxy, piece = u / b->nxy;
+        const int x = c % b->n.x, y = c / b->n.x;
+        int r, k0, length;
+        if (piece < rem * long_pieces) {
+            r = piece / long_pieces;
+            k0 = piece % long_pieces * FLOOD_CHAIN;
+            length = q + 1;
+        } else {
+            const int p = piece - rem * long_pieces;
+            r = rem + p / short_pieces;
+            k0 = p % short_pieces * FLOOD_CHAIN;
+            length = q;
+        }
+        const int count = min(FLOOD_CHAIN, length - k0);  /* voxels of this piece */
+        const int z0 = r + k0 * step;                      /* its first voxel's z */
+        uint key[FLOOD_CHAIN];
+#pragma unroll
+        for (int j = 0; j < FLOOD_CHAIN; ++j) {
+            const ushort s = j < count ? src[local_index(x, y, z0 + j * step, b)] : SEED_NONE;
+            key[j] = s == SEED_NONE ? (uint)cap << COST_SHIFT | SEED_NONE
+                                    : seed_cost(dist, x, y, z0 + j * step, s, b) << COST_SHIFT | s;
+        }
+        /* Plane k (z0 + k * step) holds the dz = -1, 0, +1 candidates of voxels k + 1, k, k - 1. */
+#pragma unroll
+        for (int k = -1; k <= FLOOD_CHAIN; ++k) {
+            const int z = z0 + k * step;
+            if (k > count || z < 0 || z >= b->n.z)
+                continue;
+#pragma unroll
+            for (int dy = -1; dy <= 1; ++dy) {
+                const int ny = y + dy * step;
+                if (ny < 0 || ny >= b->n.y)
+                    continue;
+#pragma unroll
+                for (int dx = -1; dx <= 1; ++dx) {
+                    const int nx = x + dx * step;
+                    if (nx < 0 || nx >= b->n.x)
                         continue;
-                    for (int dy = -1; dy <= 1; ++dy) {
-                        const int ny = y + dy * step;
-                        if (ny < 0 || ny >= b->n.y)
+                    const uint s = src[local_index(nx, ny, z, b)];
+                    if (s == SEED_NONE)
+                        continue;
+                    const int sx = (int)(s & mx), sy = (int)(s >> b->bx & my), sz = (int)(s >> b->bxy);
+                    uint way_xy = (uint)(abs(sx - x) + abs(sy - y));
+#if ONE_LAUNCH_WEIGHTED
+                    way_xy += dist[local_index(sx, sy, sz, b)];
+#endif
+                    const uint base = way_xy << COST_SHIFT | s;
+#pragma unroll
+                    for (int dz = -1; dz <= 1; ++dz) {
+                        const int j = k - dz;
+                        if (j < 0 || j >= FLOOD_CHAIN || (dz == 0 && dy == 0 && dx == 0))
                             continue;
-                        for (int dx = -1; dx <= 1; ++dx) {
-                            const int nx = x + dx * step;
-                            if ((dx | dy | dz) == 0 || nx < 0 || nx >= b->n.x)
-                                continue;
-                            const ushort s = src[local_index(nx, ny, nz, b)];
-                            if (s == SEED_NONE)
-                                continue;
-                            const int sx = s & ((1 << b->bx) - 1);
-                            const int sy = (s >> b->bx) & ((1 << (b->bxy - b->bx)) - 1), sz = s >> b->bxy;
-                            const uint way = (uint)(abs(sx - x) + abs(sy - y) + abs(sz - z));
-                            if (way >= best_cost)
-                                continue;  /* weights are never negative */
-                            const uint cost = (uint)dist[local_index(sx, sy, sz, b)] + way;
-                            if (cost < best_cost) {
-                                best_cost = cost;
-                                best = s;
-                            }
-                        }
+                        const uint way_z = (uint)abs(sz - (z0 + j * step));
+                        const uint candidate = base + (way_z << COST_SHIFT) + (place_of(dz, dy, dx) << PLACE_SHIFT);
+                        key[j] = j < count ? min(key[j], candidate) : key[j];
                     }
                 }
             }
-            dst[i] = best;
         }
+#pragma unroll
+        for (int j = 0; j < FLOOD_CHAIN; ++j)
+            if (j < count)
+                dst[local_index(x, y, z0 + j * step, b)] = (ushort)(key[j] & 0xffffu);
     }
 }
 

@@ -128,6 +128,13 @@ class RegionJob:
         return tuple(r - w for r, w in zip(self.region.lo, self.work_box.lo))
 
 
+def seeds_weigh_nothing(job: RegionJob) -> bool:
+    """Whether every seed of ``job`` is a solid (weight 0). Only a seed shell weighs
+    something (its distances from the current field), and a seeded job has one only where its
+    work box is larger than its region: a whole world's work box is the world itself."""
+    return job.chunk > 0 or not job.seeded or job.work_box == job.region
+
+
 @dataclass
 class AlgorithmRun:
     events: list[cl.Event] = field(default_factory=list)

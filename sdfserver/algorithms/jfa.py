@@ -42,7 +42,8 @@ import numpy as np
 import pyopencl as cl
 
 from sdfserver.algorithms.base import (
-    AlgorithmRun, Pieces, RegionJob, SlabPace, grid, init_work, int4, pack_region, run_whole, slabs,
+    AlgorithmRun, Pieces, RegionJob, SlabPace, grid, init_work, int4, pack_region, run_whole, seeds_weigh_nothing,
+    slabs,
 )
 from sdfserver.algorithms.one_launch import OneLaunch, Plan
 from sdfserver.gpu import GpuContext
@@ -67,13 +68,6 @@ def step_sizes(job: RegionJob, extra_passes: int = 0) -> list[int]:
         steps.append(step)
         step //= 2
     return steps + list(EXTRA_STEPS[extra_passes])
-
-
-def seeds_weigh_nothing(job: RegionJob) -> bool:
-    """Whether every seed of ``job`` is a solid (weight 0). Only a seed shell weighs
-    something (its distances from the current field), and a seeded job has one only where its
-    work box is larger than its region: a whole world's work box is the world itself."""
-    return job.chunk > 0 or not job.seeded or job.work_box == job.region
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,9 @@ import numpy as np
 import pyopencl as cl
 
 from sdfserver import bulk
-from sdfserver.algorithms.base import AlgorithmRun, Pieces, RegionJob, SlabPace, int4, pack_region, slabs
+from sdfserver.algorithms.base import (
+    AlgorithmRun, Pieces, RegionJob, SlabPace, int4, pack_region, seeds_weigh_nothing, slabs,
+)
 from sdfserver.gpu import GpuContext
 
 MAX_ITEMS = 1024  # work-items a group: a GPU's usual maximum, and enough for a 32^2 column layer
@@ -40,6 +42,10 @@ MAX_BOX_VOXELS = 32 ** 3
 # A packed seed's bits. All ones is SEED_NONE: with 16 bits in all, some side is not a power of two
 # (a box of powers of two has at most MAX_BOX_VOXELS = 2^15 voxels: 15 bits), so no seed is all ones.
 SEED_BITS = 16
+# A flood pass ranks a candidate by a 32-bit key: its cost in the top COST_BITS (kernels/one_launch.cl's
+# COST_SHIFT), its place in jfa.cl's order and its seed below. A box whose costs could pass them floods
+# a launch a pass.
+COST_BITS = 11
 # The largest box a lone work-group (one box, not padded chunks) takes, by whether it floods.
 LONE_GROUP_VOXELS = {False: 16 ** 3, True: 1024}
 
@@ -61,7 +67,7 @@ class _DeviceState:
     and each count is copied out before another run's launch writes it)."""
 
     def __init__(self, gpu: GpuContext):
-        self.limits: dict[tuple[bool, bool], tuple[int, int]] = {}
+        self.limits: dict[tuple[bool, bool, bool], tuple[int, int]] = {}
         self.count = cl.Buffer(gpu.context, cl.mem_flags.READ_WRITE, size=4)
 
 
@@ -87,16 +93,20 @@ class OneLaunch:
         self.flood, self.relax = flood, relax
         self.defines = {"ONE_LAUNCH_FLOOD": int(flood), "ONE_LAUNCH_RELAX": int(relax)}
 
-    def kernel(self, gpu: GpuContext) -> cl.Kernel:
-        return gpu.programs.kernel("one_launch.cl", "one_launch", **self.defines)
+    def weighted(self, job: RegionJob) -> bool:
+        """Whether the flood reads seeds' weights (a kernel variant: without them a pass does less)."""
+        return self.flood and not seeds_weigh_nothing(job)
 
-    def _limits(self, gpu: GpuContext) -> tuple[int, int]:
+    def kernel(self, gpu: GpuContext, weighted: bool = True) -> cl.Kernel:
+        return gpu.programs.kernel("one_launch.cl", "one_launch", **self.defines, ONE_LAUNCH_WEIGHTED=int(weighted))
+
+    def _limits(self, gpu: GpuContext, weighted: bool = True) -> tuple[int, int]:
         """(the most work-items a group, the local bytes left for the boxes)."""
         state = _state(gpu)
-        key = (self.flood, self.relax)
+        key = (self.flood, self.relax, weighted)
         found = state.limits.get(key)
         if found is None:
-            kernel, device = self.kernel(gpu), gpu.device
+            kernel, device = self.kernel(gpu, weighted), gpu.device
             items = min(MAX_ITEMS, device.max_work_group_size,
                         kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device))
             static = kernel.get_work_group_info(cl.kernel_work_group_info.LOCAL_MEM_SIZE, device)
@@ -125,9 +135,10 @@ class OneLaunch:
         if not 0 < voxels <= MAX_BOX_VOXELS:
             return None
         seed_bytes = 2 * voxels if self.flood else 4
-        if self.flood and sum(_bits(n) for n in box_n) > SEED_BITS:
+        if self.flood and (sum(_bits(n) for n in box_n) > SEED_BITS
+                           or job.cap + sum(n - 1 for n in box_n) >= 1 << COST_BITS):
             return None
-        items_max, local_bytes = self._limits(gpu)
+        items_max, local_bytes = self._limits(gpu, self.weighted(job))
         if voxels + 2 * seed_bytes > local_bytes:
             return None
         columns = box_n[0] * box_n[1]
@@ -139,7 +150,7 @@ class OneLaunch:
         """The job in one launch; with ``piece_s`` and several groups (padded chunks), launches of
         a run of groups each, paced like ``slabs``, writing scratch until pack_region at the end."""
         b, state = job.buffers, _state(gpu)
-        kernel = self.kernel(gpu)
+        kernel = self.kernel(gpu, self.weighted(job))
         cut = piece_s is not None and plan.groups > 1
         accumulate = plan.groups > 1
         # A run in pieces counts in an int of its own: other runs are enqueued between its pieces.

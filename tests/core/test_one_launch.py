@@ -171,7 +171,7 @@ def test_boxes_that_do_not_fit_fall_back(gpu, rng, monkeypatch, algorithm):
     """Too little local memory, a box past MAX_BOX_VOXELS, or (jump flooding) seeds past 16 bits:
     a launch a pass, and still the same field."""
     size = (16, 16, 16)
-    monkeypatch.setattr(one_launch.OneLaunch, "_limits", lambda self, gpu: (1024, 4095))
+    monkeypatch.setattr(one_launch.OneLaunch, "_limits", lambda self, gpu, weighted=True: (1024, 4095))
     out = run_both(gpu, monkeypatch, WorldConfig(size, 16, 255, algorithm), random_voxels(rng, size[::-1], 0.01))
     assert len(out["one"][0][0][0].kernel_ms) >= 6
     assert_same(out, 255)
@@ -357,3 +357,44 @@ def test_a_lone_group_floods_only_small_boxes(gpu, rng, algorithm):
     assert launches(algorithm, (32, 32, 16), 16, "padded") <= 2
     assert launches("fim", (16, 16, 16), 16) == 1
     assert launches("fim", (32, 32, 32), 32) >= 6
+
+
+@pytest.mark.parametrize("algorithm", ["jfa", "jfa+2", "jfa_fim"])
+@pytest.mark.parametrize("chunk", [8, 16])
+def test_the_flood_that_reads_no_weights_equals_the_one_that_does(gpu, rng, monkeypatch, algorithm, chunk):
+    """A whole world's seeds are solids, so its flood is built without reading seeds' weights
+    (ONE_LAUNCH_WEIGHTED=0): the same field, in one launch, as the kernel that reads them."""
+    size = (chunk,) * 3
+    voxels = random_voxels(rng, size[::-1], rng.uniform(0.002, 0.03))
+    fields = []
+    for weighs in (True, False):
+        monkeypatch.setattr(one_launch, "seeds_weigh_nothing", lambda job, weighs=weighs: weighs)
+        monkeypatch.setitem(ALGORITHMS, algorithm, ONE[algorithm])
+        world = World(gpu, WorldConfig(size, chunk, 255, algorithm))
+        try:
+            world.load_voxels(voxels)
+            assert len(world.recompute().kernel_ms) == 1
+            fields.append(world.read_field())
+        finally:
+            world.release()
+    assert np.array_equal(fields[0], fields[1])
+
+
+def test_a_flood_whose_costs_pass_the_keys_bits_falls_back(gpu):
+    """A flood ranks candidates by a key with COST_BITS for the cost: a box whose cap plus longest
+    way could pass them floods a launch a pass; fim, which keeps no keys, still takes one launch."""
+    world = World(gpu, WorldConfig((2048, 8, 8), 8, 255, "jfa"))
+    try:
+        def job(x: int, cap: int) -> RegionJob:  # a box of x * 4 * 4: seeds of 11 + 2 + 2 bits at most
+            box = Box((0, 0, 0), (x, 4, 4))
+            return RegionJob(world.buffers, box, box, False, cap)
+
+        for cap in (255, 3):  # ways up to 2047 + 3 + 3
+            assert ONE["jfa"].small.plan(gpu, job(2048, cap)) is None
+            assert ONE["jfa_fim"].small.plan(gpu, job(2048, cap)) is None
+        if gpu.device.local_mem_size >= 2048 * 16 + 64:
+            assert ONE["fim"].small.plan(gpu, job(2048, 255)) is not None
+        if gpu.device.local_mem_size >= 1024 * 16 * 5 + 64:  # 255 + 1023 + 6: within the bits
+            assert ONE["jfa"].small.plan(gpu, job(1024, 255)) is not None
+    finally:
+        world.release()

@@ -27,6 +27,7 @@ misses versions that the step log does not hold either raises ``CorruptData``.
 
 from __future__ import annotations
 
+import fcntl
 import logging
 import os
 import threading
@@ -201,22 +202,24 @@ def _restore_world(directory: Path, found: list[tuple[int, int, list[bytes]]]) -
     records = [(first + i, p) for e, first, payloads in found if e == epoch for i, p in enumerate(payloads)]
     if not records:
         return 0  # written under another epoch: fenced, never acknowledged
-    data = memoryview(newest.read_bytes())
-    offset, last = SEGMENT_HEADER.size, base
-    while offset < len(data):  # up to the first record that is not whole, whatever follows it
-        version, end, why = record_at(data, offset)
-        if why or version != last + 1:
-            break
-        offset, last = end, version
-    missing = [(v, p) for v, p in records if v > last]
-    if not missing:  # whole, but perhaps only in the page cache: durable before the step log goes
-        fsync_file(newest)
-        return 0
-    if missing[0][0] != last + 1:
-        raise CorruptData(str(newest), offset, f"the log ends at version {last} and the step log "
-                          f"holds versions from {missing[0][0]}: versions in between are lost")
     fd = os.open(newest, os.O_WRONLY)
     try:
+        # a holder that still runs writes what it held under this lock, unless fenced (WorldLog)
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        data = memoryview(newest.read_bytes())
+        offset, last = SEGMENT_HEADER.size, base
+        while offset < len(data):  # up to the first record that is not whole, whatever follows it
+            version, end, why = record_at(data, offset)
+            if why or version != last + 1:
+                break
+            offset, last = end, version
+        missing = [(v, p) for v, p in records if v > last]
+        if not missing:  # whole, but perhaps only in the page cache: durable before the step log goes
+            fsync_file(newest)
+            return 0
+        if missing[0][0] != last + 1:
+            raise CorruptData(str(newest), offset, f"the log ends at version {last} and the step log "
+                              f"holds versions from {missing[0][0]}: versions in between are lost")
         os.ftruncate(fd, offset)
         os.lseek(fd, offset, os.SEEK_SET)
         frame = memoryview(b"".join(encode_record(v, p) for v, p in missing))

@@ -15,6 +15,7 @@ appender) and the log is trimmed a whole segment at a time.
 
 from __future__ import annotations
 
+import fcntl
 import os
 import threading
 from concurrent.futures import Future
@@ -139,27 +140,45 @@ class WorldLog:
         self.last_version = first_version + len(payloads) - 1
 
     def _write_held_locked(self) -> None:
-        """Write the held records in one ``os.write``, in a new segment if this one is full."""
+        """Write the held records in one ``os.write``, in a new segment if this one is full;
+        drop them if another engine took the world over (``fence``): that engine's take-over
+        wrote what this one acknowledged from its step log, and the rest was never
+        acknowledged. The check and the write hold the segment's ``flock``, which the take-over's
+        replay takes too (``steplog._restore_world``), so the records are written once."""
         if not self._held or self._fd < 0:
             return
         self.committer.check()
+        if self._taken_over():
+            return
         if self._end >= self.segment_limit:
             try:
                 self._rotate_locked(self._held_after)
             except OSError as exc:
                 raise self.committer.fail(str(self.directory), "rotation", exc) from None
-        frame, self._held = self._held, bytearray()
-        view = memoryview(frame)
+        fcntl.flock(self._fd, fcntl.LOCK_EX)
         try:
-            while view:
-                view = view[os.write(self._fd, view):]
-        except OSError as exc:
-            try:  # leave no partial record for a later append to follow
-                os.ftruncate(self._fd, self._end)
-            except OSError:
-                pass  # the failed state below refuses every later append anyway
-            raise self.committer.fail(str(self._path), "write", exc) from None
-        self._end += len(frame)
+            if self._taken_over():
+                return
+            frame, self._held = self._held, bytearray()
+            view = memoryview(frame)
+            try:
+                while view:
+                    view = view[os.write(self._fd, view):]
+            except OSError as exc:
+                try:  # leave no partial record for a later append to follow
+                    os.ftruncate(self._fd, self._end)
+                except OSError:
+                    pass  # the failed state below refuses every later append anyway
+                raise self.committer.fail(str(self._path), "write", exc) from None
+            self._end += len(frame)
+        finally:
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+
+    def _taken_over(self) -> bool:
+        if self.fence is None or self.fence() is None:
+            return False
+        self._held = bytearray()
+        return True
 
     def _flush_locked(self) -> None:
         self.committer.submit(self._fd, str(self._path)).result()

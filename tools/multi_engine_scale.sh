@@ -6,8 +6,9 @@
 # On the GPU machine, after `source .whl/activate.sh`, from the checkout's root:
 #   bash tools/multi_engine_scale.sh 0 0,1
 # K, C, DUR, SIZE and WORKERS override 8 generators, 8 clients each, 20 s, 256^3 worlds, 4 API
-# processes. The generators start 0.3 s apart (so each world's placement sees the ones before it):
-# their runs overlap by all but (K - 1) x 0.3 s. Results: $OUT/scale-*.json and a table on stdout.
+# processes; SERVE_FLAGS adds `sdfserver serve` flags (for example --no-sync). The generators
+# start 0.3 s apart (so each world's placement sees the ones before it): their runs overlap by all
+# but (K - 1) x 0.3 s. Results: $OUT/scale-*.json and a table on stdout.
 set -uo pipefail
 port=8766; K=${K:-8}; C=${C:-8}; DUR=${DUR:-20}; SIZE=${SIZE:-256}; WORKERS=${WORKERS:-4}
 FINAL=${OUT:-/tmp/sdfserver-out}; mkdir -p "$FINAL"
@@ -15,9 +16,10 @@ export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
 source "$(dirname "$0")/serve_build.sh"
 load="python3 clients/loadtest --url http://127.0.0.1:$port --size $SIZE $SIZE $SIZE --quiet"
 for devices in "$@"; do
-  tag=${devices//,/+}
+  tag=${devices//,/_}
+  # shellcheck disable=SC2086  # the flags are words
   DEVICE= serve_build . "$FINAL/scale-$tag-server.log" $port /tmp/sdfserver-scale-data \
-    --devices "$devices" --workers "$WORKERS" || continue
+    --devices "$devices" --workers "$WORKERS" ${SERVE_FLAGS:-} || continue
   timeout 60 $load --clients 1 --duration 8 --read-every 1 --read-size 16 --json "$FINAL/scale-$tag-rtt.json" \
     > /dev/null 2>&1
   pids=()
@@ -36,7 +38,7 @@ out, clients, runs = sys.argv[1], sys.argv[2], sys.argv[3:]
 print("| devices | lone client edit -> field p50 (ms) | generators x clients | batches/s (sum) | worst p99 (ms) | errors |")
 print("| --- | --- | --- | --- | --- | --- |")
 for devices in runs:
-    tag = devices.replace(",", "+")
+    tag = devices.replace(",", "_")
     rtt = json.load(open(f"{out}/scale-{tag}-rtt.json"))["round_trips"]["latency_ms"]["p50"]
     loads = [json.load(open(p)) for p in sorted(glob.glob(f"{out}/scale-{tag}-load*.json"))]
     total = sum(r["throughput_rps"] for r in loads)

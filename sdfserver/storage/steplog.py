@@ -1,8 +1,8 @@
 """One log for every world of an engine: a step's batches made durable by one sync.
 
 Each world's batches still go to its own log (``WorldLog``), but that log holds them in memory
-and writes them only at its next sync (a checkpoint's, a rotation's, ``close``):
-neither written nor synced before they are acknowledged. The step's batches of every world are
+and writes them only at its next sync (a checkpoint's, a rotation's, ``close``): neither
+written nor synced before they are acknowledged. The step's batches of every world are
 written, as one record, to the engine's step log (``<data_dir>/steps/steps-<o>-<n>.log``,
 ``o`` the data directory's opening: ``Storage.epoch``),
 and that one file is synced by the committer: the acknowledgement waits for one ``fdatasync``
@@ -20,8 +20,8 @@ rotated is written and synced first (``WorldLog``), so the checkpoint only ever 
 and over another engine's when a world is taken from it (``Storage.take_over``). For each world
 still here at the epoch an entry was written under, what the newest segment of its log lost of
 the entries (a crash took records still held, or writes that were never synced: a torn tail,
-or a hole with later records after it) is cut and written again from the entries; a log that lost nothing is synced
-as it is (a process that died left its writes in the page cache only). A world whose log
+or a hole with later records after it) is cut and written again from the entries; a log that
+lost nothing is synced as it is (a process that died left its writes in the page cache only). A world whose log
 misses versions that the step log does not hold either raises ``CorruptData``.
 """
 

@@ -7,10 +7,11 @@ consecutive records with one ``os.write``) and hands the file to the ``Committer
 durable. Block on it with ``.result()`` or await it with ``asyncio.wrap_future``; acknowledge
 the batch only after that. ``append_unsynced`` takes records that the step log (``steplog.py``)
 makes durable: it holds them in memory, and they are written with the next sync of the file (a
-checkpoint, a rotation, ``close``) in one ``os.write``, so that an engine step that
-touched many worlds makes one write, the step log's, instead of one a world. A segment that has grown past ``segment_limit`` bytes is closed and
-the next append starts a new one, so snapshots never rotate the log (which would hold up the
-appender) and the log is trimmed a whole segment at a time.
+checkpoint, a rotation, ``close``) in one ``os.write``, so that an engine step that touched
+many worlds makes one write, the step log's, instead of one a world. A segment that has grown
+past ``segment_limit`` bytes is closed and the next append starts a new one, so snapshots never
+rotate the log (which would hold up the appender) and the log is trimmed a whole segment at a
+time.
 """
 
 from __future__ import annotations
@@ -95,12 +96,13 @@ class WorldLog:
         (``wake`` as in ``Committer.submit``)."""
         with self._lock:
             self._hold_locked(first_version, payloads)
-            self._write_held_locked()
+            # written at once: never also written by a take-over, which replays step-log entries only
+            self._write_held_locked(guard_take_over=False)
             return self.committer.submit(self._fd, str(self._path), wake=wake, fence=self.fence)
 
     def append_unsynced(self, first_version: int, payloads: list[bytes]) -> None:
         """``append_many`` without a write or a sync: the step log (``steplog.py``) makes them
-        durable, and its checkpoint, a rotation, a snapshot or ``close`` writes and syncs them."""
+        durable, and its checkpoint, a rotation or ``close`` writes and syncs them."""
         with self._lock:
             self._hold_locked(first_version, payloads)
             self.unsynced = True
@@ -139,7 +141,7 @@ class WorldLog:
         self._held += b"".join([encode_record(first_version + i, p) for i, p in enumerate(payloads)])
         self.last_version = first_version + len(payloads) - 1
 
-    def _write_held_locked(self) -> None:
+    def _write_held_locked(self, guard_take_over: bool = True) -> None:
         """Write the held records in one ``os.write``, in a new segment if this one is full;
         drop them if another engine took the world over (``fence``): that engine's take-over
         wrote what this one acknowledged from its step log, and the rest was never
@@ -148,16 +150,17 @@ class WorldLog:
         if not self._held or self._fd < 0:
             return
         self.committer.check()
-        if self._taken_over():
+        if guard_take_over and self._taken_over():
             return
         if self._end >= self.segment_limit:
             try:
                 self._rotate_locked(self._held_after)
             except OSError as exc:
                 raise self.committer.fail(str(self.directory), "rotation", exc) from None
-        fcntl.flock(self._fd, fcntl.LOCK_EX)
+        if guard_take_over:
+            fcntl.flock(self._fd, fcntl.LOCK_EX)
         try:
-            if self._taken_over():
+            if guard_take_over and self._taken_over():
                 return
             frame, self._held = self._held, bytearray()
             view = memoryview(frame)
@@ -172,7 +175,8 @@ class WorldLog:
                 raise self.committer.fail(str(self._path), "write", exc) from None
             self._end += len(frame)
         finally:
-            fcntl.flock(self._fd, fcntl.LOCK_UN)
+            if guard_take_over:
+                fcntl.flock(self._fd, fcntl.LOCK_UN)
 
     def _taken_over(self) -> bool:
         if self.fence is None or self.fence() is None:

@@ -172,3 +172,22 @@ def test_held_records_reach_the_world_log_in_order_across_rotations_and_a_snapsh
     found = recover_world(data / "worlds" / "w")
     assert found.snapshot_version == 11
     assert found.records == [(v, batch(0, v)) for v in range(12, 19)]
+
+
+def test_a_holder_taken_over_writes_nothing_it_held(tmp_path):
+    source, target = tmp_path / "a", tmp_path / "b"
+    storage = Storage(source)
+    journal = StorageJournal(storage)
+    journal.record_create("w", CONFIG)
+    versions = [0]
+    step(journal, ["w"], versions)  # acknowledged: in the step log, held by the world's log
+    held = journal.stores["w"].log
+    other = Storage(target)
+    other.take_over("w", source)  # the holder does not answer: its step log is replayed there
+    store, found = other.open_world("w")
+    assert found.records == [(v, batch(0, v)) for v in (1, 2)]
+    held.sync_written()  # the old holder's checkpoint comes late: fenced, it writes nothing
+    store.close()
+    other.close()
+    assert recovered(target, "w") == [(v, batch(0, v)) for v in (1, 2)]
+    storage.close()

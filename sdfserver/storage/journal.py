@@ -3,8 +3,9 @@
 The engine calls it on its own thread:
 
 - ``record_create`` creates the world's directory (catalog entry and an empty log);
-- ``record_batches`` appends a step's batches for a world to its log in one write and returns
-  the future that completes once they are durable — the engine acknowledges them only then;
+- ``record_batches`` appends a step's batches for a world to its log (held there until the
+  step log's checkpoint, which the step's record makes unnecessary for durability) and returns
+  what completes once they are durable — the engine acknowledges them only then;
 - ``start_syncs`` hands what the step appended to the committer (``Committer.hand_over``);
 - ``wait_durable`` waits until the committer has acknowledged it (``Committer.wait_settled``);
 - ``record_config`` rewrites the catalog entry before a reconfiguration takes effect;

@@ -74,7 +74,7 @@ class StepLog:
         self._lock = threading.Lock()
         self._number = 0
         self._fd = -1
-        self._written: dict[int, "WorldLog"] = {}  # world logs written since the segment began
+        self._written: dict[int, "WorldLog"] = {}  # world logs appended to since the segment began
         self._checkpoints = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sdfserver-checkpoint",
                                                initializer=name_os_thread)
         self._open_segment()
@@ -119,7 +119,7 @@ class StepLog:
         self._checkpoints.submit(self._checkpoint, old, written)
 
     def _checkpoint(self, segment: Path, written: list["WorldLog"]) -> None:
-        """Sync the world logs written while ``segment`` was current, then delete it."""
+        """Write and sync the world logs appended to while ``segment`` was current, then delete it."""
         try:
             for world_log in written:
                 world_log.sync_written()
@@ -139,8 +139,8 @@ class StepLog:
             self._fd = -1
 
     def close(self) -> None:
-        """Sync every world log written and delete this opening's segments (they hold nothing
-        more); after a failure they stay, for the next start's replay."""
+        """Write and sync every world log appended to and delete this opening's segments (they
+        hold nothing more); after a failure they stay, for the next start's replay."""
         with self._lock:
             if self._fd < 0:
                 return

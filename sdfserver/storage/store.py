@@ -117,8 +117,8 @@ class WorldStore:
         return future
 
     def append_unsynced(self, first_version: int, batches_wire: list[Any]) -> list[bytes]:
-        """Log consecutive batches with one write and no sync (the step log makes them durable:
-        ``steplog.py``); returns their payloads."""
+        """Log consecutive batches, held by the log until its next sync (the step log makes them
+        durable: ``steplog.py``); returns their payloads."""
         payloads = [encode_batch(b) for b in batches_wire]
         self.log.append_unsynced(first_version, payloads)
         self.records_since_snapshot += len(batches_wire)

@@ -150,7 +150,7 @@ class WorldLog:
         if not self._held or self._fd < 0:
             return
         self.committer.check()
-        if guard_take_over and self._taken_over():
+        if guard_take_over and self._dropped_if_taken_over():  # no segment of ours in its directory
             return
         if self._end >= self.segment_limit:
             try:
@@ -160,7 +160,7 @@ class WorldLog:
         if guard_take_over:
             fcntl.flock(self._fd, fcntl.LOCK_EX)
         try:
-            if guard_take_over and self._taken_over():
+            if guard_take_over and self._dropped_if_taken_over():
                 return
             frame, self._held = self._held, bytearray()
             view = memoryview(frame)
@@ -178,7 +178,8 @@ class WorldLog:
             if guard_take_over:
                 fcntl.flock(self._fd, fcntl.LOCK_UN)
 
-    def _taken_over(self) -> bool:
+    def _dropped_if_taken_over(self) -> bool:
+        """Whether another engine holds the world now; if so the held records are dropped."""
         if self.fence is None or self.fence() is None:
             return False
         self._held = bytearray()

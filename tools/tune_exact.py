@@ -1,14 +1,10 @@
 """Per-pass timing of the exact transform on one world, across segment lengths.
 
     python tools/tune_exact.py --size 512 --segs 8,16,32 --reps 20
-    python tools/tune_exact.py --size 512 --xz-lanes 0,4,16   # also the fused x and z pass
 
 For each pass and SEG: the kernel's work-group limit, private (spilled) and
 local memory, the median device time with passes launched back to back (no
-host round trip between repetitions), and the achieved bandwidth. The three-pass
-combinations run first; ``--xz-lanes`` then times the fused x and z pass
-(kernels/exact_xz.cl) and the y pass that follows it. Every field is compared
-with the world's own first recompute (the default's passes).
+host round trip between repetitions), and the achieved bandwidth.
 """
 
 from __future__ import annotations
@@ -36,8 +32,6 @@ def main() -> None:
     p.add_argument("--ptx16", type=int, choices=(0, 1), default=None,
                    help="force SDF_PTX_16X2 off (0) or on (1); default: what the device supports")
     p.add_argument("--lanes", default="0", help="x-lanes of the y/z passes, comma list of L or YL:ZL (0: tuned)")
-    p.add_argument("--xz-lanes", default="", help="also time the fused x and z pass then the y pass: "
-                   "x-lanes a band, comma list (0: tuned); empty: not timed")
     p.add_argument("--reps", type=int, default=20)
     p.add_argument("--check", type=int, choices=(0, 1), default=1,
                    help="compare each combination's field with the first recompute's (0: skip, for 2048^3)")
@@ -90,46 +84,28 @@ def main() -> None:
                     f.write(binary)
                 text = binary.decode(errors="replace")
                 info["ptx_local_decls"] = len(re.findall(r"\.local\s", text))
-        times = time_passes(gpu, exact, job, launches, args.reps)
+        def enqueue(kernel, global_, local):
+            return exact.enqueue(gpu, job, kernel, global_, local)
+        times = {0: [], 1: [], 2: []}
+        for _ in range(2):  # warm-up
+            for axis, kernel, nseg, g, l, _info in launches:
+                enqueue(kernel, g, l)
+        gpu.queue.finish()
+        events = []
+        for _ in range(args.reps):
+            for axis, kernel, nseg, g, l, _info in launches:
+                events.append((axis, enqueue(kernel, g, l)))
+        gpu.queue.finish()
+        for axis, e in events:
+            times[axis].append((e.profile.end - e.profile.start) * 1e-6)
         ok = np.array_equal(world.read_field(), reference) if args.check else "not checked"
-        print(f"SEG={xseg}:{yzseg} vec={vec} lanes={lanes} x_threads={x_threads} order={order_spec} "
-              f"total {sum(times.values()):.4f} ms  correct={ok}")
+        total = sum(np.median(times[a]) for a in range(3))
+        print(f"SEG={xseg}:{yzseg} vec={vec} lanes={lanes} x_threads={x_threads} order={order_spec} total {total:.4f} ms  correct={ok}")
         for axis, kernel, nseg, g, l, info in launches:
-            print(f"   pass {'xyz'[axis]}: {times[axis]:.4f} ms {bytes_moved[axis] / times[axis] / 1e9:.2f} TB/s  "
+            t = np.median(times[axis])
+            print(f"   pass {'xyz'[axis]}: {t:.4f} ms {bytes_moved[axis] / t / 1e9:.2f} TB/s  "
                   f"nseg={nseg} local={l} {info}")
-    for lanes in filter(None, args.xz_lanes.split(",")):
-        xz = exact.xz_shape(gpu, n, n, n, lanes=int(lanes) or None)
-        if xz is None:
-            print(f"fused x and z pass, lanes={lanes}: its plane's bits do not fit local memory")
-            continue
-        launches = [(name, kernel, nseg, g, l, {k: kernel.get_work_group_info(getattr(cl.kernel_work_group_info, k),
-                                                                             gpu.device)
-                                                for k in ("WORK_GROUP_SIZE", "PRIVATE_MEM_SIZE", "LOCAL_MEM_SIZE")})
-                    for name, (kernel, nseg, g, l) in
-                    (("xz", xz), ("y", exact.launch_shape(gpu, 1, n, n, n, n, last=True)))]
-        times = time_passes(gpu, exact, job, launches, args.reps)
-        ok = np.array_equal(world.read_field(), reference) if args.check else "not checked"
-        print(f"fused x and z pass, lanes={lanes}: total {sum(times.values()):.4f} ms  correct={ok}")
-        for name, kernel, nseg, g, l, info in launches:  # bytes: voxels in, work out; work in, field out
-            moved = (2 if name == "xz" else 3) * n**3
-            print(f"   pass {name}: {times[name]:.4f} ms {moved / times[name] / 1e9:.2f} TB/s  nseg={nseg} local={l} {info}")
     world.release()
-
-
-def time_passes(gpu: GpuContext, exact: Exact, job: RegionJob, launches: list, reps: int) -> dict:
-    """Each pass's median device time in ms, the passes launched back to back ``reps`` times after
-    two warm-up rounds; ``launches``: (name, kernel, segments, global, local, info)."""
-    for _ in range(2):
-        for _name, kernel, _nseg, g, l, _info in launches:
-            exact.enqueue(gpu, job, kernel, g, l)
-    gpu.queue.finish()
-    events = [(name, exact.enqueue(gpu, job, kernel, g, l))
-              for _ in range(reps) for name, kernel, _nseg, g, l, _info in launches]
-    gpu.queue.finish()
-    times: dict = {}
-    for name, e in events:
-        times.setdefault(name, []).append((e.profile.end - e.profile.start) * 1e-6)
-    return {name: float(np.median(t)) for name, t in times.items()}
 
 
 if __name__ == "__main__":

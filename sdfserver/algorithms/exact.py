@@ -6,9 +6,7 @@ Felzenszwalb & Huttenlocher 2012): three 1-D min-plus passes along x, y and z,
 each a forward and a backward sweep; O(1) work per voxel per pass, every line
 in parallel. Not in the dissertation; it replaces its per-chunk algorithms.
 Kernel: kernels/exact.cl, three launches; the first derives initial distances
-from voxels and the seed shell, the last writes the packed field. A work box with no seed shell
-(a whole world, a halo job) whose xz-planes fit local memory as bits takes two: the x and z passes
-in one (kernels/exact_xz.cl), then the y pass writes the field.
+from voxels and the seed shell, the last writes the packed field.
 Units: voxels. Halo: one-voxel seed shell (seeded) or ``cap`` voxels (halo).
 Signed worlds: a second run with ``RegionJob.invert`` writes each solid's distance to the
 nearest air voxel over R's solids (kernels/exact.cl, INVERT).
@@ -63,9 +61,6 @@ PASS_SHAPES = {
 # The first pass derives initial distances from voxels and the seed shell, the last packs the
 # field; the order is free (the transform is separable). Measured on the H200 at 512^3.
 PASS_ORDER = (0, 1, 2)
-# The x and z passes in one (kernels/exact_xz.cl): the z-lines cut as the z pass's, 8 x-lanes of
-# 4 columns a band, so a warp writes whole 32-byte sectors of a row.
-XZ_SHAPE = PassShape(segments=32, min_seg=4, max_seg=16, vec=4, lanes=8)
 X_PASS_THREADS = 128  # work-items per work-group for the x pass (tuned on the H200)
 PASSES_MEMO_SIZE = 1024  # work-box shapes remembered per device; region shapes repeat
 
@@ -99,37 +94,21 @@ def work_plane(job: RegionJob) -> int:
     return nx * ny + WORK_PLANE_PAD
 
 
-def bytes_moved(job: RegionJob, fused: bool = False) -> int:
-    """The bytes the passes must move, for achieved bandwidth: over the work box W the first
-    reads voxels and writes work, the second reads and writes work, the last reads work (fused:
-    the x and z pass reads voxels and writes work, the y pass reads work); the last writes the
-    2-byte field over R. The seed shell's field reads and the last pass's colour reads (only
-    where solids are) are not counted."""
-    return (3 if fused else 5) * job.work_box.volume + 2 * job.region.volume
-
-
-def xz_local(nx: int, nz: int, seg: int, nseg: int, lanes: int, vec: int) -> tuple[int, int, int]:
-    """The fused x and z pass's local memory for xz-planes of nx by nz: its bits' words and rows
-    as built (powers of two, so few variants cover every shape) and its bytes, scan included."""
-    words = 1 << max(5, (-(-nx // 32) * nz - 1).bit_length())
-    rows = 1 << max(3, (nz - 1).bit_length())
-    return words, rows, 4 * words + 8 * rows + 4 * nseg * lanes * 2 * vec
-
-
-def fusable(job: RegionJob) -> bool:
-    """Whether a job's initial distances come from voxels alone (no seed shell: a whole world, a
-    halo job), in a plain unsigned run, which the fused x and z pass needs."""
-    return not (job.invert or job.signed or job.chunk) and (not job.seeded or job.work_box == job.region)
+def bytes_moved(job: RegionJob) -> int:
+    """The bytes the three passes must move, for achieved bandwidth: over the work box W the
+    first reads voxels and writes work, the second reads and writes work, the last reads work;
+    the last writes the 2-byte field over R. The seed shell's field reads and the last pass's
+    colour reads (only where solids are) are not counted."""
+    return 5 * job.work_box.volume + 2 * job.region.volume
 
 
 class Exact:
     name = "exact"
     exact = True
 
-    def __init__(self, fuse_xz: bool = True) -> None:
+    def __init__(self) -> None:
         # Per program cache (one per device context), gone with it.
         self._passes: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-        self.fuse_xz = fuse_xz  # False: three passes always (tools/tune_exact.py compares them)
 
     def launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int,
                      seg: int | None = None, lanes: int | None = None, vec: int | None = None,
@@ -165,21 +144,6 @@ class Exact:
                                          **({"SIGNED_WORLD": 1} if signed_world else {}))
         return kernel, nseg, global_, local
 
-    def xz_shape(self, gpu: GpuContext, nx: int, ny: int, nz: int, seg: int | None = None,
-                 lanes: int | None = None):
-        """The fused x and z pass's (kernel, segments, global, local) for a work box of nx, ny, nz,
-        or None where its xz-planes' bits do not fit the device's local memory."""
-        shape = XZ_SHAPE
-        lanes = lanes or shape.lanes
-        seg = seg or segment_length(nz, shape, lanes)
-        nseg = segment_count(nz, seg, shape)
-        words, rows, needed = xz_local(nx, nz, seg, nseg, lanes, shape.vec)
-        if needed > gpu.device.local_mem_size or lanes * nseg > MAX_GROUP:
-            return None
-        kernel = gpu.programs.kernel("exact_xz.cl", "pass_xz", SEG=seg, VEC=shape.vec, LOCAL_X=lanes,
-                                     LOCAL_Y=nseg, PLANE_WORDS=words, ROWS=rows)
-        return kernel, nseg, (lanes, nseg * ny), (lanes, nseg)
-
     @staticmethod
     def enqueue(gpu: GpuContext, job: RegionJob, kernel, global_, local):
         """Launch one pass over the job's work box; returns its event."""
@@ -194,38 +158,35 @@ class Exact:
         programs = set()
         line = 8
         while line <= max_line:
-            for fused in (False, True) if self.fuse_xz else (False,):
-                for kernel, *_ in self.passes(gpu, (line, line, line), fusable=fused):
-                    programs.add(kernel.program.int_ptr)
+            for position, axis in enumerate(PASS_ORDER):
+                kernel, *_ = self.launch_shape(gpu, axis, line, line, line, line,
+                                               first=position == 0, last=position == 2)
+                programs.add(kernel.program.int_ptr)
             line *= 2
         return len(programs)
 
     def passes(self, gpu: GpuContext, n: tuple[int, int, int], invert: bool = False,
-               signed_world: bool = False, fusable: bool = False) -> list:
-        """The passes' (kernel, segments, global, local) for a work box of shape ``n``, memoized
-        per device: working them out costs more host time than launching them. ``invert``: a
-        signed world's distances inside solids (kernels/exact.cl, INVERT); ``signed_world``:
-        either run of a signed world (SIGNED_WORLD); ``fusable``: a job the fused x and z pass
-        can take (``fusable()``), which it does where its planes fit (two passes, not three)."""
+               signed_world: bool = False) -> list:
+        """The three passes' (kernel, segments, global, local) for a work box of shape ``n``,
+        memoized per device: working them out costs more host time than launching them.
+        ``invert``: a signed world's distances inside solids (kernels/exact.cl, INVERT);
+        ``signed_world``: either run of a signed world (SIGNED_WORLD)."""
         memo = self._passes.setdefault(gpu.programs, {})
-        key = (n, invert, signed_world, fusable and self.fuse_xz)
-        found = memo.get(key)
+        found = memo.get((n, invert, signed_world))
         if found is None:
             if len(memo) >= PASSES_MEMO_SIZE:
                 memo.clear()
-            xz = self.xz_shape(gpu, *n) if key[3] else None
-            found = memo[key] = [xz, self.launch_shape(gpu, 1, n[1], *n, last=True)] if xz else [
+            found = memo[n, invert, signed_world] = [
                 self.launch_shape(gpu, axis, n[axis], *n, first=position == 0, last=position == 2, invert=invert,
                                   signed_world=signed_world)
                 for position, axis in enumerate(PASS_ORDER)]
         return found
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
-        launches = self.passes(gpu, job.work_box.shape_xyz, job.invert, job.signed, fusable(job))
-        run = AlgorithmRun(bytes_moved=bytes_moved(job, len(launches) == 2))
-        args = pass_args(job)  # every pass takes the same arguments
+        run = AlgorithmRun(bytes_moved=bytes_moved(job))
+        args = pass_args(job)  # the three passes take the same arguments
         queue, own = gpu.queue, job.buffers.kernels
-        for kernel, _, global_, local in launches:
+        for kernel, _, global_, local in self.passes(gpu, job.work_box.shape_xyz, job.invert, job.signed):
             if own is None:
                 run.events.append(kernel(queue, global_, local, *args))
             else:  # the world's copy: only the arguments that changed since its last launch are set
@@ -250,9 +211,8 @@ class Exact:
             args[:3] = pool.work, pool.voxels, pool.field
             args[-3:] = slot_table(slots), np.int64(voxel_stride), np.int64(work_stride)
             args = pool.runs[key] = tuple(args)
-        launches = self.passes(gpu, job.work_box.shape_xyz, fusable=fusable(job))
-        run = AlgorithmRun(bytes_moved=bytes_moved(job, len(launches) == 2) * len(slots))
-        for kernel, _, global_, local in launches:
+        run = AlgorithmRun(bytes_moved=bytes_moved(job) * len(slots))
+        for kernel, _, global_, local in self.passes(gpu, job.work_box.shape_xyz):
             run.events.append(pool.kernels.enqueue(gpu.queue, kernel, (*global_, len(slots)), (*local, 1), args))
         return run
 
@@ -263,9 +223,9 @@ class Exact:
         own = job.buffers.kernels
         if own is None:
             return partial(self.run, gpu, job)
-        passes = self.passes(gpu, job.work_box.shape_xyz, job.invert, job.signed, fusable(job))
-        args, moved, queue = pass_args(job), bytes_moved(job, len(passes) == 2), gpu.queue
-        launches = [(kernel, global_, local) for kernel, _, global_, local in passes]
+        args, moved, queue = pass_args(job), bytes_moved(job), gpu.queue
+        launches = [(kernel, global_, local) for kernel, _, global_, local in
+                    self.passes(gpu, job.work_box.shape_xyz, job.invert, job.signed)]
 
         def run() -> AlgorithmRun:
             events = [own.enqueue(queue, kernel, global_, local, args) for kernel, global_, local in launches]

@@ -31,17 +31,10 @@
  * z rows exactly a power of two apart (a 512^2 plane is 2^18 bytes) read
  * about 10% slower in the z pass.
  * One program holds one pass: pass_yz when VEC is defined, else pass_x.
- *
- * FROM_BITS 1 (pass_yz along y, FIRST): a work box with no seed shell (every initial distance from
- * the voxels) skips pass_x: this pass takes each voxel's x-distance from `bits`, which
- * kernels/exact_bits.cl wrote just before from the voxels (kernels/include/solid_bits.h), and the
- * z pass writes the field: a quarter of a byte a voxel written and read where pass_x wrote and the
- * y pass read a byte each. Every other pass takes `bits` and leaves it alone.
- *
  * Build options: SEG (elements per work-item), AXIS (pass_yz: 1 = y, 2 = z),
  * VEC (pass_yz: x-columns per work-item, 2, 4 or 8), LOCAL_X, LOCAL_Y (the
  * work-group: pass_x (segments, line pairs); pass_yz (x-lanes, segments)),
- * FIRST, LAST, SDF_PTX_16X2, INVERT, SIGNED_WORLD, WORLD_OUT, FROM_BITS.
+ * FIRST, LAST, SDF_PTX_16X2, INVERT, SIGNED_WORLD, WORLD_OUT.
  *
  * WORLD_OUT 1 (pass_x with FIRST and not LAST): the Euclidean transform's x stage
  * (kernels/edt.cl) — the 1-D distances written into `work` in the world's layout, over R only
@@ -252,7 +245,7 @@ inline void pack8(__global ushort *field, __global const uchar *voxels, ushort8 
 /* x: lines are contiguous; each work-item holds SEG elements of two lines (one
  * per 16-bit lane) and loads them as uchar8 vectors. */
 __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *voxels,
-                     __global ushort *field, __global const uint *bits, int4 dims, int4 w_lo, int4 w_n,
+                     __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
                      int4 r_lo, int4 r_hi, int seeded, int cap, int plane, int4 world_lo, int4 world_hi,
                      int8 slots, long voxel_stride, long work_stride)
 {
@@ -361,16 +354,9 @@ __kernel GROUP_SHAPE void pass_x(__global uchar *work, __global const uchar *vox
 #else
 #error VEC must be 2, 4 or 8
 #endif
-#ifndef FROM_BITS
-#define FROM_BITS 0
-#endif
-#if FROM_BITS && !(AXIS == 1 && FIRST && !INVERT)
-#error FROM_BITS is the first pass along y of a plain run
-#endif
-#include "solid_bits.h"
 
 __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *voxels,
-                      __global ushort *field, __global const uint *bits, int4 dims, int4 w_lo, int4 w_n,
+                      __global ushort *field, int4 dims, int4 w_lo, int4 w_n,
                       int4 r_lo, int4 r_hi, int seeded, int cap, int plane, int4 world_lo, int4 world_hi,
                       int8 slots, long voxel_stride, long work_stride)
 {
@@ -391,11 +377,6 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
 #endif
     const size_t base = (size_t)lz * (size_t)plane + (size_t)ly * (size_t)w_n.x + (size_t)lx;
     const int t0 = seg * SEG;
-#if FROM_BITS
-    /* the x pass's distances, from the work box's bits (kernels/include/solid_bits.h) */
-    const int words = row_words(w_n);
-    __global const uint2 *bit_words = (__global const uint2 *)bits;
-#endif
 
 #if AXIS == 1
 #define WORLD_AT(t) world_index(w_lo.x + lx, w_lo.y + (t), w_lo.z + lz, dims)
@@ -413,10 +394,7 @@ __kernel GROUP_SHAPE void pass_yz(__global uchar *work, __global const uchar *vo
     _Pragma("unroll") for (int k = 0; k < SEG; ++k) {
         const int t = t0 + k;
         if (valid && t < len) {
-#if FROM_BITS
-            const size_t row = (size_t)lz * (size_t)w_n.y + (size_t)t;
-            d[k] = as_wordV(x_distances(bit_words[row * (size_t)words + (size_t)(lx >> 5)], lx, cap));
-#elif FIRST
+#if FIRST
             const size_t i = WORLD_AT(t);
             const ushortV v = convert_ushortV(*(__global const ucharV *)(voxels + i));
             ushortV init = select((ushortV)(INVERT ? 0 : cap), (ushortV)(INVERT ? cap : 0), v != (ushortV)(0));

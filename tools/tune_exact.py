@@ -1,14 +1,10 @@
 """Per-pass timing of the exact transform on one world, across segment lengths.
 
     python tools/tune_exact.py --size 512 --segs 8,16,32 --reps 20
-    python tools/tune_exact.py --size 512 --bits 1     # also the x pass as bits
 
 For each pass and SEG: the kernel's work-group limit, private (spilled) and
 local memory, the median device time with passes launched back to back (no
-host round trip between repetitions), and the achieved bandwidth. The three-pass
-combinations run first (the x pass reading voxels); ``--bits 1`` then times the
-whole-world default, bits (kernels/exact_bits.cl), the y pass from them and the z
-pass. Every field is compared with the world's own first recompute.
+host round trip between repetitions), and the achieved bandwidth.
 """
 
 from __future__ import annotations
@@ -36,8 +32,6 @@ def main() -> None:
     p.add_argument("--ptx16", type=int, choices=(0, 1), default=None,
                    help="force SDF_PTX_16X2 off (0) or on (1); default: what the device supports")
     p.add_argument("--lanes", default="0", help="x-lanes of the y/z passes, comma list of L or YL:ZL (0: tuned)")
-    p.add_argument("--bits", type=int, choices=(0, 1), default=0,
-                   help="1: also time the x pass as bits, the y pass from them, then the z pass")
     p.add_argument("--reps", type=int, default=20)
     p.add_argument("--check", type=int, choices=(0, 1), default=1,
                    help="compare each combination's field with the first recompute's (0: skip, for 2048^3)")
@@ -58,7 +52,7 @@ def main() -> None:
     world.recompute()
     reference = world.read_field() if args.check else None
     job = RegionJob.seeded_region(world.buffers, world.world_box, 255)
-    exact = Exact(from_bits=False)
+    exact = Exact()
     print(f"{gpu.device_name}, {n}^3, defines {gpu.programs.device_defines}")
     combos = [(s, l, int(t), o) for s in args.segs.split(",") for l in args.lanes.split(",")
               for t in args.x_threads.split(",") for o in args.order.split(",")]
@@ -90,43 +84,28 @@ def main() -> None:
                     f.write(binary)
                 text = binary.decode(errors="replace")
                 info["ptx_local_decls"] = len(re.findall(r"\.local\s", text))
-        times = time_passes(gpu, exact, job, launches, args.reps)
+        def enqueue(kernel, global_, local):
+            return exact.enqueue(gpu, job, kernel, global_, local)
+        times = {0: [], 1: [], 2: []}
+        for _ in range(2):  # warm-up
+            for axis, kernel, nseg, g, l, _info in launches:
+                enqueue(kernel, g, l)
+        gpu.queue.finish()
+        events = []
+        for _ in range(args.reps):
+            for axis, kernel, nseg, g, l, _info in launches:
+                events.append((axis, enqueue(kernel, g, l)))
+        gpu.queue.finish()
+        for axis, e in events:
+            times[axis].append((e.profile.end - e.profile.start) * 1e-6)
         ok = np.array_equal(world.read_field(), reference) if args.check else "not checked"
-        print(f"SEG={xseg}:{yzseg} vec={vec} lanes={lanes} x_threads={x_threads} order={order_spec} "
-              f"total {sum(times.values()):.4f} ms  correct={ok}")
+        total = sum(np.median(times[a]) for a in range(3))
+        print(f"SEG={xseg}:{yzseg} vec={vec} lanes={lanes} x_threads={x_threads} order={order_spec} total {total:.4f} ms  correct={ok}")
         for axis, kernel, nseg, g, l, info in launches:
-            print(f"   pass {'xyz'[axis]}: {times[axis]:.4f} ms {bytes_moved[axis] / times[axis] / 1e9:.2f} TB/s  "
-                  f"nseg={nseg} local={l} {info}")
-    if args.bits:
-        launches = [(name, kernel, nseg, g, l, {k: kernel.get_work_group_info(getattr(cl.kernel_work_group_info, k),
-                                                                             gpu.device)
-                                                for k in ("WORK_GROUP_SIZE", "PRIVATE_MEM_SIZE", "LOCAL_MEM_SIZE")})
-                    for name, (kernel, nseg, g, l) in zip(("bits", "y", "z"), Exact().passes(gpu, (n, n, n), bits=True))]
-        times = time_passes(gpu, exact, job, launches, args.reps)
-        ok = np.array_equal(world.read_field(), reference) if args.check else "not checked"
-        print(f"x pass as bits: total {sum(times.values()):.4f} ms  correct={ok}")
-        # bytes: voxels in and bits out (a quarter of a byte); bits in and work out; work in, field out
-        moved = {"bits": 5 * n**3 / 4, "y": 5 * n**3 / 4, "z": 3 * n**3}
-        for name, kernel, nseg, g, l, info in launches:
-            print(f"   pass {name}: {times[name]:.4f} ms {moved[name] / times[name] / 1e9:.2f} TB/s  "
+            t = np.median(times[axis])
+            print(f"   pass {'xyz'[axis]}: {t:.4f} ms {bytes_moved[axis] / t / 1e9:.2f} TB/s  "
                   f"nseg={nseg} local={l} {info}")
     world.release()
-
-
-def time_passes(gpu: GpuContext, exact: Exact, job: RegionJob, launches: list, reps: int) -> dict:
-    """Each pass's median device time in ms, the passes launched back to back ``reps`` times after
-    two warm-up rounds; ``launches``: (name, kernel, segments, global, local, info)."""
-    for _ in range(2):
-        for _name, kernel, _nseg, g, l, _info in launches:
-            exact.enqueue(gpu, job, kernel, g, l)
-    gpu.queue.finish()
-    events = [(name, exact.enqueue(gpu, job, kernel, g, l))
-              for _ in range(reps) for name, kernel, _nseg, g, l, _info in launches]
-    gpu.queue.finish()
-    times: dict = {}
-    for name, e in events:
-        times.setdefault(name, []).append((e.profile.end - e.profile.start) * 1e-6)
-    return {name: float(np.median(t)) for name, t in times.items()}
 
 
 if __name__ == "__main__":

@@ -6,9 +6,7 @@ Felzenszwalb & Huttenlocher 2012): three 1-D min-plus passes along x, y and z,
 each a forward and a backward sweep; O(1) work per voxel per pass, every line
 in parallel. Not in the dissertation; it replaces its per-chunk algorithms.
 Kernel: kernels/exact.cl, three launches; the first derives initial distances
-from voxels and the seed shell, the last writes the packed field. A work box with no seed shell
-(a whole world, a halo job) replaces the x pass with a bit a voxel (kernels/exact_bits.cl), from
-which the y pass reads each voxel's distance along x (FROM_BITS).
+from voxels and the seed shell, the last writes the packed field.
 Units: voxels. Halo: one-voxel seed shell (seeded) or ``cap`` voxels (halo).
 Signed worlds: a second run with ``RegionJob.invert`` writes each solid's distance to the
 nearest air voxel over R's solids (kernels/exact.cl, INVERT).
@@ -63,7 +61,6 @@ PASS_SHAPES = {
 # The first pass derives initial distances from voxels and the seed shell, the last packs the
 # field; the order is free (the transform is separable). Measured on the H200 at 512^3.
 PASS_ORDER = (0, 1, 2)
-BITS_GROUP = 256  # work-items of a solid_bits work-group: whole rows of one word each
 X_PASS_THREADS = 128  # work-items per work-group for the x pass (tuned on the H200)
 PASSES_MEMO_SIZE = 1024  # work-box shapes remembered per device; region shapes repeat
 
@@ -97,35 +94,26 @@ def work_plane(job: RegionJob) -> int:
     return nx * ny + WORK_PLANE_PAD
 
 
-def bytes_moved(job: RegionJob, from_bits: bool = False) -> int:
-    """The bytes the passes must move, for achieved bandwidth: over the work box W the first
-    reads voxels and writes work, the second reads and writes work, the last reads work (from
-    bits: the first reads voxels and writes a quarter of a byte each, the second reads that and
-    writes work); the last writes the 2-byte field over R. The seed shell's field reads and the last
-    pass's colour reads (only where solids are) are not counted."""
-    return (7 * job.work_box.volume // 2 if from_bits else 5 * job.work_box.volume) + 2 * job.region.volume
-
-
-def takes_bits(job: RegionJob) -> bool:
-    """Whether a job's initial distances come from voxels alone (no seed shell: a whole world, a
-    halo job), in a plain unsigned run: its x pass can be bits (kernels/exact_bits.cl)."""
-    return not (job.invert or job.signed or job.chunk) and (not job.seeded or job.work_box == job.region)
+def bytes_moved(job: RegionJob) -> int:
+    """The bytes the three passes must move, for achieved bandwidth: over the work box W the
+    first reads voxels and writes work, the second reads and writes work, the last reads work;
+    the last writes the 2-byte field over R. The seed shell's field reads and the last pass's
+    colour reads (only where solids are) are not counted."""
+    return 5 * job.work_box.volume + 2 * job.region.volume
 
 
 class Exact:
     name = "exact"
     exact = True
 
-    def __init__(self, from_bits: bool = True) -> None:
+    def __init__(self) -> None:
         # Per program cache (one per device context), gone with it.
         self._passes: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-        self.from_bits = from_bits  # False: three passes always (tools/tune_exact.py compares them)
 
     def launch_shape(self, gpu: GpuContext, axis: int, line_len: int, nx: int, ny: int, nz: int,
                      seg: int | None = None, lanes: int | None = None, vec: int | None = None,
                      x_threads: int = X_PASS_THREADS, first: bool = False, last: bool = False,
-                     invert: bool = False, world_out: bool = False, signed_world: bool = False,
-                     from_bits: bool = False):
+                     invert: bool = False, world_out: bool = False, signed_world: bool = False):
         """The kernel, segments per line, and global/local sizes for one pass.
 
         Each pass is compiled for its work-group shape (reqd_work_group_size),
@@ -153,18 +141,8 @@ class Exact:
             kernel = gpu.programs.kernel("exact.cl", "pass_yz", SEG=seg, AXIS=axis, VEC=vec,
                                          LOCAL_X=local[0], LOCAL_Y=local[1],
                                          FIRST=int(first), LAST=int(last), **({"INVERT": 1} if invert else {}),
-                                         **({"SIGNED_WORLD": 1} if signed_world else {}),
-                                         **({"FROM_BITS": 1} if from_bits else {}))
+                                         **({"SIGNED_WORLD": 1} if signed_world else {}))
         return kernel, nseg, global_, local
-
-    @staticmethod
-    def bits_shape(gpu: GpuContext, nx: int, ny: int, nz: int):
-        """The bits pass's (kernel, 0, global, local) over a work box of nx, ny, nz: a work-item a
-        word, whole rows a work-group."""
-        words = 1 << (-(-nx // 32) - 1).bit_length()
-        rows = max(1, BITS_GROUP // words)
-        kernel = gpu.programs.kernel("exact_bits.cl", "solid_bits", RW_LOCAL=words, ROWS_LOCAL=rows)
-        return kernel, 0, (words, -(-(ny * nz) // rows) * rows), (words, rows)
 
     @staticmethod
     def enqueue(gpu: GpuContext, job: RegionJob, kernel, global_, local):
@@ -180,39 +158,35 @@ class Exact:
         programs = set()
         line = 8
         while line <= max_line:
-            for bits in (False, True) if self.from_bits else (False,):
-                for kernel, *_ in self.passes(gpu, (line, line, line), bits=bits):
-                    programs.add(kernel.program.int_ptr)
+            for position, axis in enumerate(PASS_ORDER):
+                kernel, *_ = self.launch_shape(gpu, axis, line, line, line, line,
+                                               first=position == 0, last=position == 2)
+                programs.add(kernel.program.int_ptr)
             line *= 2
         return len(programs)
 
     def passes(self, gpu: GpuContext, n: tuple[int, int, int], invert: bool = False,
-               signed_world: bool = False, bits: bool = False) -> list:
+               signed_world: bool = False) -> list:
         """The three passes' (kernel, segments, global, local) for a work box of shape ``n``,
         memoized per device: working them out costs more host time than launching them.
         ``invert``: a signed world's distances inside solids (kernels/exact.cl, INVERT);
-        ``signed_world``: either run of a signed world (SIGNED_WORLD); ``bits``: a job whose x
-        pass can be bits (``takes_bits``), which it is unless ``from_bits`` is off."""
+        ``signed_world``: either run of a signed world (SIGNED_WORLD)."""
         memo = self._passes.setdefault(gpu.programs, {})
-        key = (n, invert, signed_world, bits and self.from_bits)
-        found = memo.get(key)
+        found = memo.get((n, invert, signed_world))
         if found is None:
             if len(memo) >= PASSES_MEMO_SIZE:
                 memo.clear()
-            found = memo[key] = [self.bits_shape(gpu, *n), *(
-                self.launch_shape(gpu, axis, n[axis], *n, first=axis == 1, last=axis == 2, from_bits=axis == 1)
-                for axis in (1, 2))] if key[3] else [
+            found = memo[n, invert, signed_world] = [
                 self.launch_shape(gpu, axis, n[axis], *n, first=position == 0, last=position == 2, invert=invert,
                                   signed_world=signed_world)
                 for position, axis in enumerate(PASS_ORDER)]
         return found
 
     def run(self, gpu: GpuContext, job: RegionJob) -> AlgorithmRun:
-        bits = takes_bits(job) and self.from_bits
-        run = AlgorithmRun(bytes_moved=bytes_moved(job, bits))
+        run = AlgorithmRun(bytes_moved=bytes_moved(job))
         args = pass_args(job)  # the three passes take the same arguments
         queue, own = gpu.queue, job.buffers.kernels
-        for kernel, _, global_, local in self.passes(gpu, job.work_box.shape_xyz, job.invert, job.signed, bits):
+        for kernel, _, global_, local in self.passes(gpu, job.work_box.shape_xyz, job.invert, job.signed):
             if own is None:
                 run.events.append(kernel(queue, global_, local, *args))
             else:  # the world's copy: only the arguments that changed since its last launch are set
@@ -249,10 +223,9 @@ class Exact:
         own = job.buffers.kernels
         if own is None:
             return partial(self.run, gpu, job)
-        bits = takes_bits(job) and self.from_bits
-        args, moved, queue = pass_args(job), bytes_moved(job, bits), gpu.queue
+        args, moved, queue = pass_args(job), bytes_moved(job), gpu.queue
         launches = [(kernel, global_, local) for kernel, _, global_, local in
-                    self.passes(gpu, job.work_box.shape_xyz, job.invert, job.signed, bits)]
+                    self.passes(gpu, job.work_box.shape_xyz, job.invert, job.signed)]
 
         def run() -> AlgorithmRun:
             events = [own.enqueue(queue, kernel, global_, local, args) for kernel, global_, local in launches]
@@ -276,9 +249,7 @@ def pass_args(job: RegionJob) -> tuple:
     """The arguments of every pass over ``job`` (kernels/exact.cl)."""
     b, work_box = job.buffers, job.work_box
     world = job.world_box
-    # `work2` holds the bits (8 bytes a word of 32 voxels of W, x-extents multiples of 8: never
-    # more than W's bytes)
-    return (b.work, b.voxels, b.field, b.work2, int4(b.dims), int4(work_box.lo), int4(work_box.shape_xyz),
+    return (b.work, b.voxels, b.field, int4(b.dims), int4(work_box.lo), int4(work_box.shape_xyz),
             int4(job.region.lo), int4(job.region.hi),
             np.int32(job.seeded), np.int32(job.cap), np.int32(work_plane(job)), int4(world.lo), int4(world.hi),
             NO_SLOTS, NO_STRIDE, NO_STRIDE)

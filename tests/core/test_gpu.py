@@ -58,17 +58,16 @@ def test_every_kernel_declares_its_scalar_argument_types(gpu):
     expected = {"fill_sphere": [None, int4, int4, int4, int4, cl.cltypes.float4, np.float32, np.uint32],
                 "set_voxels": [None, int4, int4, None, np.int32]}
     kernels = [Exact().launch_shape(gpu, axis, 64, 64, 64, 64)[0] for axis in range(3)]  # needs defines
-    kernels.append(Exact().bits_shape(gpu, 64, 64, 64)[0])
     kernels += gpu.programs.get("jfa.cl", JFA_STEP=1).all_kernels()  # compiled for each pass's step
     for path in sorted(programs.KERNEL_DIR.glob("*.cl")):
-        if path.name not in ("exact.cl", "exact_bits.cl", "jfa.cl"):
+        if path.name not in ("exact.cl", "jfa.cl"):
             kernels += gpu.programs.get(path.name).all_kernels()
     found = {}
     for kernel in kernels:
         dtypes = programs.scalar_arg_dtypes(kernel)
         assert dtypes is not None and len(dtypes) == kernel.num_args, kernel.function_name
         found[kernel.function_name] = dtypes
-    assert {"pass_x", "pass_yz", "solid_bits", "render", "query_points", "init_work"} <= set(found)
+    assert {"pass_x", "pass_yz", "render", "query_points", "init_work"} <= set(found)
     for name, dtypes in expected.items():
         assert found[name] == expected[name], name
 

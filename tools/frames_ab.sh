@@ -35,9 +35,9 @@ for r in range(1, rounds + 1):
     for side in ("other", "this"):
         name = f"{side}-{r}"
         try:
-            ws = json.load(open(f"{out}/{name}-ws.json"))
-            fps = ws.get("fps", ws.get("frames_per_s"))
-        except (OSError, ValueError):
+            ws = json.load(open(f"{out}/{name}-ws.json"))  # tools/ws_frames.py --json: one result a format
+            fps = f"{ws['results'][0]['fps_min']:.1f}"
+        except (OSError, ValueError, KeyError, IndexError):
             fps = "(none)"
         try:
             reads = json.load(open(f"{out}/{name}-reads.json"))["reads"]

@@ -62,6 +62,7 @@ PASS_SHAPES = {
 # field; the order is free (the transform is separable). Measured on the H200 at 512^3.
 PASS_ORDER = (0, 1, 2)
 X_PASS_THREADS = 128  # work-items per work-group for the x pass (tuned on the H200)
+COUNT_STEP = 8  # segments a long line's count grows by (segment_count)
 PASSES_MEMO_SIZE = 1024  # work-box shapes remembered per device; region shapes repeat
 
 
@@ -76,16 +77,25 @@ def segment_length(line_len: int, shape: PassShape, lanes: int | None = None) ->
 
 
 def segment_count(line_len: int, seg: int, shape: PassShape) -> int:
-    """Work-items per line: the shape's count whenever it covers the line.
+    """Work-items per line: the shape's count whenever it covers the line, else (a long line at
+    the longest segment) just enough, rounded up to COUNT_STEP.
 
-    A fixed count (doubled only for lines longer than max_seg * segments) keeps the number of
-    compiled variants small, whatever region sizes incremental updates bring; unused tail
-    segments do nothing.
+    A fixed count keeps the number of compiled variants small, whatever region sizes incremental
+    updates bring; unused tail segments do nothing. Past it, steps of COUNT_STEP keep the idle
+    ones few: doubling the count left a line of 544 voxels 30 idle segments of 64.
     """
     count = shape.segments
-    while seg * count < line_len:  # long lines at the longest segment: double the count
-        count *= 2
+    if seg * count < line_len:
+        count = -(-line_len // (seg * COUNT_STEP)) * COUNT_STEP
     return count
+
+
+def pass_variant(axis: int, line_len: int) -> tuple[int, int, int]:
+    """What a pass's program depends on for a line of line_len: (segment length, segments, lanes)."""
+    shape = PASS_SHAPES[axis]
+    lanes = shape.lanes_for(line_len)
+    seg = segment_length(line_len, shape, lanes)
+    return seg, segment_count(line_len, seg, shape), lanes
 
 
 def work_plane(job: RegionJob) -> int:
@@ -152,17 +162,19 @@ class Exact:
     def prebuild(self, gpu: GpuContext, max_line: int = 2048) -> int:
         """Build every pass variant a line of up to max_line voxels can need; returns how many.
 
-        Segment length and count change only at powers of two, so lines of 8, 16, ...
-        max_line cover every region shape an incremental update can bring.
+        A pass's program follows from its line's segment length, count and lanes
+        (``pass_variant``), which every region shape's lines of 8, 16, ... max_line voxels
+        (work boxes are multiples of 8 along x, chunks along y and z) cover.
         """
-        programs = set()
-        line = 8
-        while line <= max_line:
+        programs, built = set(), set()
+        for line in range(8, max_line + 1, 8):
             for position, axis in enumerate(PASS_ORDER):
-                kernel, *_ = self.launch_shape(gpu, axis, line, line, line, line,
-                                               first=position == 0, last=position == 2)
-                programs.add(kernel.program.int_ptr)
-            line *= 2
+                variant = pass_variant(axis, line)
+                if variant not in built:
+                    built.add(variant)
+                    kernel, *_ = self.launch_shape(gpu, axis, line, line, line, line,
+                                                   first=position == 0, last=position == 2)
+                    programs.add(kernel.program.int_ptr)
         return len(programs)
 
     def passes(self, gpu: GpuContext, n: tuple[int, int, int], invert: bool = False,

@@ -44,3 +44,32 @@ def test_long_line_shapes_match_scipy(gpu, rng, long_shapes, signed, cap):
         edit_and_compare(world, rng, SIZE, 4, cap, "manhattan", signed)
     finally:
         world.release()
+
+
+# Lines past 512 voxels (32 segments of 16): x, y and z lines of 552, 600 and 1064 voxels run
+# in 40, 40 and 72 segments, the z pass's at 8 x-lanes (lines of 1024 and more)
+LONG_SIZES = [(552, 16, 8), (16, 600, 8), (8, 16, 1064)]
+
+
+@pytest.mark.parametrize("size", LONG_SIZES)
+@pytest.mark.parametrize("signed", [False, True])
+def test_lines_past_the_fixed_count_match_scipy(gpu, rng, size, signed):
+    cap = 255
+    world = make_world(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap, signed=signed))
+    try:
+        edit_and_compare(world, rng, size, 3, cap, "manhattan", signed)
+    finally:
+        world.release()
+
+
+def test_segment_counts_cover_every_line_with_few_idle():
+    """Every line length a world can have is covered by its segments within the work-group limit;
+    lines up to 512 share one count, and a longer line leaves fewer than COUNT_STEP segments idle."""
+    for axis, shape in exact_module.PASS_SHAPES.items():
+        for line in range(8, 2049, 8):
+            seg, count, lanes = exact_module.pass_variant(axis, line)
+            assert seg * count >= line and count * lanes <= exact_module.MAX_GROUP, (axis, line)
+            if line <= shape.segments * shape.max_seg:
+                assert count == shape.segments
+            else:
+                assert seg * (count - exact_module.COUNT_STEP) < line, (axis, line, seg, count)

@@ -70,21 +70,24 @@ class WorldBuffers:
     kernels: KernelCopies | None = None
 
 
+# Work boxes start and end on multiples of this along x (or at the world's faces), so that the
+# kernels load rows as aligned vectors of 8; an algorithm may ask for more (Exact.x_align).
 X_ALIGN_VOX = 8
 # exact lays its work box out with z-planes this many bytes further apart than a plane, so
 # z rows are not a power of two apart (kernels/exact.cl); World allocates `work` with room.
 WORK_PLANE_PAD = 32
 
 
-def _work_box(buffers: WorldBuffers, wanted: Box) -> Box:
-    """Clip to the world and widen x to multiples of 8, so rows load as aligned vectors.
+def _work_box(buffers: WorldBuffers, wanted: Box, align: int = X_ALIGN_VOX) -> Box:
+    """Clip to the world and widen x to multiples of ``align`` (of X_ALIGN_VOX), so rows load as
+    aligned vectors.
 
     The extra columns are more seed shell (their field is final) or more halo:
     either way they only repeat what is true.
     """
     box = wanted.intersect(Box.of_size(buffers.dims))
     (x0, y0, z0), (x1, y1, z1) = box.lo, box.hi
-    a = X_ALIGN_VOX
+    a = align
     return Box((x0 // a * a, y0, z0), (min(-(-x1 // a) * a, buffers.dims[0]), y1, z1))
 
 
@@ -109,12 +112,12 @@ class RegionJob:
         return Box.of_size(self.buffers.dims) if self.world is None else self.world
 
     @classmethod
-    def seeded_region(cls, buffers: WorldBuffers, region: Box, cap: int) -> "RegionJob":
-        return cls(buffers, region, _work_box(buffers, region.grow(1)), True, cap)
+    def seeded_region(cls, buffers: WorldBuffers, region: Box, cap: int, x_align: int = X_ALIGN_VOX) -> "RegionJob":
+        return cls(buffers, region, _work_box(buffers, region.grow(1), x_align), True, cap)
 
     @classmethod
-    def halo_region(cls, buffers: WorldBuffers, region: Box, cap: int) -> "RegionJob":
-        return cls(buffers, region, _work_box(buffers, region.grow(cap)), False, cap)
+    def halo_region(cls, buffers: WorldBuffers, region: Box, cap: int, x_align: int = X_ALIGN_VOX) -> "RegionJob":
+        return cls(buffers, region, _work_box(buffers, region.grow(cap), x_align), False, cap)
 
     @classmethod
     def padded_region(cls, buffers: WorldBuffers, region: Box, cap: int, chunk: int) -> "RegionJob":
@@ -173,6 +176,8 @@ class Algorithm(Protocol):
     exact: bool
     # Optional (read with getattr, default False): supports_padding — runs padded jobs
     # (RegionJob.chunk > 0); seed_scratch — needs WorldBuffers.seeds/seeds2.
+    # Optional (default X_ALIGN_VOX): x_align — the multiple of voxels its work boxes' x-bounds
+    # take (region_jobs.py).
     # Optional: prepare(gpu, job) -> a call that does run(gpu, job), the host work that repeats
     # done once (World keeps it while a world's dirty regions repeat; ``prepared`` below).
     # Optional: pieces(gpu, job, run, piece_s) -> Pieces, the same work cut where it may pause

@@ -9,6 +9,7 @@ from dataclasses import replace
 from typing import Iterator
 
 from sdfserver.algorithms import Algorithm, RegionJob, WorldBuffers, get_algorithm
+from sdfserver.algorithms.base import X_ALIGN_VOX
 from sdfserver.geometry import Box
 from sdfserver.world_config import WorldConfig
 
@@ -23,10 +24,10 @@ def region_jobs(cfg: WorldConfig, b: WorldBuffers, world_box: Box, region: Box) 
             focus = None
     algorithm, cap = get_algorithm(cfg.algorithm), cfg.max_distance
     if cfg.borders == "padded":  # chunks alone: no shell, no halo; the focus only picks the algorithm
-        seeded = halo = lambda r: RegionJob.padded_region(b, r, cap, cfg.chunk_size)  # noqa: E731
+        seeded = halo = lambda r, a=None: RegionJob.padded_region(b, r, cap, cfg.chunk_size)  # noqa: E731
     else:
-        seeded = lambda r: RegionJob.seeded_region(b, r, cap)  # noqa: E731
-        halo = lambda r: RegionJob.halo_region(b, r, cap)  # noqa: E731
+        seeded = lambda r, a=algorithm: RegionJob.seeded_region(b, r, cap, x_align(a))  # noqa: E731
+        halo = lambda r, a=algorithm: RegionJob.halo_region(b, r, cap, x_align(a))  # noqa: E731
     if focus is None:
         if not cfg.signed:
             yield algorithm, seeded(region)
@@ -41,7 +42,12 @@ def region_jobs(cfg: WorldConfig, b: WorldBuffers, world_box: Box, region: Box) 
     # approximate field around it cannot leak in. Outside the focus the field is the
     # cheap algorithm's: with jump flooding an overestimate, which a ray can step past.
     lod = get_algorithm(cfg.lod_algorithm)
-    yield lod, seeded(region)
+    yield lod, seeded(region, lod)
     inner = region.intersect(focus)
     if not inner.empty:
         yield algorithm, halo(inner)
+
+
+def x_align(algorithm: Algorithm) -> int:
+    """The multiple of voxels ``algorithm``'s work boxes take along x (Algorithm's x_align)."""
+    return getattr(algorithm, "x_align", X_ALIGN_VOX)

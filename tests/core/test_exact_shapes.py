@@ -71,3 +71,19 @@ def test_segment_counts_cover_every_line_with_few_idle():
             seg, count, lanes = exact_module.pass_variant(axis, line)
             assert seg * count >= line and count * lanes <= exact_module.MAX_GROUP, (axis, line)
             assert seg * (count - exact_module.COUNT_STEP) < line, (axis, line, seg, count)
+
+
+def test_exact_work_boxes_take_whole_field_sectors(gpu):
+    """exact's work boxes start and end on multiples of 16 voxels along x (Exact.x_align), the
+    other algorithms' on multiples of 8."""
+    from sdfserver.algorithms.region_jobs import region_jobs
+    from sdfserver.geometry import Box
+
+    region = Box((48, 0, 8), (56, 16, 16))
+    for algorithm, x_bounds in (("exact", (32, 64)), ("fim", (40, 64))):
+        world = make_world(gpu, WorldConfig(size=(96, 16, 24), chunk_size=8, max_distance=9, algorithm=algorithm))
+        try:
+            (_, job), = region_jobs(world.config, world.buffers, world.world_box, region)
+            assert (job.work_box.lo[0], job.work_box.hi[0]) == x_bounds, algorithm
+        finally:
+            world.release()

@@ -41,7 +41,7 @@ class PassShape:
     (rows a whole slice apart) 4. Four x-lanes a work-group won everywhere but in the z pass of
     lines of 1024 and more, where eight do (a warp then reads whole 32-byte sectors of a row)."""
 
-    segments: int  # target work-items per line
+    segments: int  # work-items per line a segment length is chosen for (segment_length)
     min_seg: int
     max_seg: int  # elements per work-item (registers)
     vec: int = 1  # x-columns per work-item (y and z passes)
@@ -62,7 +62,7 @@ PASS_SHAPES = {
 # field; the order is free (the transform is separable). Measured on the H200 at 512^3.
 PASS_ORDER = (0, 1, 2)
 X_PASS_THREADS = 128  # work-items per work-group for the x pass (tuned on the H200)
-COUNT_STEP = 8  # segments a long line's count grows by (segment_count)
+COUNT_STEP = 8  # a line's segment count is a multiple of this (segment_count)
 PASSES_MEMO_SIZE = 1024  # work-box shapes remembered per device; region shapes repeat
 
 
@@ -78,10 +78,8 @@ def segment_length(line_len: int, shape: PassShape, lanes: int | None = None) ->
 
 def segment_count(line_len: int, seg: int, shape: PassShape) -> int:
     """Work-items per line: just enough segments of ``seg`` to cover it, rounded up to
-    COUNT_STEP, so that few sit idle (they only pad the scans) while the compiled variants stay
-    few whatever region sizes incremental updates bring. A fixed count of the shape's segments
-    (doubled for longer lines) left a z-line of 288 voxels 14 idle segments of 32 and one of 544
-    30 of 64."""
+    COUNT_STEP, so that few sit idle (they only pad the scans and hold an SM's slots) while the
+    compiled variants stay few whatever region sizes incremental updates bring."""
     return -(-line_len // (seg * COUNT_STEP)) * COUNT_STEP
 
 
@@ -111,8 +109,8 @@ class Exact:
     name = "exact"
     exact = True
     # Work boxes on multiples of 16 voxels along x: a work-group of the last pass (4 x-lanes of 4
-    # columns) then writes whole 32-byte sectors of the field's rows, not halves of two, which
-    # took the z pass of a region inside a large world twice as long (docs/benchmarks.md).
+    # columns) then writes whole 32-byte sectors of the field's rows, not halves of two
+    # (docs/benchmarks.md, "Incremental edits").
     x_align = 16
 
     def __init__(self) -> None:

@@ -46,15 +46,15 @@ def test_long_line_shapes_match_scipy(gpu, rng, long_shapes, signed, cap):
         world.release()
 
 
-# Lines of counts other than a power of two, past 512 voxels: x, y and z lines of 552, 600 and
-# 1064 voxels run in 40, 40 and 72 segments of 16, the z pass's at 8 x-lanes (lines of 1024 and
-# more); the others (8 and 16) in 8 segments of 4 (y, z) or 8 (x)
+# Segment counts that are not powers of two: x, y and z lines of 552, 600 and 1064 voxels run in
+# 40, 40 and 72 segments of 16, the z pass's at 8 x-lanes (lines of 1024 and more); the others
+# (8 and 16) in 8 segments of 4 (y, z) or 8 (x)
 LONG_SIZES = [(552, 16, 8), (16, 600, 8), (8, 16, 1064)]
 
 
 @pytest.mark.parametrize("size", LONG_SIZES)
 @pytest.mark.parametrize("signed", [False, True])
-def test_lines_past_the_fixed_count_match_scipy(gpu, rng, size, signed):
+def test_lines_of_any_segment_count_match_scipy(gpu, rng, size, signed):
     cap = 255
     world = make_world(gpu, WorldConfig(size=size, chunk_size=8, max_distance=cap, signed=signed))
     try:

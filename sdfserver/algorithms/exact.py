@@ -83,11 +83,12 @@ def segment_count(line_len: int, seg: int, shape: PassShape) -> int:
     return -(-line_len // (seg * COUNT_STEP)) * COUNT_STEP
 
 
-def pass_variant(axis: int, line_len: int) -> tuple[int, int, int]:
-    """What a pass's program depends on for a line of line_len: (segment length, segments, lanes)."""
+def pass_variant(axis: int, line_len: int, seg: int | None = None, lanes: int | None = None) -> tuple[int, int, int]:
+    """What a pass's program depends on for a line of line_len: (segment length, segments, lanes),
+    the tuned shape's unless ``seg`` or ``lanes`` override it."""
     shape = PASS_SHAPES[axis]
-    lanes = shape.lanes_for(line_len)
-    seg = segment_length(line_len, shape, lanes)
+    lanes = lanes or shape.lanes_for(line_len)
+    seg = seg or segment_length(line_len, shape, lanes)
     return seg, segment_count(line_len, seg, shape), lanes
 
 
@@ -127,10 +128,7 @@ class Exact:
         so the compiler fits registers to it. seg, lanes and vec override the
         tuned shape (tools/tune_exact.py).
         """
-        shape = PASS_SHAPES[axis]
-        lanes = lanes or shape.lanes_for(line_len)
-        seg = seg or segment_length(line_len, shape, lanes)
-        nseg = segment_count(line_len, seg, shape)
+        seg, nseg, lanes = pass_variant(axis, line_len, seg, lanes)
         if axis == 0:
             per_group = max(1, x_threads // nseg)  # line pairs: two lines share each word
             local = (nseg, per_group)
@@ -141,7 +139,7 @@ class Exact:
                                          **({"WORLD_OUT": 1} if world_out else {}),
                                          **({"SIGNED_WORLD": 1} if signed_world else {}))
         else:
-            vec = vec or shape.vec
+            vec = vec or PASS_SHAPES[axis].vec
             local = (lanes, nseg)
             columns = -(-nx // vec)
             global_ = (-(-columns // lanes) * lanes, nseg * (nz if axis == 1 else ny))

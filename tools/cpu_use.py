@@ -6,11 +6,11 @@
     python tools/cpu_use.py diff before.json after.json [--requests N]
 
 ``snap`` records /proc/stat's totals and the CPU seconds of the server (the launcher), its
-first child (the engine process, with one engine) and its other children (the API processes),
-and the engine process's CPU seconds by thread name (the server names its threads:
+engine processes (the children with a thread named ``engine``), its other children (the API
+processes) and the engine processes' CPU seconds by thread name, summed over the engines (the server names its threads:
 ``sdfserver/threadnames.py``; threads of the OpenCL driver keep the process's name).
 ``diff`` prints the host's busy share over the interval, each part's cores, and with
-``--requests`` each part's CPU per request and the engine process's threads' CPU per request.
+``--requests`` each part's CPU per request and the engine processes' threads' CPU per request.
 """
 
 from __future__ import annotations
@@ -31,10 +31,15 @@ def snap(pid: int) -> dict:
     values = [int(v) for v in cpu]
     idle = values[3] + values[4]  # idle + iowait
     kids = children(pid)
+    engines = [kid for kid in kids if "engine" in thread_seconds(kid)]
+    threads: dict[str, float] = {}
+    for engine in engines:
+        for name, seconds in thread_seconds(engine).items():
+            threads[name] = threads.get(name, 0.0) + seconds
     return {"at": time.monotonic(), "host_busy_s": (sum(values[:8]) - idle) / TICK,
             "host_total_s": sum(values[:8]) / TICK, "cpus": os.cpu_count(), "launcher_s": cpu_seconds(pid),
-            "engine_s": children_cpu_seconds(kids[:1]), "api_s": children_cpu_seconds(kids[1:]),
-            "engine_threads_s": thread_seconds(kids[0]) if kids else {}}
+            "engine_s": children_cpu_seconds(engines), "engines": len(engines),
+            "api_s": children_cpu_seconds([kid for kid in kids if kid not in engines]), "engine_threads_s": threads}
 
 
 def thread_seconds(pid: int) -> dict[str, float]:
@@ -73,7 +78,7 @@ def diff(before: dict, after: dict, requests: int) -> None:
     if requests:
         print(f"host, all processes: {busy / requests * 1e6:.0f} µs a request")
         split = thread_split(before, after, requests)
-        print("engine process by thread: " + ", ".join(f"{n} {u:.0f} µs" for n, u in split.items()))
+        print(f"engine processes ({after.get('engines', 1)}) by thread: " + ", ".join(f"{n} {u:.0f} µs" for n, u in split.items()))
 
 
 def main() -> None:

@@ -14,7 +14,7 @@ import logging
 import time
 from collections import OrderedDict
 from concurrent.futures import Future
-from typing import Callable
+from typing import Any, Callable
 
 import pyopencl as cl
 
@@ -128,10 +128,12 @@ class BatchPipeline:
 
     def _acknowledge(self, applied: list, touched: set[str], report: StepReport) -> None:
         """Count the applied batches (before any is acknowledged; each inc takes a lock: once a
-        step, not once a world), then answer each with its version, or once durable."""
+        step, not once a world), then answer each with its version, or once durable: the worlds
+        whose records share one durable record (the step log's) with one callback for all."""
         if applied:
             self.metrics.edit_batches.inc(sum(len(items) for _, items, _, _ in applied))
             self.metrics.edit_ops.inc(sum(len(command.edits) for _, items, _, _ in applied for command, _, _ in items))
+        waiting: dict[int, tuple[Any, list]] = {}  # id(shared durable) -> (it, its worlds' answers)
         for world_id, items, versions, durable in applied:
             report.applied_batches += len(items)
             answers = [(future, version) for (_, future, _), version in zip(items, versions)]
@@ -143,34 +145,37 @@ class BatchPipeline:
                 for future, version in answers:
                     future.set_result(version)
             else:  # remembered only once durable: a repeat must not be answered before that
-                acknowledge_when_durable(answers, durable, lambda: self.remember(world_id, ids) if ids else None)
+                shared = getattr(durable, "shared", durable)
+                waiting.setdefault(id(shared), (shared, []))[1].append((world_id, answers, ids, durable))
             touched.add(world_id)
+        for shared, worlds in waiting.values():
+            shared.add_done_callback(lambda done, worlds=worlds: self._durable(done, worlds))
+
+    def _durable(self, done: Future, worlds: list) -> None:
+        """``done`` (the durable record of ``worlds``' batches) completed: remember each world's
+        batch ids and complete its answers with their versions, or fail them with the record's
+        error or the world's own (``fence``: another engine took it over)."""
+        error = done.exception()
+        for world_id, answers, ids, durable in worlds:
+            exc = error
+            if exc is None and hasattr(durable, "fence"):
+                exc = durable.fence()
+            if exc is None and ids:
+                try:
+                    self.remember(world_id, ids)
+                except Exception:  # the answers go out regardless
+                    log.exception("remembering acknowledged batch ids failed")
+            for future, version in answers:
+                try:  # one failing must not keep the others unanswered
+                    if exc is not None:
+                        future.set_exception(exc)
+                    else:
+                        future.set_result(version)
+                except Exception:
+                    log.exception("acknowledging an edit batch failed")
 
     def reject(self, future: Future, exc: BaseException, report: StepReport) -> None:
         report.rejected_batches += 1
         self.metrics.rejected_batches.inc()
         fail(future, exc)
 
-
-def acknowledge_when_durable(answers: list[tuple[Future, int]], durable: Future,
-                             remember: Callable[[], None]) -> None:
-    """Once ``durable`` completes, ``remember`` the batches' ids and complete each future with its
-    version (or fail them all with its error): one callback for a world's batches of a step."""
-
-    def done(durable: Future) -> None:
-        exc = durable.exception()
-        if exc is None:
-            try:
-                remember()
-            except Exception:  # the answers go out regardless
-                log.exception("remembering acknowledged batch ids failed")
-        for future, version in answers:
-            try:  # one failing must not keep the others unanswered
-                if exc is not None:
-                    future.set_exception(exc)
-                else:
-                    future.set_result(version)
-            except Exception:
-                log.exception("acknowledging an edit batch failed")
-
-    durable.add_done_callback(done)

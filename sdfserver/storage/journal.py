@@ -49,21 +49,26 @@ class WorldDurable:
     """A world's share of a step's record in the step log, as a future's ``done``,
     ``exception``, ``result`` and ``add_done_callback``: durable once the record is, failed with
     the record's error, or with the world's fence (another engine took it over). The worlds of a
-    step share one future, since a future a world cost the engine thread a lock and a condition
-    each (most of what a world added to a step's log record)."""
+    step share one future (``shared``; ``fence`` is the world's own part), since a future a world
+    cost the engine thread a lock and a condition each (most of what a world added to a step's
+    log record)."""
 
-    __slots__ = ("_step", "_store")
+    __slots__ = ("shared", "_store")
 
     def __init__(self, step: Future, store: WorldStore):
-        self._step = step
+        self.shared = step
         self._store = store
 
     def done(self) -> bool:
-        return self._step.done()
+        return self.shared.done()
+
+    def fence(self) -> BaseException | None:
+        """Why this world's records, though durable, must not be acknowledged, or None."""
+        return self._store.check_fence()
 
     def exception(self, timeout: float | None = None) -> BaseException | None:
-        error = self._step.exception(timeout)
-        return error if error is not None else self._store.check_fence()
+        error = self.shared.exception(timeout)
+        return error if error is not None else self.fence()
 
     def result(self, timeout: float | None = None) -> None:
         error = self.exception(timeout)
@@ -71,7 +76,7 @@ class WorldDurable:
             raise error
 
     def add_done_callback(self, fn: Callable[["WorldDurable"], None]) -> None:
-        self._step.add_done_callback(lambda _: fn(self))
+        self.shared.add_done_callback(lambda _: fn(self))
 
 
 class StorageJournal:

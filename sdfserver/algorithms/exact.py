@@ -164,7 +164,7 @@ class Exact:
         programs, built = set(), set()
         for line in range(8, max_line + 1, 8):
             for position, axis in enumerate(PASS_ORDER):
-                variant = pass_variant(axis, line)
+                variant = (axis, *pass_variant(axis, line))  # the y and z passes may share a shape
                 if variant not in built:
                     built.add(variant)
                     kernel, *_ = self.launch_shape(gpu, axis, line, line, line, line,

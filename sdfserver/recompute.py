@@ -42,7 +42,11 @@ class RecomputeResult:
 
     @property
     def changed_chunk_count(self) -> int:
-        return sum(r.chunk_range(self.chunk_size).volume for r in self.regions)
+        c, count = self.chunk_size, 0
+        for r in self.regions:  # chunk_range(c).volume, without its Box: once a world a step
+            (x0, y0, z0), (x1, y1, z1) = r.lo, r.hi
+            count += (-(-x1 // c) - x0 // c) * (-(-y1 // c) - y0 // c) * (-(-z1 // c) - z0 // c)
+        return count
 
     @property
     def changed_chunks(self) -> np.ndarray:
@@ -74,13 +78,18 @@ class PendingRecompute:
     # once the first of them has made it: the same launches, the same share of each.
     shared_summary: list | None = None
 
-    def summary(self) -> tuple[list[float], dict[str, AlgorithmStats]]:
-        """``stats.summarize`` of the runs (the device done with them), made once for a stacked run."""
+    def summary(self) -> tuple[list[float], dict[str, AlgorithmStats], float, int]:
+        """``stats.summarize`` of the runs (the device done with them), with their device time and
+        iterations summed; made once for a stacked run."""
         if self.shared_summary is None:
-            return summarize(self.runs)
+            return self._summarize()
         if not self.shared_summary:
-            self.shared_summary.append(summarize(self.runs))
+            self.shared_summary.append(self._summarize())
         return self.shared_summary[0]
+
+    def _summarize(self) -> tuple[list[float], dict[str, AlgorithmStats], float, int]:
+        each, by_algorithm = summarize(self.runs)
+        return each, by_algorithm, sum(each), sum(run.iterations for _, run in self.runs)
 
     @property
     def in_pieces(self) -> bool:

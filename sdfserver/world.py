@@ -360,10 +360,10 @@ class World(SmallEdits, Stacked):
         if not device_done:
             self.gpu.queue.finish()
         self.field_version = pending.version
-        each, by_algorithm = pending.summary()
-        self.last_recompute = RecomputeResult(pending.regions, self.config.chunk_size, sum(each),
+        each, by_algorithm, device_ms, iterations = pending.summary()
+        self.last_recompute = RecomputeResult(pending.regions, self.config.chunk_size, device_ms,
                                               (time.perf_counter() - pending.started) * 1e3,
-                                              sum(run.iterations for _, run in pending.runs), each, by_algorithm)
+                                              iterations, each, by_algorithm)
         return self.last_recompute
 
     def _compute_euclidean(self, regions: list[Box]) -> AlgorithmRun:

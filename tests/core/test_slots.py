@@ -6,6 +6,7 @@ whichever slots run together, with clean and differently configured neighbours l
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from sdfserver import stacked
 from sdfserver.algorithms.exact import Exact
@@ -113,6 +114,9 @@ def test_a_stacked_run_gives_each_world_its_own_field(gpu, rng):
             results = [pending[i].finish() for i in range(4)] + [worlds[4].recompute(), worlds[6].recompute()]
             shares = [r.algorithms["exact"].device_ms for r in results[:4]]
             assert len(set(shares)) == 1  # each counts a quarter of the run's kernel time
+            for r in results[:4]:  # the share's sums, made once for the run, are each world's
+                assert r.device_ms == shares[0] == pytest.approx(sum(r.kernel_ms)) and r.device_ms > 0
+                assert r.iterations == r.algorithms["exact"].iterations
             for world, voxels in zip(worlds, expected):
                 assert not world.dirty
                 cap = world.config.max_distance
@@ -121,6 +125,23 @@ def test_a_stacked_run_gives_each_world_its_own_field(gpu, rng):
     finally:
         for world in worlds:
             world.release()
+
+
+def test_only_worlds_whose_dirty_regions_are_the_whole_world_join_a_stacked_run(gpu):
+    """Under a cap below the world's side a brush's region is part of the world: its own
+    launches; under a cap of the side or more, or after a whole-world change, it joins."""
+    small, large = (World(gpu, WorldConfig(SIZE, 8, max_distance=cap)) for cap in (2, 32))
+    try:
+        brush = parse_edits([{"op": "sphere", "center": [4.0, 4.0, 4.0], "radius": 1.5, "colour": 3}])
+        for world in (small, large):
+            assert world.stacking_job() is None  # nothing dirty
+            world.apply_edits(brush)
+        assert small.stacking_job() is None and large.stacking_job() is not None
+        small.mark_all_dirty()
+        assert small.stacking_job() is not None
+    finally:
+        small.release()
+        large.release()
 
 
 def test_a_stacked_run_reaches_every_slot_of_a_large_pool(gpu, rng):

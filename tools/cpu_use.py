@@ -7,8 +7,9 @@
 
 ``snap`` records /proc/stat's totals and the CPU seconds of the server (the launcher), its
 engine processes (the children with a thread named ``engine``), its other children (the API
-processes) and the engine processes' CPU seconds by thread name, summed over the engines (the server names its threads:
-``sdfserver/threadnames.py``; threads of the OpenCL driver keep the process's name).
+processes) and the engine processes' CPU seconds by thread name, summed over the engines (the
+server names its threads: ``sdfserver/threadnames.py``; threads of the OpenCL driver keep the
+process's name).
 ``diff`` prints the host's busy share over the interval, each part's cores, and with
 ``--requests`` each part's CPU per request and the engine processes' threads' CPU per request.
 """
@@ -78,7 +79,8 @@ def diff(before: dict, after: dict, requests: int) -> None:
     if requests:
         print(f"host, all processes: {busy / requests * 1e6:.0f} µs a request")
         split = thread_split(before, after, requests)
-        print(f"engine processes ({after.get('engines', 1)}) by thread: " + ", ".join(f"{n} {u:.0f} µs" for n, u in split.items()))
+        threads = ", ".join(f"{n} {u:.0f} µs" for n, u in split.items())
+        print(f"engine processes ({after.get('engines', 1)}) by thread: {threads}")
 
 
 def main() -> None:

@@ -53,7 +53,8 @@ for devices in runs:
     tag = devices.replace(",", "_")
     loads = [json.load(open(p)) for p in sorted(glob.glob(f"{out}/scale-{tag}-load*.json"))]
     requests = sum(r["edits"]["count"] for r in loads)
-    client_cpu = sum(r["client_cpu_us_per_request"] * r["edits"]["count"] for r in loads) / max(requests, 1)
+    client_cpu = sum(r["client_cpu_us_per_request"] * r["edits"]["count"] for r in loads)
+    client_cpu /= max(requests, 1)
     print(f"\n--devices {devices}: {requests} batches; the load generators {client_cpu:.0f} us of CPU a request")
     sys.stdout.flush()
     subprocess.run([sys.executable, "tools/cpu_use.py", "diff", f"{out}/scale-{tag}-cpu-before.json",

@@ -158,8 +158,8 @@ class BatchPipeline:
         error = done.exception()
         for world_id, answers, ids, durable in worlds:
             exc = error
-            if exc is None and hasattr(durable, "fence"):
-                exc = durable.fence()
+            if exc is None and hasattr(durable, "fence"):  # a WorldDurable; a world log's own future
+                exc = durable.fence()                         # has its fence in its exception already
             if exc is None and ids:
                 try:
                     self.remember(world_id, ids)

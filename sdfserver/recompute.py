@@ -42,11 +42,7 @@ class RecomputeResult:
 
     @property
     def changed_chunk_count(self) -> int:
-        c, count = self.chunk_size, 0
-        for r in self.regions:  # chunk_range(c).volume, without its Box: once a world a step
-            (x0, y0, z0), (x1, y1, z1) = r.lo, r.hi
-            count += (-(-x1 // c) - x0 // c) * (-(-y1 // c) - y0 // c) * (-(-z1 // c) - z0 // c)
-        return count
+        return sum(r.chunk_range(self.chunk_size).volume for r in self.regions)
 
     @property
     def changed_chunks(self) -> np.ndarray:

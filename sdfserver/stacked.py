@@ -9,7 +9,6 @@ from typing import TYPE_CHECKING
 
 from sdfserver.algorithms import ALGORITHMS, AlgorithmRun, RegionJob
 from sdfserver.algorithms.exact import bytes_moved
-from sdfserver.algorithms.lower import LOWER_ABOVE_REGION_VOXELS
 from sdfserver.gpu import GpuContext
 from sdfserver.recompute import PendingRecompute
 
@@ -32,13 +31,9 @@ class Stacked:
         if self.slot is None or not self.dirty or cfg.algorithm != "exact" or cfg.euclidean or cfg.signed \
                 or cfg.focus is not None or cfg.borders != "exact":
             return None
-        if not (self.dirty.all or cfg.max_distance >= max(cfg.size)):  # else every region grows to the world
-            regions = self.dirty_regions()
-            if regions != [self.world_box] or self._lowering_boxes(regions) is not None:
-                return None
-        elif self.world_box.volume > LOWER_ABOVE_REGION_VOXELS:  # not a pooled world's size; as _lowering_boxes
-            if self._lowering_boxes([self.world_box]) is not None:
-                return None
+        regions = self.dirty_regions()
+        if regions != [self.world_box] or self._lowering_boxes(regions) is not None:
+            return None
         job = self._prepared.get(STACKING_JOB)  # kept with the prepared launches, gone with them
         if job is None:
             job = self._prepared[STACKING_JOB] = RegionJob.seeded_region(self.buffers, self.world_box, cfg.max_distance)

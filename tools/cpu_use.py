@@ -32,10 +32,11 @@ def snap(pid: int) -> dict:
     values = [int(v) for v in cpu]
     idle = values[3] + values[4]  # idle + iowait
     kids = children(pid)
-    engines = [kid for kid in kids if "engine" in thread_seconds(kid)]
+    by_kid = {kid: thread_seconds(kid) for kid in kids}
+    engines = [kid for kid, split in by_kid.items() if "engine" in split]
     threads: dict[str, float] = {}
     for engine in engines:
-        for name, seconds in thread_seconds(engine).items():
+        for name, seconds in by_kid[engine].items():
             threads[name] = threads.get(name, 0.0) + seconds
     return {"at": time.monotonic(), "host_busy_s": (sum(values[:8]) - idle) / TICK,
             "host_total_s": sum(values[:8]) / TICK, "cpus": os.cpu_count(), "launcher_s": cpu_seconds(pid),

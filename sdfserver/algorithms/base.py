@@ -87,8 +87,7 @@ def _work_box(buffers: WorldBuffers, wanted: Box, align: int = X_ALIGN_VOX) -> B
     """
     box = wanted.intersect(Box.of_size(buffers.dims))
     (x0, y0, z0), (x1, y1, z1) = box.lo, box.hi
-    a = align
-    return Box((x0 // a * a, y0, z0), (min(-(-x1 // a) * a, buffers.dims[0]), y1, z1))
+    return Box((x0 // align * align, y0, z0), (min(-(-x1 // align) * align, buffers.dims[0]), y1, z1))
 
 
 @dataclass

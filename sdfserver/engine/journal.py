@@ -17,7 +17,10 @@ The engine calls these on its own thread, in the order things happen:
   It may return a ``concurrent.futures.Future`` (or an object with its ``done``,
   ``exception`` and ``add_done_callback``) that completes once the batches are durable;
   the engine then acknowledges them only when that future completes (and fails them if
-  the future fails). Returning None acknowledges at once.
+  the future fails). Returning None acknowledges at once. Worlds whose records share one
+  durable record may each return an object with that future as ``shared`` and their own
+  refusal as ``fence()`` (``WorldDurable``): the engine then waits on ``shared`` once for all of
+  them and asks each ``fence()`` after it completes.
 - ``start_syncs()`` after the ``record_batches`` calls of a run of edit batches, before
   they are applied: what was recorded may start becoming durable now (the storage journal
   makes sure its committer has taken them, so the sync overlaps the engine's work; with

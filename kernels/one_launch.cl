@@ -27,9 +27,26 @@
  *
  * A seed is its box coordinates packed into a ushort, ceil(log2(side)) bits
  * per axis; SEED_NONE when none is known (the host sees that no seed packs to
- * it: one_launch.py's SEED_BITS). */
+ * it: one_launch.py's SEED_BITS).
+ *
+ * ONE_LAUNCH_CREW 1: one box (no padding), too much work for one compute
+ * unit, taken by a crew of work-groups (crew.h). Each member holds the whole
+ * box in its local memory, computes the initial distances and anything else
+ * that is cheap for all of it, and runs its share of the units of each pass;
+ * it writes that share to global memory (`crew_seeds`: a flood pass's seeds,
+ * two halves in turn, so a member still reading one pass's seeds never sees
+ * the next's; `crew_dist`: FIM's distances), and after a crew barrier every
+ * member copies the whole pass back into local memory. FIM passes read what
+ * other members wrote in the pass before; a late copy can only see smaller
+ * distances, which relaxation allows, and a pass that changed nothing anywhere
+ * still proves the fixed point. */
 #include "sdf_common.h"
 #include "chunk_padding.h"
+#include "crew.h"
+
+#ifndef ONE_LAUNCH_CREW
+#define ONE_LAUNCH_CREW 0
+#endif
 
 #define SEED_NONE 0xffffu
 
@@ -41,12 +58,12 @@ typedef struct {
     int bx, bxy;   /* seed packing: bits for x, for x and y */
 } Box;
 
-inline Box make_box(int4 n)
+/* `items`: the work-items that share the box's units (a crew's, or a group's). */
+inline Box make_box(int4 n, int items)
 {
     Box b;
     b.n = n;
     b.nxy = n.x * n.y;
-    const int items = (int)get_local_size(0);
     const int segments = items >= b.nxy ? min(n.z, items / b.nxy) : 1;
     b.seg_len = (n.z + segments - 1) / segments;
     b.units = b.nxy * segments;
@@ -124,15 +141,17 @@ inline int chain_pieces(int step, const Box *b, int *q, int *rem, int *long_piec
     return *rem * *long_pieces + (min(step, b->n.z) - *rem) * *short_pieces;
 }
 
-/* One jfa_seed_pass over the box: src's seeds offered `step` away, into dst. */
+/* One jfa_seed_pass over the box: src's seeds offered `step` away, into dst
+ * (a crew member: its share, into `shared_dst`). */
 inline void flood_pass(__local const uchar *dist, __local const ushort *src, __local ushort *dst,
-                       int step, int cap, const Box *b)
+                       __global ushort *shared_dst, int step, int cap, const Box *b, const Crew *c)
 {
     int q, rem, long_pieces, short_pieces;
     const int pieces = chain_pieces(step, b, &q, &rem, &long_pieces, &short_pieces);
-    const int units = b->nxy * pieces;
+    int first, last;
+    crew_share(b->nxy * pieces, c, &first, &last);
     const uint mx = (1u << b->bx) - 1u, my = (1u << (b->bxy - b->bx)) - 1u;
-    for (int u = get_local_id(0); u < units; u += get_local_size(0)) {
+    for (int u = first + get_local_id(0); u < last; u += get_local_size(0)) {
         const int c = u % b->nxy, piece = u / b->nxy;
         const int x = c % b->n.x, y = c / b->n.x;
         int r, k0, length;
@@ -194,8 +213,13 @@ inline void flood_pass(__local const uchar *dist, __local const ushort *src, __l
         }
 #pragma unroll
         for (int j = 0; j < FLOOD_CHAIN; ++j)
-            if (j < count)
+            if (j < count) {
+#if ONE_LAUNCH_CREW
+                shared_dst[local_index(x, y, z0 + j * step, b)] = (ushort)(key[j] & 0xffffu);
+#else
                 dst[local_index(x, y, z0 + j * step, b)] = (ushort)(key[j] & 0xffffu);
+#endif
+            }
     }
 }
 
@@ -203,8 +227,11 @@ inline void flood_pass(__local const uchar *dist, __local const ushort *src, __l
  * then the extra passes' steps), and jfa_resolve, whose distances replace
  * `dist`. `a` and `b2` are the ping-pong pair. */
 inline void flood(__local uchar *dist, __local ushort *a, __local ushort *b2, int first_step,
-                  int extra_passes, int cap, int chunk, const Box *b)
+                  int extra_passes, int cap, int chunk, const Box *b,
+                  __global ushort *crew_seeds, volatile __global int *crew, Crew *c)
 {
+    const int voxels = b->nxy * b->n.z;
+    const int seeds_half = (voxels + 7) & ~7;  /* ushorts: each half of crew_seeds starts uint4-aligned */
     for (int u = get_local_id(0); u < b->units; u += get_local_size(0)) {
         int x, y, z0, z1;
         unit_span(u, b, &x, &y, &z0, &z1);
@@ -218,8 +245,14 @@ inline void flood(__local uchar *dist, __local ushort *a, __local ushort *b2, in
     const int halvings = first_step > 0 ? 32 - clz(first_step) : 0;
     for (int k = 0; k < halvings + extra_passes; ++k) {
         const int step = k < halvings ? first_step >> k : extra_passes - (k - halvings);
-        flood_pass(dist, src, dst, step, cap, b);
+        __global ushort *shared_dst = crew_seeds + (k & 1) * seeds_half;
+        flood_pass(dist, src, dst, shared_dst, step, cap, b, c);
+#if ONE_LAUNCH_CREW
+        crew_barrier(crew, c);
+        crew_gather((__local uint *)dst, (volatile __global const uint *)shared_dst, (voxels + 1) / 2);
+#else
         barrier(CLK_LOCAL_MEM_FENCE);
+#endif
         __local ushort *t = src;
         src = dst;
         dst = t;
@@ -249,20 +282,36 @@ inline void flood(__local uchar *dist, __local ushort *a, __local ushort *b2, in
 
 #if ONE_LAUNCH_RELAX
 /* fim_pass over the box until a pass changes nothing; returns the passes that
- * changed something. `flags` holds three pass flags in rotation: pass p sets
- * flags[p % 3] and clears flags[(p + 1) % 3], which every work-item read
- * before the barrier that ended pass p - 1, so one barrier a pass suffices. */
-inline int relax(__local uchar *dist, __local volatile int *flags, const Box *b)
+ * changed something. `flags` (a crew's: the control block's) holds three pass
+ * flags in rotation: pass p sets flags[p % 3] and clears flags[(p + 1) % 3],
+ * which everyone read before the barrier that ended pass p - 1, so one barrier
+ * a pass suffices. A crew member relaxes its share and writes what changed
+ * to `shared_dist` too; after the barrier it copies the whole box back. */
+inline int relax(__local uchar *dist, __local volatile int *local_flags, const Box *b,
+                 __global uchar *shared_dist, volatile __global int *crew, Crew *c)
 {
+    int first, last;
+    crew_share(b->units, c, &first, &last);
+#if ONE_LAUNCH_CREW
+    volatile __global int *flags = crew + CREW_FLAGS;
+    for (int u = first + get_local_id(0); u < last; u += get_local_size(0)) {
+        int x, y, z0, z1;
+        unit_span(u, b, &x, &y, &z0, &z1);
+        for (int z = z0; z < z1; ++z)
+            shared_dist[local_index(x, y, z, b)] = dist[local_index(x, y, z, b)];
+    }
+#else
+    __local volatile int *flags = local_flags;
     if (get_local_id(0) < 3)
         flags[get_local_id(0)] = 0;
     barrier(CLK_LOCAL_MEM_FENCE);
+#endif
     const int sy = b->n.x, sz = b->nxy;
     int pass = 0;
     for (;;) {
         int changed = 0;
         const int up = (pass & 1) == 0;
-        for (int u = get_local_id(0); u < b->units; u += get_local_size(0)) {
+        for (int u = first + get_local_id(0); u < last; u += get_local_size(0)) {
             int x, y, z0, z1;
             unit_span(u, b, &x, &y, &z0, &z1);
             for (int k = 0; k < z1 - z0; ++k) {
@@ -280,19 +329,29 @@ inline int relax(__local uchar *dist, __local volatile int *flags, const Box *b)
                 if (z + 1 < b->n.z) best = min(best, (uint)dist[i + sz] + 1u);
                 if (best < here) {
                     dist[i] = (uchar)best;
+#if ONE_LAUNCH_CREW
+                    shared_dist[i] = (uchar)best;
+#endif
                     changed = 1;
                 }
             }
         }
         if (changed)
             flags[pass % 3] = 1;
-        if (get_local_id(0) == 0)
+        if (get_local_id(0) == 0 && c->member == 0)
             flags[(pass + 1) % 3] = 0;
+#if ONE_LAUNCH_CREW
+        crew_barrier(crew, c);
+#else
         barrier(CLK_LOCAL_MEM_FENCE);
+#endif
         const int any = flags[pass % 3];
         ++pass;
         if (!any)
             return pass - 1;
+#if ONE_LAUNCH_CREW
+        crew_gather((__local uint *)dist, (volatile __global const uint *)shared_dist, (b->nxy * b->n.z + 3) / 4);
+#endif
     }
 }
 #endif
@@ -301,16 +360,29 @@ inline int relax(__local uchar *dist, __local volatile int *flags, const Box *b)
  * the distances into `work` at work-box coordinates (pack_region writes the
  * field later: a run in pieces), else the field over R. `passes`: the FIM
  * passes that changed something, the most of any group (atomic_max over a
- * zeroed int where `accumulate`, else written). */
+ * zeroed int where `accumulate`, else written). `crew_seeds`, `crew_dist`,
+ * `crew`: a crew's exchange and control block (unused without ONE_LAUNCH_CREW). */
 __kernel void one_launch(__global const uchar *voxels, __global ushort *field, __global uchar *work,
                          int4 dims, int4 w_lo, int4 w_n, int4 r_lo, int4 r_hi, int4 n,
                          int seeded, int cap, int chunk, int first_group, int to_work,
                          int first_step, int extra_passes, __global int *passes, int accumulate,
-                         __local uchar *dist, __local ushort *seeds_a, __local ushort *seeds_b)
+                         __local uchar *dist, __local ushort *seeds_a, __local ushort *seeds_b,
+                         __global ushort *crew_seeds, __global uchar *crew_dist, volatile __global int *crew)
 {
     __local volatile int flags[3];
-    const Box b = make_box(n);
+#if ONE_LAUNCH_CREW
+    Crew c = crew_join(crew, flags);
+    if (c.member < 0) {
+        crew_finish(crew);
+        return;
+    }
+    const Box b = make_box(n, (int)get_local_size(0) * c.members);
+    const int group = 0;
+#else
+    Crew c = {0, 1, 0};
+    const Box b = make_box(n, (int)get_local_size(0));
     const int group = first_group + (int)get_group_id(0);
+#endif
     const int gx = w_n.x / n.x, gy = w_n.y / n.y;
     const int4 o = (int4)(group % gx * n.x, group / gx % gy * n.y, group / (gx * gy) * n.z, 0);
 
@@ -328,11 +400,11 @@ __kernel void one_launch(__global const uchar *voxels, __global ushort *field, _
     }
     barrier(CLK_LOCAL_MEM_FENCE);
 #if ONE_LAUNCH_FLOOD
-    flood(dist, seeds_a, seeds_b, first_step, extra_passes, cap, chunk, &b);
+    flood(dist, seeds_a, seeds_b, first_step, extra_passes, cap, chunk, &b, crew_seeds, crew, &c);
 #endif
 #if ONE_LAUNCH_RELAX
-    const int changed_passes = relax(dist, flags, &b);
-    if (get_local_id(0) == 0) {
+    const int changed_passes = relax(dist, flags, &b, crew_dist, crew, &c);
+    if (get_local_id(0) == 0 && c.member == 0) {
         if (accumulate)
             atomic_max(passes, changed_passes);
         else
@@ -340,7 +412,9 @@ __kernel void one_launch(__global const uchar *voxels, __global ushort *field, _
     }
 #endif
 
-    for (int u = get_local_id(0); u < b.units; u += get_local_size(0)) {
+    int first, last;
+    crew_share(b.units, &c, &first, &last);
+    for (int u = first + get_local_id(0); u < last; u += get_local_size(0)) {
         int x, y, z0, z1;
         unit_span(u, &b, &x, &y, &z0, &z1);
         const int wx = w_lo.x + o.x + x, wy = w_lo.y + o.y + y;
@@ -355,4 +429,7 @@ __kernel void one_launch(__global const uchar *voxels, __global ushort *field, _
             }
         }
     }
+#if ONE_LAUNCH_CREW
+    crew_finish(crew);
+#endif
 }

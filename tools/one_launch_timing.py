@@ -81,8 +81,8 @@ def group_items(items: int | None):
     """One-launch groups of ``items`` work-items (None: the kernel's reported limit, as the tree does)."""
     reported = one_launch.OneLaunch._limits
 
-    def forced(self, gpu, weighted=True):
-        return items, reported(self, gpu, weighted)[1]
+    def forced(self, gpu, weighted=True, crew=False):
+        return items, reported(self, gpu, weighted, crew)[1]
 
     one_launch._STATES.clear()
     if items is not None:
@@ -94,16 +94,20 @@ def group_items(items: int | None):
         one_launch._STATES.clear()
 
 
-def chunk_rows(gpu: GpuContext, sizes: list[int], reps: int, chains: list[int], items: list[int]) -> list[dict]:
+def chunk_rows(gpu: GpuContext, sizes: list[int], reps: int, chains: list[int], items: list[int],
+               crew_voxels: list[int]) -> list[dict]:
     """``one:C``: one launch with FLOOD_CHAIN=C (jump flooding's voxels a work-item takes);
-    ``one@N``: one launch of N work-items a group."""
+    ``one@N``: one launch of N work-items a group; ``crew/V``: as the tree chooses, with a crew's
+    group for each V voxels of a lone box (one_launch.CREW_VOXELS_PER_GROUP)."""
     rows = []
     lone = dict(one_launch.LONE_GROUP_VOXELS)
+    per_group = one_launch.CREW_VOXELS_PER_GROUP
     for algorithm, make in MAKE.items():
         for size in sizes:
             modes = (["default", "one", "multi"] + [f"one:{c}" for c in chains if algorithm != "fim"]
-                     + [f"one@{n}" for n in items])
+                     + [f"one@{n}" for n in items] + [f"crew/{v}" for v in crew_voxels])
             for mode in modes:
+                one_launch.CREW_VOXELS_PER_GROUP = int(mode.split("/")[1]) if "/" in mode else per_group
                 ALGORITHMS[algorithm] = make(mode != "multi")
                 if ":" in mode:
                     ALGORITHMS[algorithm].small.defines["FLOOD_CHAIN"] = int(mode.split(":")[1])
@@ -151,6 +155,7 @@ def main() -> None:
     p.add_argument("--registers", default="driver",
                    help="register caps to build the limits' kernels with (NVIDIA), e.g. driver,64,32")
     p.add_argument("--items", default="", help="work-items a group to force one launch to, e.g. 512,1024")
+    p.add_argument("--crew-voxels", default="", help="a crew's voxels a group to try, e.g. 256,1024")
     p.add_argument("--json", default=None)
     args = p.parse_args()
     gpu = GpuContext.create(args.device)
@@ -162,7 +167,8 @@ def main() -> None:
             print("   ", " | ".join(line.strip() for line in row["log"].splitlines() if "registers" in line or "spill" in line))
     out = {"device": gpu.device.name, "lone_group_voxels": {str(k): v for k, v in one_launch.LONE_GROUP_VOXELS.items()},
            "kernels": info, "chunks": chunk_rows(gpu, [int(s) for s in args.sizes.split(",")], args.reps,
-                               [int(c) for c in args.chains.split(",") if c], items)}
+                               [int(c) for c in args.chains.split(",") if c], items,
+                               [int(v) for v in args.crew_voxels.split(",") if v])}
     if args.padded:
         size, chunk = (int(v) for v in args.padded.split(","))
         out["padded"] = padded_rows(gpu, size, chunk, args.reps, items)

@@ -18,6 +18,11 @@ memory beside the kernel's own, checked at run time; otherwise the algorithms ru
 launch a pass. A box is also at most ``MAX_BOX_VOXELS``: one work-group runs on one compute unit,
 so a single large box would leave the rest of the device idle, and it could not be cut into
 pieces (``base.Pieces``); padded regions of any size are cut between their chunks' groups.
+On a GPU a lone box past ``LONE_GROUP_VOXELS`` is taken by a crew (kernels/include/crew.h): the
+groups of one launch that run together, each holding the whole box and running its share of
+every pass, with barriers between them through global memory, so a pass is spread over several
+compute units and still costs no launch. Its groups all fit the device at once (at most one a
+compute unit), and a group that starts after the others have begun takes no part.
 """
 
 from __future__ import annotations
@@ -48,6 +53,12 @@ SEED_BITS = 16
 COST_BITS = 11
 # The largest box a lone work-group (one box, not padded chunks) takes, by whether it floods.
 LONE_GROUP_VOXELS = {False: 16 ** 3, True: 1024}
+# A crew's groups: one for each CREW_VOXELS_PER_GROUP voxels of the box, at most one a compute unit.
+CREW_VOXELS_PER_GROUP = 512
+# The devices that take crews: a GPU runs a small launch's groups together. A CPU device may run
+# them one after another, which a crew survives (it shrinks to one group) but cannot gain from.
+CREW_DEVICE_TYPES = cl.device_type.GPU
+CREW_INTS = 6  # kernels/include/crew.h's control block
 
 
 @dataclass(frozen=True)
@@ -59,6 +70,7 @@ class Plan:
     items: int  # work-items a group
     dist_bytes: int
     seed_bytes: int  # each of the two seed buffers (a placeholder without jump flooding)
+    crew: bool = False  # the groups share one box (kernels/include/crew.h)
 
 
 class _DeviceState:
@@ -67,8 +79,15 @@ class _DeviceState:
     and each count is copied out before another run's launch writes it)."""
 
     def __init__(self, gpu: GpuContext):
-        self.limits: dict[tuple[bool, bool, bool], tuple[int, int]] = {}
+        self.limits: dict[tuple[bool, bool, bool, bool], tuple[int, int]] = {}
         self.count = cl.Buffer(gpu.context, cl.mem_flags.READ_WRITE, size=4)
+        # A crew's exchange (two halves of seeds, the distances) and its control block, which
+        # every launch leaves zeroed; one set serves every run, the queue being in order.
+        half = _round_up(MAX_BOX_VOXELS, 8)
+        self.crew_seeds = cl.Buffer(gpu.context, cl.mem_flags.READ_WRITE, size=2 * 2 * half)
+        self.crew_dist = cl.Buffer(gpu.context, cl.mem_flags.READ_WRITE, size=_round_up(MAX_BOX_VOXELS, 16))
+        self.crew = cl.Buffer(gpu.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
+                              hostbuf=np.zeros(CREW_INTS, np.int32))
 
 
 _STATES: "weakref.WeakKeyDictionary[GpuContext, _DeviceState]" = weakref.WeakKeyDictionary()
@@ -85,6 +104,16 @@ def _bits(side: int) -> int:
     return (side - 1).bit_length()
 
 
+def _round_up(n: int, multiple: int) -> int:
+    return -(-n // multiple) * multiple
+
+
+def crew_groups(gpu: GpuContext, voxels: int) -> int:
+    """The groups launched for a crew of a box of ``voxels``: one a compute unit at most, so that
+    all of them can run at once."""
+    return max(1, min(voxels // CREW_VOXELS_PER_GROUP, gpu.device.max_compute_units))
+
+
 class OneLaunch:
     """The one-launch form of one algorithm: ``flood`` (jump flooding first) and ``relax`` (FIM
     passes to convergence, last)."""
@@ -97,16 +126,17 @@ class OneLaunch:
         """Whether the flood reads seeds' weights (a kernel variant: without them a pass does less)."""
         return self.flood and not seeds_weigh_nothing(job)
 
-    def kernel(self, gpu: GpuContext, weighted: bool = True) -> cl.Kernel:
-        return gpu.programs.kernel("one_launch.cl", "one_launch", **self.defines, ONE_LAUNCH_WEIGHTED=int(weighted))
+    def kernel(self, gpu: GpuContext, weighted: bool = True, crew: bool = False) -> cl.Kernel:
+        return gpu.programs.kernel("one_launch.cl", "one_launch", **self.defines, ONE_LAUNCH_WEIGHTED=int(weighted),
+                                   ONE_LAUNCH_CREW=int(crew))
 
-    def _limits(self, gpu: GpuContext, weighted: bool = True) -> tuple[int, int]:
+    def _limits(self, gpu: GpuContext, weighted: bool = True, crew: bool = False) -> tuple[int, int]:
         """(the most work-items a group, the local bytes left for the boxes)."""
         state = _state(gpu)
-        key = (self.flood, self.relax, weighted)
+        key = (self.flood, self.relax, weighted, crew)
         found = state.limits.get(key)
         if found is None:
-            kernel, device = self.kernel(gpu, weighted), gpu.device
+            kernel, device = self.kernel(gpu, weighted, crew), gpu.device
             items = min(MAX_ITEMS, device.max_work_group_size,
                         kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device))
             static = kernel.get_work_group_info(cl.kernel_work_group_info.LOCAL_MEM_SIZE, device)
@@ -120,10 +150,16 @@ class OneLaunch:
         plan = self.plan(gpu, job)
         if plan is None or plan.groups > 1:
             return plan
-        return plan if math.prod(plan.box_n) <= LONE_GROUP_VOXELS[self.flood] else None
+        voxels = math.prod(plan.box_n)
+        if voxels <= LONE_GROUP_VOXELS[self.flood]:
+            return plan
+        return self.plan(gpu, job, crew=True) if gpu.device.type & CREW_DEVICE_TYPES else None
 
-    def plan(self, gpu: GpuContext, job: RegionJob) -> Plan | None:
-        """How ``job`` runs in one launch, or None where a box does not fit the device."""
+    def plan(self, gpu: GpuContext, job: RegionJob, crew: bool = False) -> Plan | None:
+        """How ``job`` runs in one launch, or None where a box does not fit the device. ``crew``:
+        a lone box in a crew of groups (none for padded chunks, which have a group each)."""
+        if crew and job.chunk:
+            return None
         if job.invert or job.signed:
             return None
         if job.chunk:
@@ -134,25 +170,28 @@ class OneLaunch:
         voxels = math.prod(box_n)
         if not 0 < voxels <= MAX_BOX_VOXELS:
             return None
-        seed_bytes = 2 * voxels if self.flood else 4
+        seed_bytes = _round_up(2 * voxels, 16) if self.flood else 4
         if self.flood and (sum(_bits(n) for n in box_n) > SEED_BITS
                            or job.cap + sum(n - 1 for n in box_n) >= 1 << COST_BITS):
             return None
-        items_max, local_bytes = self._limits(gpu, self.weighted(job))
-        if voxels + 2 * seed_bytes > local_bytes:
+        items_max, local_bytes = self._limits(gpu, self.weighted(job), crew)
+        dist_bytes = _round_up(voxels, 16)
+        if dist_bytes + 2 * seed_bytes > local_bytes:
             return None
         columns = box_n[0] * box_n[1]
         items = columns * min(box_n[2], items_max // columns) if columns <= items_max else items_max
-        return Plan(box_n, groups, items, voxels, seed_bytes)
+        if crew:
+            groups = crew_groups(gpu, voxels)
+        return Plan(box_n, groups, items, dist_bytes, seed_bytes, crew)
 
     def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, plan: Plan, piece_s: float | None,
                first_step: int = 0, extra_passes: int = 0) -> Pieces:
         """The job in one launch; with ``piece_s`` and several groups (padded chunks), launches of
         a run of groups each, paced like ``slabs``, writing scratch until pack_region at the end."""
         b, state = job.buffers, _state(gpu)
-        kernel = self.kernel(gpu, self.weighted(job))
-        cut = piece_s is not None and plan.groups > 1
-        accumulate = plan.groups > 1
+        kernel = self.kernel(gpu, self.weighted(job), plan.crew)
+        cut = piece_s is not None and plan.groups > 1 and not plan.crew
+        accumulate = plan.groups > 1 and not plan.crew
         # A run in pieces counts in an int of its own: other runs are enqueued between its pieces.
         count = cl.Buffer(gpu.context, cl.mem_flags.READ_WRITE, size=4) if cut and self.relax else state.count
         if self.relax and accumulate:
@@ -161,7 +200,8 @@ class OneLaunch:
                  int4(job.region.lo), int4(job.region.hi), int4(plan.box_n), np.int32(job.seeded),
                  np.int32(job.cap), np.int32(job.chunk))
         tail = (np.int32(first_step), np.int32(extra_passes), count, np.int32(accumulate),
-                cl.LocalMemory(plan.dist_bytes), cl.LocalMemory(plan.seed_bytes), cl.LocalMemory(plan.seed_bytes))
+                cl.LocalMemory(plan.dist_bytes), cl.LocalMemory(plan.seed_bytes), cl.LocalMemory(plan.seed_bytes),
+                state.crew_seeds, state.crew_dist, state.crew)
 
         own = b.kernels  # a dense world's copy sets only the arguments that changed since its last launch
 

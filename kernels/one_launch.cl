@@ -249,7 +249,7 @@ inline void flood(__local uchar *dist, __local ushort *a, __local ushort *b2, in
         flood_pass(dist, src, dst, shared_dst, step, cap, b, c);
 #if ONE_LAUNCH_CREW
         crew_barrier(crew, c);
-        crew_gather((__local uint *)dst, (volatile __global const uint *)shared_dst, (voxels + 1) / 2);
+        crew_gather((__local uint4 *)dst, (volatile __global const uint4 *)shared_dst, 0, (voxels + 7) / 8);
 #else
         barrier(CLK_LOCAL_MEM_FENCE);
 #endif
@@ -294,6 +294,11 @@ inline int relax(__local uchar *dist, __local volatile int *local_flags, const B
     crew_share(b->units, c, &first, &last);
 #if ONE_LAUNCH_CREW
     volatile __global int *flags = crew + CREW_FLAGS;
+    /* A share's units lie in z-segments [first, last) / nxy: it reads the planes from one below
+     * them to one above, which is all it copies back after a pass (as 16-byte words). */
+    const int plane_lo = max(first / b->nxy * b->seg_len - 1, 0);
+    const int plane_hi = min(((last - 1) / b->nxy + 1) * b->seg_len + 1, b->n.z);
+    const int words_lo = plane_lo * b->nxy / 16, words_hi = (plane_hi * b->nxy + 15) / 16;
     for (int u = first + get_local_id(0); u < last; u += get_local_size(0)) {
         int x, y, z0, z1;
         unit_span(u, b, &x, &y, &z0, &z1);
@@ -350,7 +355,7 @@ inline int relax(__local uchar *dist, __local volatile int *local_flags, const B
         if (!any)
             return pass - 1;
 #if ONE_LAUNCH_CREW
-        crew_gather((__local uint *)dist, (volatile __global const uint *)shared_dist, (b->nxy * b->n.z + 3) / 4);
+        crew_gather((__local uint4 *)dist, (volatile __global const uint4 *)shared_dist, words_lo, words_hi);
 #endif
     }
 }

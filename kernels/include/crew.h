@@ -31,6 +31,11 @@
  * small launch's groups within microseconds; a CPU device that runs them one
  * after another gets a crew of one after the wait. */
 #define CREW_GATHER_SPINS 20000
+/* 1: every work-item fences its own global writes before a barrier; 0: only
+ * the one that arrives, after the group's barrier (CUDA's grid sync). */
+#ifndef CREW_THREAD_FENCES
+#define CREW_THREAD_FENCES 1
+#endif
 
 typedef struct {
     int member;    /* this group's number in the crew, -1 when it takes no part */
@@ -75,10 +80,13 @@ inline Crew crew_join(volatile __global int *crew, __local volatile int *shared)
 /* Every member's global writes before it are seen by every member after it. */
 inline void crew_barrier(volatile __global int *crew, Crew *c)
 {
+#if CREW_THREAD_FENCES
     mem_fence(CLK_GLOBAL_MEM_FENCE);
+#endif
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
     c->arrivals += c->members;
     if (get_local_id(0) == 0) {
+        mem_fence(CLK_GLOBAL_MEM_FENCE);
         atomic_inc(&crew[CREW_ARRIVED]);
         while (crew[CREW_ARRIVED] < c->arrivals)
             ;
@@ -99,10 +107,11 @@ inline void crew_finish(volatile __global int *crew)
     }
 }
 
-/* Copies `words` uints that members wrote into this group's local memory. */
-inline void crew_gather(__local uint *dst, volatile __global const uint *src, int words)
+/* Copies 16-byte words [first, last) that members wrote into this group's
+ * local memory (both buffers' sizes are multiples of 16 bytes). */
+inline void crew_gather(__local uint4 *dst, volatile __global const uint4 *src, int first, int last)
 {
-    for (int k = get_local_id(0); k < words; k += get_local_size(0))
+    for (int k = first + get_local_id(0); k < last; k += get_local_size(0))
         dst[k] = src[k];
     barrier(CLK_LOCAL_MEM_FENCE);
 }

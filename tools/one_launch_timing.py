@@ -107,7 +107,8 @@ def chunk_rows(gpu: GpuContext, sizes: list[int], reps: int, chains: list[int], 
             modes = (["default", "one", "multi"] + [f"one:{c}" for c in chains if algorithm != "fim"]
                      + [f"one@{n}" for n in items] + [f"crew/{v}" for v in crew_voxels])
             for mode in modes:
-                one_launch.CREW_VOXELS_PER_GROUP = int(mode.split("/")[1]) if "/" in mode else per_group
+                one_launch.CREW_VOXELS_PER_GROUP = (dict.fromkeys(per_group, int(mode.split("/")[1])) if "/" in mode
+                                                    else dict(per_group))
                 ALGORITHMS[algorithm] = make(mode != "multi")
                 if ":" in mode:
                     ALGORITHMS[algorithm].small.defines["FLOOD_CHAIN"] = int(mode.split(":")[1])

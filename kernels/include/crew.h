@@ -25,22 +25,23 @@
 #define CREW_ARRIVED 1   /* arrivals at barriers, counted up through the launch */
 #define CREW_FINISHED 2  /* groups of the launch that finished */
 #define CREW_FLAGS 3     /* three flags for whoever needs them (one_launch.cl's FIM passes) */
-#define CREW_INTS 6
+/* The barriers passed, set by each barrier's last arrival: waiting members poll
+ * it, 128 bytes (a cache line) away from the counter that arrivals add to. */
+#define CREW_RELEASED 32
+#define CREW_INTS 33
 #define CREW_CLOSED 0x40000000
 /* How long a member waits for the rest of the launch to join: a GPU starts a
  * small launch's groups within microseconds; a CPU device that runs them one
  * after another gets a crew of one after the wait. */
 #define CREW_GATHER_SPINS 20000
-/* 1: every work-item fences its own global writes before a barrier; 0: only
- * the one that arrives, after the group's barrier (CUDA's grid sync). */
-#ifndef CREW_THREAD_FENCES
-#define CREW_THREAD_FENCES 1
+#ifndef CREW_RELEASE_FLAG
+#define CREW_RELEASE_FLAG 1
 #endif
 
 typedef struct {
     int member;    /* this group's number in the crew, -1 when it takes no part */
     int members;
-    int arrivals;  /* arrivals the next barrier waits for */
+    int barriers;  /* barriers passed */
 } Crew;
 
 inline Crew crew_join(volatile __global int *crew, __local volatile int *shared)
@@ -80,16 +81,25 @@ inline Crew crew_join(volatile __global int *crew, __local volatile int *shared)
 /* Every member's global writes before it are seen by every member after it. */
 inline void crew_barrier(volatile __global int *crew, Crew *c)
 {
-#if CREW_THREAD_FENCES
     mem_fence(CLK_GLOBAL_MEM_FENCE);
-#endif
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
-    c->arrivals += c->members;
+    ++c->barriers;
     if (get_local_id(0) == 0) {
         mem_fence(CLK_GLOBAL_MEM_FENCE);
+        const int arrivals = c->barriers * c->members;
+#if CREW_RELEASE_FLAG
+        if (atomic_inc(&crew[CREW_ARRIVED]) == arrivals - 1) {
+            mem_fence(CLK_GLOBAL_MEM_FENCE);
+            crew[CREW_RELEASED] = c->barriers;
+        } else {
+            while (crew[CREW_RELEASED] < c->barriers)
+                ;
+        }
+#else
         atomic_inc(&crew[CREW_ARRIVED]);
-        while (crew[CREW_ARRIVED] < c->arrivals)
+        while (crew[CREW_ARRIVED] < arrivals)
             ;
+#endif
         mem_fence(CLK_GLOBAL_MEM_FENCE);
     }
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);

@@ -53,12 +53,14 @@ SEED_BITS = 16
 COST_BITS = 11
 # The largest box a lone work-group (one box, not padded chunks) takes, by whether it floods.
 LONE_GROUP_VOXELS = {False: 16 ** 3, True: 1024}
-# A crew's groups: one for each CREW_VOXELS_PER_GROUP voxels of the box, at most one a compute unit.
-CREW_VOXELS_PER_GROUP = 512
+# A crew's groups: one for each CREW_VOXELS_PER_GROUP voxels of the box (by whether it floods), at
+# most one a compute unit; a crew's flood takes chains of CREW_FLOOD_CHAIN voxels (FLOOD_CHAIN).
+CREW_VOXELS_PER_GROUP = {False: 2048, True: 512}
+CREW_FLOOD_CHAIN = 2
 # The devices that take crews: a GPU runs a small launch's groups together. A CPU device may run
 # them one after another, which a crew survives (it shrinks to one group) but cannot gain from.
 CREW_DEVICE_TYPES = cl.device_type.GPU
-CREW_INTS = 6  # kernels/include/crew.h's control block
+CREW_INTS = 33  # kernels/include/crew.h's control block
 
 
 @dataclass(frozen=True)
@@ -108,10 +110,10 @@ def _round_up(n: int, multiple: int) -> int:
     return -(-n // multiple) * multiple
 
 
-def crew_groups(gpu: GpuContext, voxels: int) -> int:
+def crew_groups(gpu: GpuContext, voxels: int, flood: bool) -> int:
     """The groups launched for a crew of a box of ``voxels``: one a compute unit at most, so that
     all of them can run at once."""
-    return max(1, min(voxels // CREW_VOXELS_PER_GROUP, gpu.device.max_compute_units))
+    return max(1, min(voxels // CREW_VOXELS_PER_GROUP[flood], gpu.device.max_compute_units))
 
 
 class OneLaunch:
@@ -127,8 +129,9 @@ class OneLaunch:
         return self.flood and not seeds_weigh_nothing(job)
 
     def kernel(self, gpu: GpuContext, weighted: bool = True, crew: bool = False) -> cl.Kernel:
-        return gpu.programs.kernel("one_launch.cl", "one_launch", **self.defines, ONE_LAUNCH_WEIGHTED=int(weighted),
-                                   ONE_LAUNCH_CREW=int(crew))
+        chain = {"FLOOD_CHAIN": CREW_FLOOD_CHAIN} if crew and self.flood else {}
+        return gpu.programs.kernel("one_launch.cl", "one_launch", **{**chain, **self.defines},
+                                   ONE_LAUNCH_WEIGHTED=int(weighted), ONE_LAUNCH_CREW=int(crew))
 
     def _limits(self, gpu: GpuContext, weighted: bool = True, crew: bool = False) -> tuple[int, int]:
         """(the most work-items a group, the local bytes left for the boxes)."""
@@ -181,7 +184,7 @@ class OneLaunch:
         columns = box_n[0] * box_n[1]
         items = columns * min(box_n[2], items_max // columns) if columns <= items_max else items_max
         if crew:
-            groups = crew_groups(gpu, voxels)
+            groups = crew_groups(gpu, voxels, self.flood)
         return Plan(box_n, groups, items, dist_bytes, seed_bytes, crew)
 
     def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, plan: Plan, piece_s: float | None,

@@ -28,7 +28,7 @@ def crews_everywhere(monkeypatch):
     the device's compute units)."""
     monkeypatch.setattr(one_launch, "CREW_DEVICE_TYPES", cl.device_type.ALL)
     monkeypatch.setattr(one_launch, "LONE_GROUP_VOXELS", {False: 0, True: 0})
-    monkeypatch.setattr(one_launch, "CREW_VOXELS_PER_GROUP", 64)
+    monkeypatch.setattr(one_launch, "CREW_VOXELS_PER_GROUP", {False: 64, True: 64})
 
 
 def crew_control(gpu) -> np.ndarray:
@@ -75,7 +75,7 @@ def test_seeded_regions_in_crews_equal_multi_launch(gpu, rng, monkeypatch, algor
 def test_groups_past_what_runs_at_once_drop_out(gpu, rng, monkeypatch, algorithm):
     """Launched with 16 groups on a device that runs fewer together: those that start late take
     no part, and the field is still the oracle's."""
-    monkeypatch.setattr(one_launch, "crew_groups", lambda gpu, voxels: 16)
+    monkeypatch.setattr(one_launch, "crew_groups", lambda gpu, voxels, flood: 16)
     size = (16, 16, 16)
     out = run_both(gpu, monkeypatch, WorldConfig(size, 16, 255, algorithm), random_voxels(rng, size[::-1], 0.02),
                    [spheres(rng, size, 3)])

@@ -34,9 +34,6 @@
  * small launch's groups within microseconds; a CPU device that runs them one
  * after another gets a crew of one after the wait. */
 #define CREW_GATHER_SPINS 20000
-#ifndef CREW_RELEASE_FLAG
-#define CREW_RELEASE_FLAG 1
-#endif
 
 typedef struct {
     int member;    /* this group's number in the crew, -1 when it takes no part */
@@ -87,7 +84,6 @@ inline void crew_barrier(volatile __global int *crew, Crew *c)
     if (get_local_id(0) == 0) {
         mem_fence(CLK_GLOBAL_MEM_FENCE);
         const int arrivals = c->barriers * c->members;
-#if CREW_RELEASE_FLAG
         if (atomic_inc(&crew[CREW_ARRIVED]) == arrivals - 1) {
             mem_fence(CLK_GLOBAL_MEM_FENCE);
             crew[CREW_RELEASED] = c->barriers;
@@ -95,11 +91,6 @@ inline void crew_barrier(volatile __global int *crew, Crew *c)
             while (crew[CREW_RELEASED] < c->barriers)
                 ;
         }
-#else
-        atomic_inc(&crew[CREW_ARRIVED]);
-        while (crew[CREW_ARRIVED] < arrivals)
-            ;
-#endif
         mem_fence(CLK_GLOBAL_MEM_FENCE);
     }
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);

@@ -31,12 +31,14 @@
  *
  * ONE_LAUNCH_CREW 1: one box (no padding), too much work for one compute
  * unit, taken by a crew of work-groups (crew.h). Each member holds the whole
- * box in its local memory, computes the initial distances and anything else
- * that is cheap for all of it, and runs its share of the units of each pass;
- * it writes that share to global memory (`crew_seeds`: a flood pass's seeds,
- * two halves in turn, so a member still reading one pass's seeds never sees
- * the next's; `crew_dist`: FIM's distances), and after a crew barrier every
- * member copies the whole pass back into local memory. FIM passes read what
+ * box in its local memory and runs its share of the units of each step (the
+ * initial distances, each pass); it writes that share to global memory
+ * (`crew_seeds`: a flood pass's seeds, two halves in turn, so a member still
+ * reading one pass's seeds never sees the next's; `crew_dist`: distances),
+ * and after a crew barrier every member copies what it reads back into local
+ * memory (a FIM pass: the planes around its share). What is cheap for the
+ * whole box (the flood's first seeds, its resolve) each member does for all
+ * of it. FIM passes read what
  * other members wrote in the pass before; a late copy can only see smaller
  * distances, which relaxation allows, and a pass that changed nothing anywhere
  * still proves the fixed point. */
@@ -47,6 +49,7 @@
 #ifndef ONE_LAUNCH_CREW
 #define ONE_LAUNCH_CREW 0
 #endif
+
 
 #define SEED_NONE 0xffffu
 
@@ -391,6 +394,23 @@ __kernel void one_launch(__global const uchar *voxels, __global ushort *field, _
     const int gx = w_n.x / n.x, gy = w_n.y / n.y;
     const int4 o = (int4)(group % gx * n.x, group / gx % gy * n.y, group / (gx * gy) * n.z, 0);
 
+#if ONE_LAUNCH_CREW
+    {   /* each member its share of the initial distances, then all of them */
+        int first, last;
+        crew_share(b.units, &c, &first, &last);
+        for (int u = first + get_local_id(0); u < last; u += get_local_size(0)) {
+            int x, y, z0, z1;
+            unit_span(u, &b, &x, &y, &z0, &z1);
+            for (int z = z0; z < z1; ++z) {
+                const uint d = init_distance(voxels, field, w_lo.x + x, w_lo.y + y, w_lo.z + z, dims, r_lo, r_hi,
+                                             seeded, cap);
+                crew_dist[local_index(x, y, z, &b)] = (uchar)d;
+            }
+        }
+        crew_barrier(crew, &c);
+        crew_gather((__local uint4 *)dist, (volatile __global const uint4 *)crew_dist, 0, (b.nxy * b.n.z + 15) / 16);
+    }
+#else
     for (int u = get_local_id(0); u < b.units; u += get_local_size(0)) {
         int x, y, z0, z1;
         unit_span(u, &b, &x, &y, &z0, &z1);
@@ -404,6 +424,7 @@ __kernel void one_launch(__global const uchar *voxels, __global ushort *field, _
         }
     }
     barrier(CLK_LOCAL_MEM_FENCE);
+#endif
 #if ONE_LAUNCH_FLOOD
     flood(dist, seeds_a, seeds_b, first_step, extra_passes, cap, chunk, &b, crew_seeds, crew, &c);
 #endif

@@ -5,7 +5,6 @@ results.json holding the same numbers as report.md. Also: the web demo's schedul
 from __future__ import annotations
 
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -17,13 +16,15 @@ import pytest
 from sdfserver.bench.schedule import Schedule
 from sdfserver.bench.seed.tables import DISSERTATION, FIGURES, TABLES, figure_file
 
+from server_process import checkout_env
+
 ROOT = Path(__file__).resolve().parents[2]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 ROW = re.compile(r"^\| (\d+)³ \| ([^|]+?) \| ([^|]+?) \| ([^|]+?) \| ([^|]+?) \|$")
 
 
 def _bench(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = checkout_env()
     return subprocess.run([sys.executable, "-m", "sdfserver", "bench", "seed", *args], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=timeout)
 

@@ -20,7 +20,7 @@ from sdfserver.world import World, WorldConfig
 from references import apply_edits as apply_reference
 from references import oracle_distance
 
-SIZE = (32, 16, 24)  # each buffer a whole number of the sub-buffer alignment
+SIZE = (32, 16, 32)  # each buffer a whole number of the sub-buffer alignment (512 bytes on NVIDIA)
 
 
 def random_batch(rng, size, count=3) -> list[dict]:

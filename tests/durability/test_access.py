@@ -11,7 +11,7 @@ from websockets.sync.client import connect
 
 from sdfserver import wire
 
-from server_process import ROOT
+from server_process import ROOT, checkout_env
 
 ALICE, BOB, ROOT_KEY, CAROL = "alice-token-0123456789", "bob-token-0123456789ab", "root-token-0123456789", \
     "carol-token-0123456789"
@@ -112,6 +112,6 @@ def test_rate_limit_per_key(server, client):
 def test_no_keys_means_loopback_only(tmp_path):
     result = subprocess.run([sys.executable, "-m", "sdfserver", "serve", "--host", "0.0.0.0", "--port", "1",
                              "--data-dir", str(tmp_path / "d")], cwd=ROOT, capture_output=True, text=True,
-                            timeout=60, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+                            timeout=60, env={"PYTHONPATH": checkout_env()["PYTHONPATH"], "PATH": "/usr/bin:/bin"})
     assert result.returncode == 2
     assert "refusing to listen on 0.0.0.0 with no API keys" in result.stderr

@@ -3,14 +3,13 @@
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
 from sdfserver.errors import StorageError
 from sdfserver.storage.lock import lock_data_dir
 
-ROOT = Path(__file__).resolve().parents[2]
+from server_process import checkout_env
 
 
 def test_lock_is_exclusive_and_released(tmp_path):
@@ -24,8 +23,7 @@ def test_lock_is_exclusive_and_released(tmp_path):
 def test_second_serve_on_a_held_directory_exits(tmp_path):
     held = lock_data_dir(tmp_path)
     try:
-        env = {k: v for k, v in os.environ.items() if not k.startswith("SDFSERVER_")}
-        env["PYTHONPATH"] = str(ROOT)
+        env = checkout_env()
         proc = subprocess.run([sys.executable, "-m", "sdfserver", "serve", "--port", "0", "--data-dir", str(tmp_path)],
                               env=env, capture_output=True, text=True, timeout=120)
     finally:

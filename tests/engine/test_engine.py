@@ -22,6 +22,7 @@ from sdfserver.geometry import Box
 from sdfserver.world import WorldConfig
 
 from references import oracle_distance as oracle
+from server_process import checkout_env
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -346,14 +347,14 @@ def test_engine_and_world_do_not_import_the_web_stack():
             "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('fastapi', 'starlette', 'pydantic')); "
             "print(bad); raise SystemExit(1 if bad else 0)")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
-                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+                          env={"PYTHONPATH": checkout_env()["PYTHONPATH"], "PATH": "/usr/bin:/bin"})
     assert done.returncode == 0, done.stdout + done.stderr
     # the engine process as a whole (it reads Settings, a pydantic-settings model) serves no HTTP
     code = ("import sys, sdfserver.engine.proc, sdfserver.engine.service; "
             "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('fastapi', 'starlette', 'uvicorn')); "
             "print(bad); raise SystemExit(1 if bad else 0)")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
-                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+                          env={"PYTHONPATH": checkout_env()["PYTHONPATH"], "PATH": "/usr/bin:/bin"})
     assert done.returncode == 0, done.stdout + done.stderr
 
 

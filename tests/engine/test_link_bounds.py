@@ -161,15 +161,18 @@ async def stand_in_engine(credential: bytes | None, misbehave, heard: list[bytes
 
 
 async def close_all(stand_in) -> None:
+    """Stops the listeners, closes their connections, then waits for the listeners: since Python
+    3.12.1 ``Server.wait_closed`` also waits for every connection's handler to end."""
     servers, writers = stand_in
     await asyncio.sleep(0.05)  # a connection being accepted gets its handler (and writer) first
     for server in servers:
         server.close()
-        await server.wait_closed()
     for writer in writers:
         writer.close()
         with contextlib.suppress(ConnectionError):
             await writer.wait_closed()
+    for server in servers:
+        await server.wait_closed()
 
 
 async def nothing(role, writer):

@@ -236,9 +236,7 @@ __kernel void one_launch(__global const uchar *voxels, __global ushort *field, _
     }
     barrier(CLK_LOCAL_MEM_FENCE);
 #endif
-#if ONE_LAUNCH_FLOOD && CREW_GLOBAL_SEEDS
-    flood_in_global(dist, seeds_a, first_step, extra_passes, cap, chunk, &b, crew_seeds, crew_dist, crew, &c);
-#elif ONE_LAUNCH_FLOOD
+#if ONE_LAUNCH_FLOOD
     flood(dist, seeds_a, seeds_b, first_step, extra_passes, cap, chunk, &b, crew_seeds, crew, &c);
 #endif
 #if ONE_LAUNCH_RELAX

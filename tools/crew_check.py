@@ -25,7 +25,7 @@ from sdfserver.world import World, WorldConfig
 
 MAKE = {"fim": lambda one: Fim(one_launch=one), "jfa": lambda one: Jfa(0, one_launch=one),
         "jfa_fim": lambda one: JfaFim(one_launch=one)}
-CASES = (("jfa_fim", 16), ("jfa", 16), ("fim", 16), ("fim", 32), ("jfa_fim", 8), ("jfa", 32), ("jfa_fim", 32))
+CASES = (("jfa_fim", 16), ("jfa", 16), ("fim", 16), ("fim", 32), ("jfa_fim", 8))
 
 
 def regenerations(gpu: GpuContext, algorithm: str, size: int, seed: int, crew: bool):

@@ -81,8 +81,8 @@ def group_items(items: int | None):
     """One-launch groups of ``items`` work-items (None: the kernel's reported limit, as the tree does)."""
     reported = one_launch.OneLaunch._limits
 
-    def forced(self, gpu, weighted=True, crew=False, global_seeds=False):
-        return items, reported(self, gpu, weighted, crew, global_seeds)[1]
+    def forced(self, gpu, weighted=True, crew=False):
+        return items, reported(self, gpu, weighted, crew)[1]
 
     one_launch._STATES.clear()
     if items is not None:

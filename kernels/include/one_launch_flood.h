@@ -5,18 +5,6 @@
 #ifndef ONE_LAUNCH_FLOOD_H
 #define ONE_LAUNCH_FLOOD_H
 
-/* CREW_GLOBAL_SEEDS 1 (a crew whose box's seeds do not fit local memory beside
- * its distances): the seed buffers live in global memory only, where passes
- * read them (flood_in_global). */
-#ifndef CREW_GLOBAL_SEEDS
-#define CREW_GLOBAL_SEEDS 0
-#endif
-#if CREW_GLOBAL_SEEDS
-#define SEEDS_SRC volatile __global const ushort
-#else
-#define SEEDS_SRC __local const ushort
-#endif
-
 inline ushort pack_seed(int x, int y, int z, const Box *b)
 {
     return (ushort)(x | (y << b->bx) | (z << b->bxy));
@@ -72,7 +60,7 @@ inline int chain_pieces(int step, const Box *b, int *q, int *rem, int *long_piec
 
 /* One jfa_seed_pass over the box: src's seeds offered `step` away, into dst
  * (a crew member: its share, into `shared_dst`). */
-inline void flood_pass(__local const uchar *dist, SEEDS_SRC *src, __local ushort *dst,
+inline void flood_pass(__local const uchar *dist, __local const ushort *src, __local ushort *dst,
                        __global ushort *shared_dst, int step, int cap, const Box *b, const Crew *c)
 {
     int q, rem, long_pieces, short_pieces;
@@ -152,7 +140,6 @@ inline void flood_pass(__local const uchar *dist, SEEDS_SRC *src, __local ushort
     }
 }
 
-#if !CREW_GLOBAL_SEEDS
 /* jfa_seed_init, every pass of jfa.py's step_sizes (first_step halving to 1,
  * then the extra passes' steps), and jfa_resolve, whose distances replace
  * `dist`. `a` and `b2` are the ping-pong pair. */
@@ -208,54 +195,5 @@ inline void flood(__local uchar *dist, __local ushort *a, __local ushort *b2, in
     }
     barrier(CLK_LOCAL_MEM_FENCE);
 }
-
-#endif
-
-#if CREW_GLOBAL_SEEDS
-/* flood, for a crew whose seeds stay in global memory (`crew_seeds`, two
- * halves in turn): each member seeds, floods and resolves its share, and the
- * resolved distances come back to every member through `crew_dist`. */
-inline void flood_in_global(__local uchar *dist, __local ushort *unused, int first_step, int extra_passes, int cap,
-                            int chunk, const Box *b, __global ushort *crew_seeds, __global uchar *crew_dist,
-                            volatile __global int *crew, Crew *c)
-{
-    const int voxels = b->nxy * b->n.z;
-    const int seeds_half = (voxels + 7) & ~7;
-    int first, last;
-    crew_share(b->units, c, &first, &last);
-    for (int u = first + get_local_id(0); u < last; u += get_local_size(0)) {
-        int x, y, z0, z1;
-        unit_span(u, b, &x, &y, &z0, &z1);
-        for (int z = z0; z < z1; ++z) {
-            const uint w = dist[local_index(x, y, z, b)];
-            crew_seeds[local_index(x, y, z, b)] = (chunk > 0 ? w == 0u : w < (uint)cap) ? pack_seed(x, y, z, b) : SEED_NONE;
-        }
-    }
-    crew_barrier(crew, c);
-    const int halvings = first_step > 0 ? 32 - clz(first_step) : 0;
-    const int passes = halvings + extra_passes;
-    for (int k = 0; k < passes; ++k) {
-        const int step = k < halvings ? first_step >> k : extra_passes - (k - halvings);
-        flood_pass(dist, crew_seeds + (k & 1) * seeds_half, unused, crew_seeds + ((k + 1) & 1) * seeds_half,
-                   step, cap, b, c);
-        crew_barrier(crew, c);
-    }
-    SEEDS_SRC *seeds = crew_seeds + (passes & 1) * seeds_half;
-    for (int u = first + get_local_id(0); u < last; u += get_local_size(0)) {
-        int x, y, z0, z1;
-        unit_span(u, b, &x, &y, &z0, &z1);
-        for (int z = z0; z < z1; ++z) {
-            const int i = local_index(x, y, z, b);
-            const ushort s = seeds[i];
-            uint d = min((uint)dist[i], (uint)cap);
-            if (s != SEED_NONE)
-                d = min(d, seed_cost(dist, x, y, z, s, b));
-            crew_dist[i] = (uchar)d;
-        }
-    }
-    crew_barrier(crew, c);
-    crew_gather((__local uint4 *)dist, (volatile __global const uint4 *)crew_dist, 0, (voxels + 15) / 16);
-}
-#endif
 
 #endif

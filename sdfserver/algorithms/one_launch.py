@@ -61,9 +61,6 @@ CREW_FLOOD_CHAIN = 2
 # them one after another, which a crew survives (it shrinks to one group) but cannot gain from.
 CREW_DEVICE_TYPES = cl.device_type.GPU
 CREW_INTS = 33  # kernels/include/crew.h's control block
-# A crew's flood keeps its seeds in global memory where they do not fit local memory beside its
-# distances (a 32^3 box on NVIDIA's 48 KiB); True: always (the tests try that kernel everywhere).
-CREW_SEEDS_IN_GLOBAL = False
 
 
 @dataclass(frozen=True)
@@ -76,7 +73,6 @@ class Plan:
     dist_bytes: int
     seed_bytes: int  # each of the two seed buffers (a placeholder without jump flooding)
     crew: bool = False  # the groups share one box (kernels/include/crew.h)
-    global_seeds: bool = False  # a crew's flood keeps its seeds in global memory only (CREW_GLOBAL_SEEDS)
 
 
 class _DeviceState:
@@ -132,21 +128,18 @@ class OneLaunch:
         """Whether the flood reads seeds' weights (a kernel variant: without them a pass does less)."""
         return self.flood and not seeds_weigh_nothing(job)
 
-    def kernel(self, gpu: GpuContext, weighted: bool = True, crew: bool = False,
-               global_seeds: bool = False) -> cl.Kernel:
+    def kernel(self, gpu: GpuContext, weighted: bool = True, crew: bool = False) -> cl.Kernel:
         chain = {"FLOOD_CHAIN": CREW_FLOOD_CHAIN} if crew and self.flood else {}
-        seeds = {"CREW_GLOBAL_SEEDS": 1} if global_seeds else {}
-        return gpu.programs.kernel("one_launch.cl", "one_launch", **{**chain, **seeds, **self.defines},
+        return gpu.programs.kernel("one_launch.cl", "one_launch", **{**chain, **self.defines},
                                    ONE_LAUNCH_WEIGHTED=int(weighted), ONE_LAUNCH_CREW=int(crew))
 
-    def _limits(self, gpu: GpuContext, weighted: bool = True, crew: bool = False,
-                global_seeds: bool = False) -> tuple[int, int]:
+    def _limits(self, gpu: GpuContext, weighted: bool = True, crew: bool = False) -> tuple[int, int]:
         """(the most work-items a group, the local bytes left for the boxes)."""
         state = _state(gpu)
-        key = (self.flood, self.relax, weighted, crew, global_seeds)
+        key = (self.flood, self.relax, weighted, crew)
         found = state.limits.get(key)
         if found is None:
-            kernel, device = self.kernel(gpu, weighted, crew, global_seeds), gpu.device
+            kernel, device = self.kernel(gpu, weighted, crew), gpu.device
             items = min(MAX_ITEMS, device.max_work_group_size,
                         kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device))
             static = kernel.get_work_group_info(cl.kernel_work_group_info.LOCAL_MEM_SIZE, device)
@@ -186,24 +179,20 @@ class OneLaunch:
             return None
         items_max, local_bytes = self._limits(gpu, self.weighted(job), crew)
         dist_bytes = _round_up(voxels, 16)
-        global_seeds = crew and self.flood and (CREW_SEEDS_IN_GLOBAL or dist_bytes + 2 * seed_bytes > local_bytes)
-        if global_seeds:  # a crew's flood whose seeds do not fit beside its distances keeps them in global memory
-            seed_bytes = 16
-            items_max, local_bytes = self._limits(gpu, self.weighted(job), crew, global_seeds)
         if dist_bytes + 2 * seed_bytes > local_bytes:
             return None
         columns = box_n[0] * box_n[1]
         items = columns * min(box_n[2], items_max // columns) if columns <= items_max else items_max
         if crew:
             groups = crew_groups(gpu, voxels, self.flood)
-        return Plan(box_n, groups, items, dist_bytes, seed_bytes, crew, global_seeds)
+        return Plan(box_n, groups, items, dist_bytes, seed_bytes, crew)
 
     def pieces(self, gpu: GpuContext, job: RegionJob, run: AlgorithmRun, plan: Plan, piece_s: float | None,
                first_step: int = 0, extra_passes: int = 0) -> Pieces:
         """The job in one launch; with ``piece_s`` and several groups (padded chunks), launches of
         a run of groups each, paced like ``slabs``, writing scratch until pack_region at the end."""
         b, state = job.buffers, _state(gpu)
-        kernel = self.kernel(gpu, self.weighted(job), plan.crew, plan.global_seeds)
+        kernel = self.kernel(gpu, self.weighted(job), plan.crew)
         cut = piece_s is not None and plan.groups > 1 and not plan.crew
         accumulate = plan.groups > 1 and not plan.crew
         # A run in pieces counts in an int of its own: other runs are enqueued between its pieces.

@@ -185,7 +185,7 @@ def test_boxes_that_do_not_fit_fall_back(gpu, rng, monkeypatch, algorithm):
     """Too little local memory, a box past MAX_BOX_VOXELS, or (jump flooding) seeds past 16 bits:
     a launch a pass, and still the same field."""
     size = (16, 16, 16)
-    monkeypatch.setattr(one_launch.OneLaunch, "_limits", lambda self, gpu, weighted=True, crew=False, global_seeds=False: (1024, 4095))
+    monkeypatch.setattr(one_launch.OneLaunch, "_limits", lambda self, gpu, weighted=True, crew=False: (1024, 4095))
     out = run_both(gpu, monkeypatch, WorldConfig(size, 16, 255, algorithm), random_voxels(rng, size[::-1], 0.01))
     assert len(out["one"][0][0][0].kernel_ms) >= 6
     assert_same(out, 255)

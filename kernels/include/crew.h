@@ -17,6 +17,11 @@
  * group to finish, member or not, zeroes it again. Data that members exchange
  * goes through global memory and is read back with volatile loads (past the
  * compute unit's own cache, which other compute units' writes do not reach).
+ * A barrier orders each member's writes before the others' reads with a fence
+ * of the whole device (crew_fence): OpenCL 1.2's fences order memory within a
+ * work-group only (NVIDIA compiles mem_fence(CLK_GLOBAL_MEM_FENCE) to PTX's
+ * membar.cta), so a crew needs a device that has one (one_launch.py's
+ * takes_crews).
  */
 #ifndef CREW_H
 #define CREW_H
@@ -34,6 +39,18 @@
  * small launch's groups within microseconds; a CPU device that runs them one
  * after another gets a crew of one after the wait. */
 #define CREW_GATHER_SPINS 20000
+
+/* Orders this work-item's memory accesses before it against those after it for
+ * every work-group of the device: PTX's membar.gl on NVIDIA; elsewhere (the CPU
+ * device, where the tests run crews) OpenCL's global fence. */
+inline void crew_fence(void)
+{
+#if SDF_NVIDIA
+    asm volatile("membar.gl;" ::: "memory");
+#else
+    mem_fence(CLK_GLOBAL_MEM_FENCE);
+#endif
+}
 
 typedef struct {
     int member;    /* this group's number in the crew, -1 when it takes no part */
@@ -78,20 +95,20 @@ inline Crew crew_join(volatile __global int *crew, __local volatile int *shared)
 /* Every member's global writes before it are seen by every member after it. */
 inline void crew_barrier(volatile __global int *crew, Crew *c)
 {
-    mem_fence(CLK_GLOBAL_MEM_FENCE);
+    crew_fence();
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
     ++c->barriers;
     if (get_local_id(0) == 0) {
-        mem_fence(CLK_GLOBAL_MEM_FENCE);
+        crew_fence();
         const int arrivals = c->barriers * c->members;
         if (atomic_inc(&crew[CREW_ARRIVED]) == arrivals - 1) {
-            mem_fence(CLK_GLOBAL_MEM_FENCE);
+            crew_fence();
             crew[CREW_RELEASED] = c->barriers;
         } else {
             while (crew[CREW_RELEASED] < c->barriers)
                 ;
         }
-        mem_fence(CLK_GLOBAL_MEM_FENCE);
+        crew_fence();
     }
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
 }
@@ -101,7 +118,7 @@ inline void crew_finish(volatile __global int *crew)
 {
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
     if (get_local_id(0) == 0) {
-        mem_fence(CLK_GLOBAL_MEM_FENCE);
+        crew_fence();
         if (atomic_inc(&crew[CREW_FINISHED]) == (int)get_num_groups(0) - 1)
             for (int k = 0; k < CREW_INTS; ++k)
                 crew[k] = 0;

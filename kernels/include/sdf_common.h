@@ -16,6 +16,7 @@
  * Device defines, set by the loader for every build (sdfserver/gpu/programs.py):
  *   SDF_PTX_16X2  1 on NVIDIA sm_90 and later, where inline PTX min.u16x2 is one
  *                 instruction; 0 elsewhere.
+ *   SDF_NVIDIA    1 on NVIDIA's OpenCL, which compiles inline PTX; 0 elsewhere.
  */
 #ifndef SDF_COMMON_H
 #define SDF_COMMON_H

@@ -18,7 +18,7 @@ memory beside the kernel's own, checked at run time; otherwise the algorithms ru
 launch a pass. A box is also at most ``MAX_BOX_VOXELS``: one work-group runs on one compute unit,
 so a single large box would leave the rest of the device idle, and it could not be cut into
 pieces (``base.Pieces``); padded regions of any size are cut between their chunks' groups.
-On a GPU a lone box past ``LONE_GROUP_VOXELS`` is taken by a crew (kernels/include/crew.h): the
+On an NVIDIA GPU (``takes_crews``) a lone box past ``LONE_GROUP_VOXELS`` is taken by a crew (kernels/include/crew.h): the
 groups of one launch that run together, each holding the whole box and running its share of
 every pass, with barriers between them through global memory, so a pass is spread over several
 compute units and still costs no launch. Its groups all fit the device at once (at most one a
@@ -57,9 +57,6 @@ LONE_GROUP_VOXELS = {False: 16 ** 3, True: 1024}
 # most one a compute unit; a crew's flood takes chains of CREW_FLOOD_CHAIN voxels (FLOOD_CHAIN).
 CREW_VOXELS_PER_GROUP = {False: 2048, True: 512}
 CREW_FLOOD_CHAIN = 2
-# The devices that take crews: a GPU runs a small launch's groups together. A CPU device may run
-# them one after another, which a crew survives (it shrinks to one group) but cannot gain from.
-CREW_DEVICE_TYPES = cl.device_type.GPU
 CREW_INTS = 33  # kernels/include/crew.h's control block
 
 
@@ -110,6 +107,14 @@ def _round_up(n: int, multiple: int) -> int:
     return -(-n // multiple) * multiple
 
 
+def takes_crews(gpu: GpuContext) -> bool:
+    """Whether lone boxes take crews on this device: a GPU runs a small launch's groups together,
+    where a CPU device may run them one after another (a crew survives that, shrinking to one
+    group, but cannot gain from it); and only NVIDIA's has the device-wide fence a crew's barrier
+    needs (PTX membar.gl, kernels/include/crew.h)."""
+    return bool(gpu.device.type & cl.device_type.GPU) and bool(gpu.programs.device_defines.get("SDF_NVIDIA"))
+
+
 def crew_groups(gpu: GpuContext, voxels: int, flood: bool) -> int:
     """The groups launched for a crew of a box of ``voxels``: one a compute unit at most, so that
     all of them can run at once."""
@@ -156,7 +161,7 @@ class OneLaunch:
         voxels = math.prod(plan.box_n)
         if voxels <= LONE_GROUP_VOXELS[self.flood]:
             return plan
-        return self.plan(gpu, job, crew=True) if gpu.device.type & CREW_DEVICE_TYPES else None
+        return self.plan(gpu, job, crew=True) if takes_crews(gpu) else None
 
     def plan(self, gpu: GpuContext, job: RegionJob, crew: bool = False) -> Plan | None:
         """How ``job`` runs in one launch, or None where a box does not fit the device. ``crew``:

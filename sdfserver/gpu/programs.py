@@ -43,8 +43,9 @@ def _define(name: str, value: int | str) -> str:
 
 def device_defines(device: cl.Device) -> dict[str, int]:
     """Defines that describe the device to kernels (kernels/include/sdf_common.h lists them)."""
-    defines = {"SDF_PTX_16X2": 0}
+    defines = {"SDF_PTX_16X2": 0, "SDF_NVIDIA": 0}
     if "NVIDIA" in device.platform.name.upper():
+        defines["SDF_NVIDIA"] = 1  # NVIDIA's OpenCL compiles inline PTX
         try:
             major = int(device.compute_capability_major_nv)
         except (cl.Error, AttributeError):  # no cl_nv_device_attribute_query

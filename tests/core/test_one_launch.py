@@ -370,7 +370,7 @@ def test_a_lone_group_floods_only_small_boxes(gpu, rng, algorithm):
 
     assert 8 ** 3 <= one_launch.LONE_GROUP_VOXELS[True] < 16 ** 3 <= one_launch.LONE_GROUP_VOXELS[False] < 32 ** 3
     assert launches(algorithm, (8, 8, 8), 8) == 1
-    crews = bool(gpu.device.type & one_launch.CREW_DEVICE_TYPES)
+    crews = one_launch.takes_crews(gpu)
     assert (launches(algorithm, (16, 16, 16), 16) == 1) if crews else (launches(algorithm, (16, 16, 16), 16) >= 6)
     assert launches(algorithm, (32, 32, 16), 16, "padded") <= 2
     assert launches("fim", (16, 16, 16), 16) == 1

@@ -92,10 +92,12 @@ inline Crew crew_join(volatile __global int *crew, __local volatile int *shared)
     return c;
 }
 
-/* Every member's global writes before it are seen by every member after it. */
+/* Every member's global writes before it are seen by every member after it. As
+ * CUDA's grid sync does it: the group's barrier puts its work-items' writes
+ * before its first work-item's fence, whose arrival the others wait for; one
+ * fence a group, not one a work-item (membar.gl costs microseconds). */
 inline void crew_barrier(volatile __global int *crew, Crew *c)
 {
-    crew_fence();
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
     ++c->barriers;
     if (get_local_id(0) == 0) {

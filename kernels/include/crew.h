@@ -17,11 +17,12 @@
  * group to finish, member or not, zeroes it again. Data that members exchange
  * goes through global memory and is read back with volatile loads (past the
  * compute unit's own cache, which other compute units' writes do not reach).
- * A barrier orders each member's writes before the others' reads with a fence
- * of the whole device (crew_fence): OpenCL 1.2's fences order memory within a
- * work-group only (NVIDIA compiles mem_fence(CLK_GLOBAL_MEM_FENCE) to PTX's
- * membar.cta), so a crew needs a device that has one (one_launch.py's
- * takes_crews).
+ * A barrier orders each member's writes before the others' reads at the scope
+ * of the whole device (release and acquire, crew_barrier): OpenCL 1.2's fences
+ * order memory within a work-group only (NVIDIA compiles
+ * mem_fence(CLK_GLOBAL_MEM_FENCE) to PTX's membar.cta), so a crew needs a
+ * device where the kernel can say more (one_launch.py's takes_crews: NVIDIA's
+ * PTX).
  */
 #ifndef CREW_H
 #define CREW_H
@@ -40,17 +41,64 @@
  * after another gets a crew of one after the wait. */
 #define CREW_GATHER_SPINS 20000
 
-/* Orders this work-item's memory accesses before it against those after it for
- * every work-group of the device: PTX's membar.gl on NVIDIA; elsewhere (the CPU
- * device, where the tests run crews) OpenCL's global fence. */
+/* Device-wide ordering. On NVIDIA: PTX's membar.gl, and the acquire and
+ * release forms of the barrier's atomic, store and load at GPU scope (cheaper
+ * than a fence on each side); elsewhere (the CPU device, where the tests run
+ * crews) OpenCL's global fence around plain ones. */
+#if SDF_NVIDIA
 inline void crew_fence(void)
 {
-#if SDF_NVIDIA
     asm volatile("membar.gl;" ::: "memory");
-#else
-    mem_fence(CLK_GLOBAL_MEM_FENCE);
-#endif
 }
+
+/* Adds one to *p and returns what it held; releases this work-item's earlier
+ * accesses (and, after a group barrier, its group's) and acquires those of
+ * every arrival before it. */
+inline int crew_arrive(volatile __global int *p)
+{
+    int old;
+    asm volatile("atom.acq_rel.gpu.global.add.u32 %0, [%1], 1;" : "=r"(old) : "l"((ulong)p) : "memory");
+    return old;
+}
+
+inline int crew_load_acquire(volatile __global int *p)
+{
+    int value;
+    asm volatile("ld.acquire.gpu.global.u32 %0, [%1];" : "=r"(value) : "l"((ulong)p) : "memory");
+    return value;
+}
+
+inline void crew_store_release(volatile __global int *p, int value)
+{
+    asm volatile("st.release.gpu.global.u32 [%0], %1;" : : "l"((ulong)p), "r"(value) : "memory");
+}
+#else
+inline void crew_fence(void)
+{
+    mem_fence(CLK_GLOBAL_MEM_FENCE);
+}
+
+inline int crew_arrive(volatile __global int *p)
+{
+    mem_fence(CLK_GLOBAL_MEM_FENCE);
+    const int old = atomic_inc(p);
+    mem_fence(CLK_GLOBAL_MEM_FENCE);
+    return old;
+}
+
+inline int crew_load_acquire(volatile __global int *p)
+{
+    const int value = *p;
+    mem_fence(CLK_GLOBAL_MEM_FENCE);
+    return value;
+}
+
+inline void crew_store_release(volatile __global int *p, int value)
+{
+    mem_fence(CLK_GLOBAL_MEM_FENCE);
+    *p = value;
+}
+#endif
 
 typedef struct {
     int member;    /* this group's number in the crew, -1 when it takes no part */
@@ -94,23 +142,21 @@ inline Crew crew_join(volatile __global int *crew, __local volatile int *shared)
 
 /* Every member's global writes before it are seen by every member after it. As
  * CUDA's grid sync does it: the group's barrier puts its work-items' writes
- * before its first work-item's fence, whose arrival the others wait for; one
- * fence a group, not one a work-item (membar.gl costs microseconds). */
+ * before its first work-item's arrival (a release), the others wait for the
+ * last arrival's release flag (an acquire), and the group's barrier puts that
+ * before its work-items' reads: one release and one acquire a group, not a
+ * fence a work-item (membar.gl costs microseconds). */
 inline void crew_barrier(volatile __global int *crew, Crew *c)
 {
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
     ++c->barriers;
     if (get_local_id(0) == 0) {
-        crew_fence();
         const int arrivals = c->barriers * c->members;
-        if (atomic_inc(&crew[CREW_ARRIVED]) == arrivals - 1) {
-            crew_fence();
-            crew[CREW_RELEASED] = c->barriers;
-        } else {
-            while (crew[CREW_RELEASED] < c->barriers)
+        if (crew_arrive(&crew[CREW_ARRIVED]) == arrivals - 1)
+            crew_store_release(&crew[CREW_RELEASED], c->barriers);
+        else
+            while (crew_load_acquire(&crew[CREW_RELEASED]) < c->barriers)
                 ;
-        }
-        crew_fence();
     }
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
 }

@@ -41,16 +41,11 @@
  * after another gets a crew of one after the wait. */
 #define CREW_GATHER_SPINS 20000
 
-/* Device-wide ordering. On NVIDIA: PTX's membar.gl, and the acquire and
- * release forms of the barrier's atomic, store and load at GPU scope (cheaper
- * than a fence on each side); elsewhere (the CPU device, where the tests run
- * crews) OpenCL's global fence around plain ones. */
+/* Device-wide ordering. On NVIDIA: the acquire and release forms of an atomic,
+ * a store and a load at GPU scope (PTX; cheaper than membar.gl fences);
+ * elsewhere (the CPU device, where the tests run crews) OpenCL's global fence
+ * around plain ones. */
 #if SDF_NVIDIA
-inline void crew_fence(void)
-{
-    asm volatile("membar.gl;" ::: "memory");
-}
-
 /* Adds one to *p and returns what it held; releases this work-item's earlier
  * accesses (and, after a group barrier, its group's) and acquires those of
  * every arrival before it. */
@@ -73,11 +68,6 @@ inline void crew_store_release(volatile __global int *p, int value)
     asm volatile("st.release.gpu.global.u32 [%0], %1;" : : "l"((ulong)p), "r"(value) : "memory");
 }
 #else
-inline void crew_fence(void)
-{
-    mem_fence(CLK_GLOBAL_MEM_FENCE);
-}
-
 inline int crew_arrive(volatile __global int *p)
 {
     mem_fence(CLK_GLOBAL_MEM_FENCE);
@@ -166,8 +156,7 @@ inline void crew_finish(volatile __global int *crew)
 {
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
     if (get_local_id(0) == 0) {
-        crew_fence();
-        if (atomic_inc(&crew[CREW_FINISHED]) == (int)get_num_groups(0) - 1)
+        if (crew_arrive(&crew[CREW_FINISHED]) == (int)get_num_groups(0) - 1)
             for (int k = 0; k < CREW_INTS; ++k)
                 crew[k] = 0;
     }

@@ -174,6 +174,7 @@ inline void flood(__local uchar *dist, __local ushort *a, __local ushort *b2, in
         src = dst;
         dst = t;
     }
+#if ONE_LAUNCH_WEIGHTED
     /* Resolve into dst (free now), then copy: every seed's weight is read from dist until all are done. */
     for (int u = get_local_id(0); u < b->units; u += get_local_size(0)) {
         int x, y, z0, z1;
@@ -193,6 +194,18 @@ inline void flood(__local uchar *dist, __local ushort *a, __local ushort *b2, in
         for (int z = z0; z < z1; ++z)
             dist[local_index(x, y, z, b)] = (uchar)dst[local_index(x, y, z, b)];
     }
+#else
+    /* No seed's weight is read: each voxel's distance is resolved in place. */
+    for (int u = get_local_id(0); u < b->units; u += get_local_size(0)) {
+        int x, y, z0, z1;
+        unit_span(u, b, &x, &y, &z0, &z1);
+        for (int z = z0; z < z1; ++z) {
+            const int i = local_index(x, y, z, b);
+            if (src[i] != SEED_NONE)
+                dist[i] = (uchar)min(min((uint)dist[i], (uint)cap), seed_cost(dist, x, y, z, src[i], b));
+        }
+    }
+#endif
     barrier(CLK_LOCAL_MEM_FENCE);
 }
 

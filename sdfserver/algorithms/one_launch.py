@@ -18,10 +18,10 @@ memory beside the kernel's own, checked at run time; otherwise the algorithms ru
 launch a pass. A box is also at most ``MAX_BOX_VOXELS``: one work-group runs on one compute unit,
 so a single large box would leave the rest of the device idle, and it could not be cut into
 pieces (``base.Pieces``); padded regions of any size are cut between their chunks' groups.
-On an NVIDIA GPU (``takes_crews``) a lone box past ``LONE_GROUP_VOXELS`` is taken by a crew (kernels/include/crew.h): the
-groups of one launch that run together, each holding the whole box and running its share of
-every pass, with barriers between them through global memory, so a pass is spread over several
-compute units and still costs no launch. Its groups all fit the device at once (at most one a
+On an NVIDIA GPU (``takes_crews``) a lone box past ``LONE_GROUP_VOXELS`` is taken by a crew
+(kernels/include/crew.h): the groups of one launch that run together, each holding the whole box
+and running its share of every pass, with barriers between them through global memory, so a
+pass is spread over several compute units and still costs no launch. Its groups all fit the device at once (at most one a
 compute unit), and a group that starts after the others have begun takes no part.
 """
 
@@ -110,8 +110,8 @@ def _round_up(n: int, multiple: int) -> int:
 def takes_crews(gpu: GpuContext) -> bool:
     """Whether lone boxes take crews on this device: a GPU runs a small launch's groups together,
     where a CPU device may run them one after another (a crew survives that, shrinking to one
-    group, but cannot gain from it); and only NVIDIA's has the device-wide fence a crew's barrier
-    needs (PTX membar.gl, kernels/include/crew.h)."""
+    group, but cannot gain from it); and only on NVIDIA's can the kernel order memory across the
+    device as a crew's barrier needs (PTX's GPU-scope acquire and release, kernels/include/crew.h)."""
     return bool(gpu.device.type & cl.device_type.GPU) and bool(gpu.programs.device_defines.get("SDF_NVIDIA"))
 
 

@@ -21,8 +21,9 @@ pieces (``base.Pieces``); padded regions of any size are cut between their chunk
 On an NVIDIA GPU (``takes_crews``) a lone box past ``LONE_GROUP_VOXELS`` is taken by a crew
 (kernels/include/crew.h): the groups of one launch that run together, each holding the whole box
 and running its share of every pass, with barriers between them through global memory, so a
-pass is spread over several compute units and still costs no launch. Its groups all fit the device at once (at most one a
-compute unit), and a group that starts after the others have begun takes no part.
+pass is spread over several compute units and still costs no launch. Its groups all fit the
+device at once (at most one a compute unit), and a group that starts after the others have begun
+takes no part.
 """
 
 from __future__ import annotations

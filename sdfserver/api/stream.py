@@ -38,6 +38,7 @@ from types import SimpleNamespace
 from typing import Any
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from starlette.websockets import WebSocketState
 
 from sdfserver import wire
 from sdfserver.api.auth import bearer_token, client_host
@@ -121,6 +122,11 @@ class StreamSession:
             await self.websocket.send_bytes(data)
         self.metrics.bytes_out.inc(len(data))
 
+    def _gone(self) -> bool:
+        """Whether the connection has ended: closed, or aborted under a send (Starlette then
+        refuses every later send with a RuntimeError, not WebSocketDisconnect)."""
+        return WebSocketState.DISCONNECTED in (self.websocket.application_state, self.websocket.client_state)
+
     async def _receive(self) -> None:
         limits = self.settings.wire_limits
         while True:
@@ -142,6 +148,8 @@ class StreamSession:
             except WebSocketDisconnect:
                 raise
             except Exception as exc:  # every failure answers the frame; the connection stays
+                if self._gone():  # it failed sending on a connection that ended meanwhile: none to answer
+                    raise WebSocketDisconnect(1006) from exc
                 _, body = body_for(exc)
                 await self.send({"type": "error", "id": frame_id, **body})
 

@@ -94,21 +94,16 @@ def group_items(items: int | None):
         one_launch._STATES.clear()
 
 
-def chunk_rows(gpu: GpuContext, sizes: list[int], reps: int, chains: list[int], items: list[int],
-               crew_voxels: list[int]) -> list[dict]:
+def chunk_rows(gpu: GpuContext, sizes: list[int], reps: int, chains: list[int], items: list[int]) -> list[dict]:
     """``one:C``: one launch with FLOOD_CHAIN=C (jump flooding's voxels a work-item takes);
-    ``one@N``: one launch of N work-items a group; ``crew/V``: as the tree chooses, with a crew's
-    group for each V voxels of a lone box (one_launch.CREW_VOXELS_PER_GROUP)."""
+    ``one@N``: one launch of N work-items a group (crews' shapes: tools/crew_timing.py)."""
     rows = []
     lone = dict(one_launch.LONE_GROUP_VOXELS)
-    per_group = one_launch.CREW_VOXELS_PER_GROUP
     for algorithm, make in MAKE.items():
         for size in sizes:
             modes = (["default", "one", "multi"] + [f"one:{c}" for c in chains if algorithm != "fim"]
-                     + [f"one@{n}" for n in items] + [f"crew/{v}" for v in crew_voxels])
+                     + [f"one@{n}" for n in items])
             for mode in modes:
-                one_launch.CREW_VOXELS_PER_GROUP = (dict.fromkeys(per_group, int(mode.split("/")[1])) if "/" in mode
-                                                    else dict(per_group))
                 ALGORITHMS[algorithm] = make(mode != "multi")
                 if ":" in mode:
                     ALGORITHMS[algorithm].small.defines["FLOOD_CHAIN"] = int(mode.split(":")[1])
@@ -156,7 +151,6 @@ def main() -> None:
     p.add_argument("--registers", default="driver",
                    help="register caps to build the limits' kernels with (NVIDIA), e.g. driver,64,32")
     p.add_argument("--items", default="", help="work-items a group to force one launch to, e.g. 512,1024")
-    p.add_argument("--crew-voxels", default="", help="a crew's voxels a group to try, e.g. 256,1024")
     p.add_argument("--json", default=None)
     args = p.parse_args()
     gpu = GpuContext.create(args.device)
@@ -168,8 +162,7 @@ def main() -> None:
             print("   ", " | ".join(line.strip() for line in row["log"].splitlines() if "registers" in line or "spill" in line))
     out = {"device": gpu.device.name, "lone_group_voxels": {str(k): v for k, v in one_launch.LONE_GROUP_VOXELS.items()},
            "kernels": info, "chunks": chunk_rows(gpu, [int(s) for s in args.sizes.split(",")], args.reps,
-                               [int(c) for c in args.chains.split(",") if c], items,
-                               [int(v) for v in args.crew_voxels.split(",") if v])}
+                               [int(c) for c in args.chains.split(",") if c], items)}
     if args.padded:
         size, chunk = (int(v) for v in args.padded.split(","))
         out["padded"] = padded_rows(gpu, size, chunk, args.reps, items)

@@ -13,11 +13,10 @@ import pytest
 
 from sdfserver.algorithms import one_launch
 from sdfserver.algorithms.base import RegionJob
-from sdfserver.edits import VoxelsEdit
 from sdfserver.world import World, WorldConfig
 
 from .conftest import oracle, random_voxels
-from .test_one_launch import EXACT, ONE, assert_same, inside, run_both, spheres
+from .test_one_launch import EXACT, ONE, assert_fim_counts_its_passes, assert_same, inside, run_both, spheres
 
 CREW_ALGORITHMS = ["fim", "jfa", "jfa+1", "jfa_fim"]
 
@@ -84,22 +83,8 @@ def test_groups_past_what_runs_at_once_drop_out(gpu, rng, monkeypatch, algorithm
 
 
 def test_a_crew_counts_fim_passes(gpu, monkeypatch):
-    """A single solid in a corner of 16^3: passes are counted once for the crew, and the field is
-    x + y + z; an empty world converges at once."""
-    from sdfserver.algorithms import ALGORITHMS
-
-    monkeypatch.setitem(ALGORITHMS, "fim", ONE["fim"])
-    world = World(gpu, WorldConfig((16, 16, 16), 16, 255, "fim"))
-    try:
-        world.mark_all_dirty()
-        assert world.recompute().iterations == 0
-        world.apply_edits([VoxelsEdit(np.array([[0, 0, 0, 9]]))])
-        result = world.recompute()
-        assert 1 <= result.iterations <= 45 and len(result.kernel_ms) == 1
-        z, y, x = np.indices((16, 16, 16))
-        assert np.array_equal(world.read_distance(), x + y + z)
-    finally:
-        world.release()
+    """test_one_launch's pass count, in a crew: passes are counted once for the crew."""
+    assert_fim_counts_its_passes(gpu, monkeypatch)
 
 
 def test_crews_are_taken_on_nvidia_gpus_only(gpu, monkeypatch):

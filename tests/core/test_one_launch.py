@@ -162,8 +162,13 @@ def test_one_launch_is_taken(gpu, rng, monkeypatch, algorithm, borders, size, ch
 
 
 def test_fim_counts_its_passes_on_the_device(gpu, monkeypatch):
+    assert_fim_counts_its_passes(gpu, monkeypatch)
+
+
+def assert_fim_counts_its_passes(gpu, monkeypatch) -> None:
     """A single solid in a corner of 16^3: the farthest voxel is 45 steps away, so at least one
-    pass changes something; an empty world converges at once."""
+    pass changes something; an empty world converges at once. One launch counts its passes, and
+    the field is x + y + z."""
     from sdfserver.edits import VoxelsEdit
 
     monkeypatch.setitem(ALGORITHMS, "fim", ONE["fim"])

@@ -6,12 +6,13 @@
  * only starts once the waiting ones finish. A crew therefore holds only the
  * groups that were running together at its start (the occupancy discovery of
  * Sorensen, Donaldson et al., "Portable inter-workgroup barrier
- * synchronisation for GPUs", OOPSLA 2016): each group that starts while the
- * poll is open joins it and waits there, for at most CREW_GATHER_SPINS polls,
- * until every group of the launch has joined; then one closes it. A group that
- * joined is running, and a running work-group runs to its end, so every member
- * reaches every barrier. Groups that find the poll closed take no part. The
- * crew is the groups that joined, one or all: the work is shared by its size.
+ * synchronisation for GPUs", OOPSLA 2016): each group takes a number as it
+ * starts and waits, for at most CREW_GATHER_SPINS polls, until every group of
+ * the launch has one; then the poll is closed at the count taken so far. A
+ * group numbered below that count is running, and a running work-group runs
+ * to its end, so every member reaches every barrier. Groups numbered past it
+ * take no part. The crew is those groups, one or all: the work is shared by
+ * its size.
  *
  * The control block (`crew`, CREW_INTS ints) is zero before a launch; the last
  * group to finish, member or not, zeroes it again. Data that members exchange
@@ -27,13 +28,13 @@
 #ifndef CREW_H
 #define CREW_H
 
-#define CREW_POLL 0      /* groups that joined; | CREW_CLOSED once the poll is closed */
-#define CREW_ARRIVED 1   /* arrivals at barriers, counted up through the launch */
+#define CREW_POLL 0      /* groups that asked to join */
+#define CREW_MEMBERS 1   /* 0 while the poll is open; then CREW_CLOSED | the crew's size */
 #define CREW_FINISHED 2  /* groups of the launch that finished */
 #define CREW_FLAGS 3     /* three flags for whoever needs them (one_launch.cl's FIM passes) */
-/* The barriers passed, set by each barrier's last arrival: waiting members poll
- * it, 128 bytes (a cache line) away from the counter that arrivals add to. */
-#define CREW_RELEASED 32
+/* Arrivals at barriers, counted up through the launch: every member polls it,
+ * 128 bytes (a cache line) away from the words above. */
+#define CREW_ARRIVED 32
 #define CREW_INTS 33
 #define CREW_CLOSED 0x40000000
 /* How long a member waits for the rest of the launch to join: a GPU starts a
@@ -41,19 +42,17 @@
  * after another gets a crew of one after the wait. */
 #define CREW_GATHER_SPINS 20000
 
-/* Device-wide ordering. On NVIDIA: the acquire and release forms of an atomic,
- * a store and a load at GPU scope (PTX; cheaper than membar.gl fences);
+/* Device-wide ordering. On NVIDIA: a release add (a reduction, no result) and
+ * an acquire load at GPU scope (PTX; cheaper than membar.gl fences);
  * elsewhere (the CPU device, where the tests run crews) OpenCL's global fence
  * around plain ones. */
 #if SDF_NVIDIA
-/* Adds one to *p and returns what it held; releases this work-item's earlier
- * accesses (and, after a group barrier, its group's) and acquires those of
- * every arrival before it. */
-inline int crew_arrive(volatile __global int *p)
+/* Adds one to *p, releasing this work-item's earlier accesses (and, after a
+ * group barrier, its group's). No result comes back: the arrival does not
+ * wait for the atomic's round trip. */
+inline void crew_arrive(volatile __global int *p)
 {
-    int old;
-    asm volatile("atom.acq_rel.gpu.global.add.u32 %0, [%1], 1;" : "=r"(old) : "l"((ulong)p) : "memory");
-    return old;
+    asm volatile("red.release.gpu.global.add.u32 [%0], 1;" : : "l"((ulong)p) : "memory");
 }
 
 inline int crew_load_acquire(volatile __global int *p)
@@ -63,17 +62,11 @@ inline int crew_load_acquire(volatile __global int *p)
     return value;
 }
 
-inline void crew_store_release(volatile __global int *p, int value)
-{
-    asm volatile("st.release.gpu.global.u32 [%0], %1;" : : "l"((ulong)p), "r"(value) : "memory");
-}
 #else
-inline int crew_arrive(volatile __global int *p)
+inline void crew_arrive(volatile __global int *p)
 {
     mem_fence(CLK_GLOBAL_MEM_FENCE);
-    const int old = atomic_inc(p);
-    mem_fence(CLK_GLOBAL_MEM_FENCE);
-    return old;
+    atomic_inc(p);
 }
 
 inline int crew_load_acquire(volatile __global int *p)
@@ -83,11 +76,6 @@ inline int crew_load_acquire(volatile __global int *p)
     return value;
 }
 
-inline void crew_store_release(volatile __global int *p, int value)
-{
-    mem_fence(CLK_GLOBAL_MEM_FENCE);
-    *p = value;
-}
 #endif
 
 typedef struct {
@@ -99,29 +87,20 @@ typedef struct {
 inline Crew crew_join(volatile __global int *crew, __local volatile int *shared)
 {
     if (get_local_id(0) == 0) {
-        int member = -1, members = 0;
-        int poll = crew[CREW_POLL];
-        while (!(poll & CREW_CLOSED)) {
-            const int seen = atomic_cmpxchg(&crew[CREW_POLL], poll, poll + 1);
-            if (seen == poll) {
-                member = poll;
-                break;
-            }
-            poll = seen;
+        /* Joiners are numbered by one add each; whoever closes the poll fixes the
+         * crew's size, so joiners numbered past it (they came too late) take no part. */
+        const int asked = atomic_inc(&crew[CREW_POLL]);
+        const int groups = (int)get_num_groups(0);
+        if (asked + 1 == groups)  /* the last of the launch: everyone is running */
+            atomic_cmpxchg(&crew[CREW_MEMBERS], 0, CREW_CLOSED | groups);
+        int closed = crew[CREW_MEMBERS];
+        for (int spin = 0; closed == 0; ++spin) {
+            if (spin >= CREW_GATHER_SPINS)
+                atomic_cmpxchg(&crew[CREW_MEMBERS], 0, CREW_CLOSED | crew[CREW_POLL]);
+            closed = crew[CREW_MEMBERS];
         }
-        for (int spin = 0; member >= 0; ++spin) {
-            poll = crew[CREW_POLL];
-            if (poll & CREW_CLOSED) {
-                members = poll & ~CREW_CLOSED;
-                break;
-            }
-            if ((poll >= (int)get_num_groups(0) || spin >= CREW_GATHER_SPINS)
-                && atomic_cmpxchg(&crew[CREW_POLL], poll, poll | CREW_CLOSED) == poll) {
-                members = poll;
-                break;
-            }
-        }
-        shared[0] = member;
+        const int members = closed & ~CREW_CLOSED;
+        shared[0] = asked < members ? asked : -1;
         shared[1] = members;
     }
     barrier(CLK_LOCAL_MEM_FENCE);
@@ -132,21 +111,21 @@ inline Crew crew_join(volatile __global int *crew, __local volatile int *shared)
 
 /* Every member's global writes before it are seen by every member after it. As
  * CUDA's grid sync does it: the group's barrier puts its work-items' writes
- * before its first work-item's arrival (a release), the others wait for the
- * last arrival's release flag (an acquire), and the group's barrier puts that
- * before its work-items' reads: one release and one acquire a group, not a
- * fence a work-item (membar.gl costs microseconds). */
+ * before its first work-item's arrival (a release), that work-item waits until
+ * every member has arrived (an acquire of the count), and the group's barrier
+ * puts that before its work-items' reads: one release and one acquire a group,
+ * not a fence a work-item (membar.gl costs microseconds). The count only
+ * grows, so a member that arrives at the next barrier early releases no one
+ * still waiting at this one. */
 inline void crew_barrier(volatile __global int *crew, Crew *c)
 {
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
     ++c->barriers;
     if (get_local_id(0) == 0) {
         const int arrivals = c->barriers * c->members;
-        if (crew_arrive(&crew[CREW_ARRIVED]) == arrivals - 1)
-            crew_store_release(&crew[CREW_RELEASED], c->barriers);
-        else
-            while (crew_load_acquire(&crew[CREW_RELEASED]) < c->barriers)
-                ;
+        crew_arrive(&crew[CREW_ARRIVED]);
+        while (crew_load_acquire(&crew[CREW_ARRIVED]) < arrivals)
+            ;
     }
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
 }
@@ -156,7 +135,7 @@ inline void crew_finish(volatile __global int *crew)
 {
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
     if (get_local_id(0) == 0) {
-        if (crew_arrive(&crew[CREW_FINISHED]) == (int)get_num_groups(0) - 1)
+        if (atomic_inc(&crew[CREW_FINISHED]) == (int)get_num_groups(0) - 1)
             for (int k = 0; k < CREW_INTS; ++k)
                 crew[k] = 0;
     }

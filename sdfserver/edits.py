@@ -76,7 +76,7 @@ def _colour(value: Any, where: str) -> int:
     if type(value) is int and 0 <= value <= 255:  # the common case, no ABC checks
         return value
     if isinstance(value, bool) or not isinstance(value, Integral):
-        raise InvalidEdit(f"{where}: colour must be an integer 0..255, got {value!r}")
+        raise InvalidEdit(f"{where}: colour must be an integer 0..255, got {incoming.short(value)}")
     if not 0 <= int(value) <= 255:
         raise InvalidEdit(f"{where}: colour must be 0..255, got {value}")
     return int(value)
@@ -155,8 +155,8 @@ def parse_edit(raw: Any, index: int) -> Edit:
             radius = finite(raw["radius"], where + ".radius")
             return SphereEdit(_real3(raw["center"], where + ".center"), radius, _colour(raw["colour"], where))
     except KeyError as exc:
-        raise InvalidEdit(f"{where}: missing field {exc.args[0]!r} for op {op!r}") from None
-    raise InvalidEdit(f"{where}: unknown op {op!r}; expected 'voxels', 'box' or 'sphere'")
+        raise InvalidEdit(f"{where}: missing field {exc.args[0]!r} for op {incoming.short(op)}") from None
+    raise InvalidEdit(f"{where}: unknown op {incoming.short(op)}; expected 'voxels', 'box' or 'sphere'")
 
 
 def parse_edits(raw: Any) -> list[Edit]:

@@ -12,6 +12,7 @@ import numpy as np
 
 from sdfserver.errors import InvalidInput
 from sdfserver.geometry import Box, Vec3
+from sdfserver.incoming import short
 
 CHUNK_SIZES = (8, 16, 32, 64, 128)
 MAX_SIDE_VOX = 2048  # exact.cl: at most 128 segments of 16 elements per line
@@ -68,7 +69,7 @@ class TerrainSpec:
                                 ("overhang", self.overhang, 0, 64), ("cave_depth", self.cave_depth, 0, 256)):
             if not isinstance(v, (int, float, np.integer, np.floating)) or isinstance(v, bool) \
                     or not np.isfinite(v) or not lo <= v <= hi:
-                raise InvalidInput(f"terrain {name} must be a number {lo}..{hi}, got {v!r}")
+                raise InvalidInput(f"terrain {name} must be a number {lo}..{hi}, got {short(v)}")
         return TerrainSpec(int(self.seed), float(base), float(amplitude), float(self.overhang),
                            float(self.cave_depth))
 
@@ -109,7 +110,7 @@ class WorldConfig:
 
         size = self.size
         if not isinstance(size, (tuple, list)) or len(size) != 3 or not all(_is_int(v) for v in size):
-            raise InvalidInput(f"size must be three integers [sx, sy, sz], got {size!r}")
+            raise InvalidInput(f"size must be three integers [sx, sy, sz], got {short(size)}")
         if self.chunk_size not in CHUNK_SIZES:
             raise InvalidInput(f"chunk_size must be one of {CHUNK_SIZES}, got {self.chunk_size!r}")
         if self.storage not in STORAGES:
@@ -134,7 +135,7 @@ class WorldConfig:
             if self.storage != "sparse":
                 raise InvalidInput("generate is for storage 'sparse'")
             if not isinstance(generate, TerrainSpec):
-                raise InvalidInput(f"generate must be a terrain, got {generate!r}")
+                raise InvalidInput(f"generate must be a terrain, got {short(generate)}")
             generate = generate.validated(size[1])
         if not _is_int(self.max_distance) or not 1 <= self.max_distance <= 255:
             raise InvalidInput(f"max_distance must be an integer 1..255, got {self.max_distance!r}")
@@ -150,7 +151,7 @@ class WorldConfig:
         if self.focus is not None:
             for name, v in (("center", self.focus.center), ("size", self.focus.size)):
                 if len(v) != 3 or not all(_is_int(c) for c in v):
-                    raise InvalidInput(f"focus {name} must be three integers (chunks), got {v!r}")
+                    raise InvalidInput(f"focus {name} must be three integers (chunks), got {short(v)}")
             if any(s <= 0 for s in self.focus.size):
                 raise InvalidInput(f"focus size must be positive, got {list(self.focus.size)}")
         self._validate_field_options(algorithm, lod_algorithm)
@@ -168,7 +169,7 @@ class WorldConfig:
         if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v) \
                 or not 0 < v or v * max(self.size) > MAX_WORLD_UNITS:
             raise InvalidInput(f"voxel_size must be a finite positive number (world units per voxel, at most "
-                               f"{MAX_WORLD_UNITS:g} across the world), got {v!r}")
+                               f"{MAX_WORLD_UNITS:g} across the world), got {short(v)}")
         o = self.origin
         if not isinstance(o, (tuple, list)) or len(o) != 3 or any(
                 isinstance(c, bool) or not isinstance(c, (int, float, np.integer, np.floating))
@@ -222,7 +223,7 @@ def _palette(palette) -> tuple[tuple[int, int, int], ...] | None:
     out = []
     for i, c in enumerate(palette):
         if not isinstance(c, (list, tuple)) or len(c) != 3 or not all(_is_int(v) and 0 <= v <= 255 for v in c):
-            raise InvalidInput(f"palette[{i}] must be [r, g, b] with integers 0..255, got {c!r}")
+            raise InvalidInput(f"palette[{i}] must be [r, g, b] with integers 0..255, got {short(c)}")
         out.append(tuple(int(v) for v in c))
     return tuple(out)
 

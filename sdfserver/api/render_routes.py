@@ -40,6 +40,7 @@ from sdfserver.api.engines import Engines
 from sdfserver.api.errors import body_for
 from sdfserver.engine.messages import Access
 from sdfserver.errors import InvalidInput, SdfServerError
+from sdfserver.incoming import short
 from sdfserver.render import FORMATS, encode_frame, format_from_accept, parse_view
 from sdfserver.render.encode import check_format
 from sdfserver.render.video import VIDEO_FORMATS, VIDEO_KEYS, VideoRequest, VideoStream, parse_video_request, video_message
@@ -71,7 +72,7 @@ def encode_pool() -> ThreadPoolExecutor:
 
 def _quality(raw: Any) -> int:
     if isinstance(raw, bool) or not isinstance(raw, int) or not 1 <= raw <= 100:
-        raise InvalidInput(f"quality must be an integer 1..100, got {raw!r}")
+        raise InvalidInput(f"quality must be an integer 1..100, got {short(raw)}")
     return raw
 
 
@@ -105,7 +106,7 @@ async def pick(request: Request, world_id: str) -> Response:
     x, y = body["x"], body["y"]
     for name, v in (("x", x), ("y", y)):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or v != v or abs(v) > 1e6:
-            raise InvalidInput(f"{name} must be a finite number, got {v!r}")
+            raise InvalidInput(f"{name} must be a finite number, got {short(v)}")
     engine: Engines = request.app.state.engine
     hit = await engine.pick(world_id, view, float(x), float(y), access_of(request))
     if hit.voxel is None:
@@ -158,16 +159,16 @@ class FrameStream:
             settings: int | VideoRequest = parse_video_request(message, fmt)
         else:
             if fmt not in FORMATS:
-                raise InvalidInput(f"format must be one of {sorted(FORMATS) + list(VIDEO_FORMATS)}, got {fmt!r}")
+                raise InvalidInput(f"format must be one of {sorted(FORMATS) + list(VIDEO_FORMATS)}, got {short(fmt)}")
             given = sorted(VIDEO_KEYS & message.keys())
             if given:
-                raise InvalidInput(f"{given} are settings of the video formats {list(VIDEO_FORMATS)}, not of {fmt!r}")
+                raise InvalidInput(f"{given} are settings of the video formats {list(VIDEO_FORMATS)}, not of {short(fmt)}")
             settings = _quality(message.get("quality", 80))
         view = {k: v for k, v in message.items() if k not in VIDEO_KEYS}
         camera, _ = parse_view(view)
         max_fps = message.get("max_fps", DEFAULT_FPS)
         if isinstance(max_fps, bool) or not isinstance(max_fps, (int, float)) or not 0 < max_fps <= MAX_FPS:
-            raise InvalidInput(f"max_fps must be a number in (0, {MAX_FPS:g}], got {max_fps!r}")
+            raise InvalidInput(f"max_fps must be a number in (0, {MAX_FPS:g}], got {short(max_fps)}")
         self.view = (camera, view, fmt, settings, float(max_fps))
         if fmt not in VIDEO_FORMATS:
             self.video.release()  # an encoder holds frames of its own: none waits idle for video to resume

@@ -22,6 +22,7 @@ from sdfserver.api.models import CreateWorldBody, EditsBody, MoveWorldBody, Patc
 from sdfserver.engine.core import world_config_dict
 from sdfserver.errors import Forbidden, InvalidEdit, InvalidInput, TooLarge
 from sdfserver.geometry import Box
+from sdfserver.incoming import short
 from sdfserver.storage.codec import encode_batch
 from sdfserver.world import Focus, WorldConfig
 from sdfserver.world_config import TerrainSpec
@@ -191,7 +192,7 @@ def _vec3(text: str | None, name: str) -> tuple[int, int, int] | None:
         x, y, z = text.split(",")
         return int(x), int(y), int(z)
     except ValueError:
-        raise InvalidInput(f"{name} must be three integers 'x,y,z', got {text!r}") from None
+        raise InvalidInput(f"{name} must be three integers 'x,y,z', got {short(text)}") from None
 
 
 def box_param(lo: str | None, hi: str | None) -> Box | None:

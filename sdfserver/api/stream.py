@@ -51,6 +51,7 @@ from sdfserver.engine.messages import Access, ChunkUpdate
 from sdfserver.errors import InvalidInput, SdfServerError
 from sdfserver.field_values import distance_dtype, packed_content
 from sdfserver.geometry import Box
+from sdfserver.incoming import short
 
 router = APIRouter(prefix="/v1")
 
@@ -171,13 +172,13 @@ class StreamSession:
         elif kind == "keyframe":
             self.frames.request_keyframe()
         else:
-            raise InvalidInput(f"unknown frame type {kind!r}; expected edits, subscribe, unsubscribe, ping, "
+            raise InvalidInput(f"unknown frame type {short(kind)}; expected edits, subscribe, unsubscribe, ping, "
                                f"camera or keyframe")
 
     async def _subscribe(self, frame: dict[str, Any]) -> None:
         fmt = frame.get("format", "distance")
         if fmt not in ("distance", "packed"):
-            raise InvalidInput(f"format must be 'distance' or 'packed', got {fmt!r}")
+            raise InvalidInput(f"format must be 'distance' or 'packed', got {short(fmt)}")
         lo, hi = (_int3(frame.get(k), k) for k in ("min", "max"))
         region = Box(lo, hi).snap(self.chunk_size)
         # Checked here too, so that a bad region is refused before "subscribed" goes out.
@@ -246,5 +247,5 @@ class StreamSession:
 def _int3(value: Any, name: str) -> tuple[int, int, int]:
     if (not isinstance(value, list) or len(value) != 3
             or any(isinstance(v, bool) or not isinstance(v, int) for v in value)):
-        raise InvalidInput(f"{name} must be three integers [x, y, z], got {value!r}")
+        raise InvalidInput(f"{name} must be three integers [x, y, z], got {short(value)}")
     return tuple(value)

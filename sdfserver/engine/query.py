@@ -28,6 +28,7 @@ import pyopencl as cl
 
 from sdfserver.algorithms.base import int4
 from sdfserver.errors import InvalidInput
+from sdfserver.incoming import short
 from sdfserver.world import World, WorldConfig
 
 KINDS = {"points": 3, "spheres": 4, "rays": 7}  # columns of each kind's rows
@@ -46,7 +47,7 @@ class QueryResult:
 def checked_rows(kind: str, rows: np.ndarray) -> np.ndarray:
     """(N, KINDS[kind]) numbers; InvalidInput naming the field otherwise (values are checked later)."""
     if kind not in KINDS:
-        raise InvalidInput(f"unknown query kind {kind!r}; ask one of {', '.join(KINDS)}")
+        raise InvalidInput(f"unknown query kind {short(kind)}; ask one of {', '.join(KINDS)}")
     rows = np.asarray(rows)
     width = KINDS[kind]
     if rows.ndim != 2 or rows.shape[1] != width or rows.dtype.kind not in "iuf":

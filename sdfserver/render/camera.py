@@ -49,7 +49,7 @@ class Camera:
     def look_at(cls, position: Vec3f, target: Vec3f, **kwargs: Any) -> "Camera":
         d = np.asarray(target, dtype=np.float64) - np.asarray(position, dtype=np.float64)
         if not np.all(np.isfinite(d)) or not np.any(d):
-            raise InvalidInput(f"look_at needs a target different from the position, got {target!r}")
+            raise InvalidInput(f"look_at needs a target different from the position, got {incoming.short(target)}")
         yaw = math.degrees(math.atan2(d[0], -d[2]))
         pitch = math.degrees(math.atan2(d[1], math.hypot(d[0], d[2])))
         return cls(tuple(float(v) for v in position), yaw, pitch, **kwargs)

@@ -8,6 +8,7 @@ import numpy as np
 from PIL import Image
 
 from sdfserver.errors import InvalidInput
+from sdfserver.incoming import short
 
 FORMATS = {"jpeg": "image/jpeg", "png": "image/png", "rgba": "application/octet-stream"}
 _BY_MEDIA_TYPE = {"image/jpeg": "jpeg", "image/jpg": "jpeg", "image/png": "png",
@@ -25,7 +26,7 @@ def format_from_accept(accept: str | None, default: str = "jpeg") -> str:
 
 def check_format(name: str) -> str:
     if name not in FORMATS:
-        raise InvalidInput(f"format must be one of {sorted(FORMATS)}, got {name!r}")
+        raise InvalidInput(f"format must be one of {sorted(FORMATS)}, got {short(name)}")
     return name
 
 
@@ -35,7 +36,7 @@ def encode_frame(pixels: np.ndarray, fmt: str = "jpeg", quality: int = 85) -> by
     if fmt == "rgba":
         return np.ascontiguousarray(pixels).tobytes()
     if isinstance(quality, bool) or not isinstance(quality, int) or not 1 <= quality <= 100:
-        raise InvalidInput(f"quality must be an integer 1..100, got {quality!r}")
+        raise InvalidInput(f"quality must be an integer 1..100, got {short(quality)}")
     buf = io.BytesIO()
     if fmt == "jpeg":
         Image.fromarray(pixels[..., :3]).save(buf, format="JPEG", quality=quality)

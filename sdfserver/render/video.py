@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from sdfserver.errors import InvalidInput
+from sdfserver.incoming import short
 
 try:
     import av
@@ -84,9 +85,9 @@ def parse_video_request(message: dict[str, Any], fmt: str) -> VideoRequest:
     """The video settings of a camera message whose ``format`` is a video format; InvalidInput
     names the first bad one."""
     if av is None:
-        raise InvalidInput(f"format {fmt!r} needs PyAV (pip install av), which this server lacks")
+        raise InvalidInput(f"format {short(fmt)} needs PyAV (pip install av), which this server lacks")
     if fmt not in ENCODERS:
-        raise InvalidInput(f"video format must be one of {list(VIDEO_FORMATS)}, got {fmt!r}")
+        raise InvalidInput(f"video format must be one of {list(VIDEO_FORMATS)}, got {short(fmt)}")
     request = VideoRequest(fmt)
     if message.get("bitrate") is not None and message.get("crf") is not None:
         raise InvalidInput("give bitrate or crf, not both")
@@ -128,7 +129,7 @@ def available_encoders(fmt: str) -> list[str]:
 
 def _integer(value: Any, name: str, lo: int, hi: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise InvalidInput(f"{name} must be an integer {lo}..{hi}, got {value!r}")
+        raise InvalidInput(f"{name} must be an integer {lo}..{hi}, got {short(value)}")
     return value
 
 

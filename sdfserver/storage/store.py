@@ -56,6 +56,7 @@ from typing import Any
 import numpy as np
 
 from sdfserver.errors import CorruptData, InvalidInput, NotFound, StorageError, WorldFenced, WritesDisabled
+from sdfserver.incoming import short
 from sdfserver.storage.codec import encode_batch
 from sdfserver.storage.committer import Committer, SyncError
 from sdfserver.storage.fsutil import fsync_dir, truncate_durably, write_atomic
@@ -74,7 +75,7 @@ _HIDDEN = "."  # prefix of directories being created or deleted
 
 def check_world_id(world_id: str) -> str:
     if not isinstance(world_id, str) or not WORLD_ID.match(world_id):
-        raise InvalidInput(f"world id must match {WORLD_ID.pattern}, got {world_id!r}")
+        raise InvalidInput(f"world id must match {WORLD_ID.pattern}, got {short(world_id)}")
     return world_id
 
 

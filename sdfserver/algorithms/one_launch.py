@@ -56,7 +56,7 @@ COST_BITS = 11
 LONE_GROUP_VOXELS = {False: 16 ** 3, True: 1024}
 # A crew's groups: one for each CREW_VOXELS_PER_GROUP voxels of the box (by whether it floods), at
 # most one a compute unit; a crew's flood takes chains of CREW_FLOOD_CHAIN voxels (FLOOD_CHAIN).
-CREW_VOXELS_PER_GROUP = {False: 2048, True: 512}
+CREW_VOXELS_PER_GROUP = {False: 512, True: 512}
 CREW_FLOOD_CHAIN = 2
 CREW_INTS = 33  # kernels/include/crew.h's control block
 

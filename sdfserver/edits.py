@@ -19,8 +19,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from numbers import Integral
-from typing import Any, Union
+from typing import Annotated, Any, Union
 
+import msgspec
 import numpy as np
 
 from sdfserver import incoming
@@ -55,21 +56,51 @@ class VoxelsEdit:
     voxels: np.ndarray  # (N, 4) int64: x, y, z, colour
 
 
-@dataclass(frozen=True)
-class BoxEdit:
-    min: Vec3
-    max: Vec3
-    colour: int
+# Brushes are msgspec structs, so that a batch of them decodes from its log record in one call
+# (``decode_brushes``); the constraints are the ones parse_edit checks.
+_Colour = Annotated[int, msgspec.Meta(ge=0, le=255)]
+_Int64 = Annotated[int, msgspec.Meta(ge=INT64_MIN, le=INT64_MAX)]
 
 
-@dataclass(frozen=True)
-class SphereEdit:
+class BoxEdit(msgspec.Struct, frozen=True, tag="box", tag_field="op"):
+    min: tuple[_Int64, _Int64, _Int64]
+    max: tuple[_Int64, _Int64, _Int64]
+    colour: _Colour
+
+
+class SphereEdit(msgspec.Struct, frozen=True, tag="sphere", tag_field="op"):
     center: tuple[float, float, float]
     radius: float
-    colour: int
+    colour: _Colour
 
 
 Edit = Union[VoxelsEdit, BoxEdit, SphereEdit]
+
+
+class _BatchWithId(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    batch_id: str
+    edits: list[Union[BoxEdit, SphereEdit]]
+
+
+_BRUSHES = msgspec.msgpack.Decoder(Union[list[Union[BoxEdit, SphereEdit]], _BatchWithId])
+
+
+def decode_brushes(payload: bytes) -> tuple[list[Edit], str | None] | None:
+    """A log record's edits and batch id where every edit is a box or a sphere that parse_edit
+    would take as it is (the same objects); None for anything else (voxels, a value out of range,
+    a malformed record), which ``codec.decode_batch`` and ``parse_edits`` then decode, or refuse
+    with their messages."""
+    try:
+        decoded = _BRUSHES.decode(payload)
+    except (msgspec.DecodeError, msgspec.ValidationError):
+        return None
+    edits, batch_id = (decoded, None) if type(decoded) is list else (decoded.edits, decoded.batch_id)
+    for e in edits:
+        if type(e) is SphereEdit:
+            (x, y, z), r = e.center, e.radius
+            if not (r - r == 0.0 and x - x == 0.0 and y - y == 0.0 and z - z == 0.0):  # NaN or infinite
+                return None
+    return edits, batch_id
 
 
 def _colour(value: Any, where: str) -> int:

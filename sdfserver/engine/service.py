@@ -20,7 +20,7 @@ from typing import Any, Callable
 
 from prometheus_client import generate_latest
 
-from sdfserver.edits import parse_edits
+from sdfserver.edits import decode_brushes, parse_edits
 from sdfserver.engine import commands as cmd
 from sdfserver.engine import messages as msg
 from sdfserver.engine.access import Doorkeeper, holder_of
@@ -202,8 +202,13 @@ class EngineService:
 
     def _apply(self, client: bytes, m: msg.ApplyEdits) -> None:
         self.doorkeeper.admit(m.access, m.world_id)
-        edits_wire, batch_id = batch_parts(decode_batch(m.batch, "edit batch"))
-        self._submit(client, m.id, cmd.ApplyEdits(m.world_id, parse_edits(edits_wire), m.batch, batch_id))
+        brushes = decode_brushes(m.batch)  # the common batch, in one call
+        if brushes is None:
+            edits_wire, batch_id = batch_parts(decode_batch(m.batch, "edit batch"))
+            edits = parse_edits(edits_wire)
+        else:
+            edits, batch_id = brushes
+        self._submit(client, m.id, cmd.ApplyEdits(m.world_id, edits, m.batch, batch_id))
 
     def _read(self, client: bytes, m: msg.Read) -> None:
         self.doorkeeper.admit(m.access, m.world_id)

@@ -114,3 +114,91 @@ def test_a_sphere_parses_as_the_general_path_parses_it():
             else:
                 raw[field] = rng.choice(odd + [256, -1, 255, 0])
         assert _outcome(raw) == _outcome(_Wire(raw)), raw
+
+
+def _hostile_value(rng: random.Random, depth: int = 0):
+    """Something a client might put where a number or a triple goes."""
+    choice = rng.randrange(14)
+    if choice < 3:
+        return rng.randrange(-300, 300)
+    if choice < 5:
+        return rng.uniform(-300, 300)
+    if choice == 5:
+        return rng.choice((math.nan, math.inf, -math.inf, 2 ** 63, -2 ** 63, 2 ** 64 - 1))
+    if choice == 6:
+        return rng.choice((True, False, None, "7", b"7", 1.0))
+    if depth < 2:
+        return [_hostile_value(rng, depth + 1) for _ in range(rng.choice((2, 3, 3, 3, 4)))]
+    return rng.randrange(256)
+
+
+def _hostile_op(rng: random.Random) -> list[tuple]:
+    """A box's or a sphere's map as (key, value) pairs, in any order: well formed, or with one
+    value made hostile, a key missing, an extra or repeated key, or another op."""
+    if rng.random() < 0.5:
+        pairs = [("op", "sphere"), ("center", [rng.uniform(-9, 40) for _ in range(3)]),
+                 ("radius", rng.choice((rng.randrange(0, 30), rng.uniform(0, 30)))), ("colour", rng.randrange(256))]
+    else:
+        pairs = [("op", "box"), ("min", [rng.randrange(-5, 30) for _ in range(3)]),
+                 ("max", [rng.randrange(-5, 40) for _ in range(3)]), ("colour", rng.randrange(256))]
+    harm = rng.randrange(8)
+    if harm == 0:  # one value, or one coordinate of a triple
+        k = rng.randrange(1, 4)
+        name, value = pairs[k]
+        if isinstance(value, list) and rng.random() < 0.7:
+            value = list(value)
+            value[rng.randrange(3)] = _hostile_value(rng, 2)
+        else:
+            value = _hostile_value(rng)
+        pairs[k] = (name, value)
+    elif harm == 1:
+        pairs.pop(rng.randrange(len(pairs)))
+    elif harm == 2:
+        pairs.append((rng.choice(("extra", "op", "radius", "colour", "min", "center")), _hostile_value(rng)))
+    elif harm == 3:
+        pairs[0] = ("op", rng.choice(("voxels", "cone", 5, "box" if pairs[0][1] == "sphere" else "sphere")))
+    rng.shuffle(pairs)
+    return pairs
+
+
+def _packed_map(pairs: list[tuple]) -> bytes:
+    """A msgpack map written pair by pair, so that a key may appear twice."""
+    import msgpack
+
+    return bytes([0x80 | len(pairs)]) + b"".join(msgpack.packb(k) + msgpack.packb(v) for k, v in pairs)
+
+
+def test_brushes_decoded_in_one_call_are_what_parse_edits_makes_of_the_record():
+    """decode_brushes takes a record only where the general path (codec.decode_batch,
+    batch_parts, parse_edits) gives the same edits of the same types and the same batch id: the
+    engine applies what replaying the log would apply. Records it does not take go that path."""
+    import msgpack
+
+    from sdfserver.edits import BoxEdit, SphereEdit, decode_brushes, parse_edits
+    from sdfserver.storage.codec import batch_parts, decode_batch
+
+    rng = random.Random()
+    taken = refused_alike = 0
+    for _ in range(3000):
+        ops = [_hostile_op(rng) for _ in range(rng.choice((0, 1, 1, 2, 3)))]
+        edits = bytes([0x90 | len(ops)]) + b"".join(_packed_map(op) for op in ops)
+        payload = edits if rng.random() < 0.7 else (
+            _packed_map([("batch_id", rng.choice(("k1", 7))), ("edits", msgpack.unpackb(edits, strict_map_key=False))]
+                        + ([("more", 1)] if rng.random() < 0.2 else [])))
+        fast = decode_brushes(payload)
+        try:
+            wire, batch_id = batch_parts(decode_batch(payload))
+            general = (parse_edits(wire), batch_id)
+        except Exception:
+            general = None
+        if fast is None:
+            refused_alike += general is None
+            continue
+        taken += 1
+        assert general is not None, (payload, fast)
+        assert fast[1] == general[1]
+        assert len(fast[0]) == len(general[0])
+        for a, b in zip(fast[0], general[0]):
+            assert type(a) is type(b) and type(a) in (BoxEdit, SphereEdit)
+            assert a == b, (payload, a, b)
+    assert taken > 500 and refused_alike > 100

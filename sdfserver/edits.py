@@ -244,6 +244,48 @@ def validate_batch(edits: list[Edit], dims: Vec3, limits: EditLimits) -> None:
     _check_brush_voxels(edits, dims, limits)
 
 
+def plan_brushes(edits: list[Edit], dims: Vec3, limits: EditLimits) -> list[list[Box]] | None:
+    """``validate_batch`` and each edit's ``edit_bounds`` in one pass, for a batch of boxes and
+    spheres that passes every check; None for any other batch (``validate_batch`` then says what
+    is wrong). Runs on the engine thread for every batch."""
+    if not edits or len(edits) > limits.max_ops_per_batch:
+        return None
+    sx, sy, sz = dims
+    top = limits.max_coordinate_vox
+    bottom, max_radius = -top - 1, limits.max_brush_radius_vox
+    ceil, floor = math.ceil, math.floor
+    bounds, total = [], 0
+    for e in edits:
+        kind = type(e)
+        if kind is not SphereEdit and kind is not BoxEdit:
+            return None
+        colour = e.colour
+        if type(colour) is not int or not 0 <= colour <= 255:
+            return None
+        if kind is SphereEdit:
+            (cx, cy, cz), r = e.center, e.radius
+            if not (0 <= r <= max_radius and bottom <= cx <= top and bottom <= cy <= top and bottom <= cz <= top):
+                return None
+            x0, y0, z0 = ceil(cx - r), ceil(cy - r), ceil(cz - r)
+            x1, y1, z1 = floor(cx + r) + 1, floor(cy + r) + 1, floor(cz + r) + 1
+        else:
+            (x0, y0, z0), (x1, y1, z1) = e.min, e.max
+            if (x0 > x1 or y0 > y1 or z0 > z1 or not (bottom <= x0 <= top and bottom <= y0 <= top
+                                                      and bottom <= z0 <= top and bottom <= x1 <= top
+                                                      and bottom <= y1 <= top and bottom <= z1 <= top)):
+                return None
+        lo = (max(x0, 0), max(y0, 0), max(z0, 0))
+        hi = (min(x1, sx), min(y1, sy), min(z1, sz))
+        if hi[0] <= lo[0] or hi[1] <= lo[1] or hi[2] <= lo[2]:
+            bounds.append([])
+        else:
+            bounds.append([Box(lo, hi)])
+            total += (hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2])
+    if total > max(limits.max_brush_voxels_per_batch, sx * sy * sz):
+        return None
+    return bounds
+
+
 def _check_brush_voxels(edits: list[Edit], dims: Vec3, limits: EditLimits) -> None:
     """TooLarge when the batch's boxes and spheres cover more voxels, summed, than the limit (or
     the world, if it is larger): each of those voxels costs the device a visit, and a batch of

@@ -39,7 +39,7 @@ from sdfserver.recompute_cost import visits_per_voxel
 from sdfserver.small_edits import SmallEdits
 from sdfserver.stacked import Stacked
 from sdfserver.dirty import SMALL_DIRTY_CHUNKS, DirtySet  # noqa: F401  (SMALL_DIRTY_CHUNKS: read by tests)
-from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, validate_batch, writes
+from sdfserver.edits import Edit, EditLimits, VoxelsEdit, edit_bounds, plan_brushes, validate_batch, writes
 from sdfserver.errors import InvalidInput
 from sdfserver.field_values import distances, needs_voxels
 from sdfserver.geometry import Box
@@ -174,9 +174,12 @@ class World(SmallEdits, Stacked):
 
     def plan_edits(self, edits: list[Edit]) -> "EditPlan":
         """Validate a batch and find the boxes it may change; changes nothing (raises on a bad batch)."""
-        validate_batch(edits, self.config.size, self.limits)
-        dims, cs = self.config.size, self.config.chunk_size
-        return EditPlan(self, edits, [edit_bounds(e, dims, cs) for e in edits])
+        dims = self.config.size
+        boxes = plan_brushes(edits, dims, self.limits)  # the common batch, in one pass
+        if boxes is None:
+            validate_batch(edits, dims, self.limits)
+            boxes = [edit_bounds(e, dims, self.config.chunk_size) for e in edits]
+        return EditPlan(self, edits, boxes)
 
     def apply_plan(self, plan: "EditPlan") -> int:
         """Write a planned batch on the device and mark its boxes dirty; returns the new version."""

@@ -11,6 +11,7 @@ import struct
 import zlib
 
 import pyopencl as cl
+import pytest
 
 from sdfserver.dirty import DirtySet
 from sdfserver.edits import parse_edit
@@ -202,3 +203,56 @@ def test_brushes_decoded_in_one_call_are_what_parse_edits_makes_of_the_record():
             assert type(a) is type(b) and type(a) in (BoxEdit, SphereEdit)
             assert a == b, (payload, a, b)
     assert taken > 500 and refused_alike > 100
+
+
+def test_brushes_planned_in_one_pass_are_what_validation_and_edit_bounds_give():
+    """plan_brushes gives, for a batch it takes, the boxes edit_bounds gives after validate_batch
+    passed; a batch it does not take is one validate_batch refuses, or one it has no shortcut for
+    (voxels, numpy colours), under the limits of clients and of replay."""
+    import numpy as np
+
+    from sdfserver.edits import (
+        REPLAY_LIMITS, BoxEdit, EditLimits, SphereEdit, VoxelsEdit, edit_bounds, plan_brushes, validate_batch,
+    )
+    from sdfserver.errors import SdfServerError
+
+    rng = random.Random()
+    taken = refused = 0
+    for _ in range(4000):
+        dims = (8, 8, 8) if rng.random() < 0.3 else tuple(rng.choice((8, 16, 40, 64)) for _ in range(3))
+        limits = rng.choice((EditLimits(), REPLAY_LIMITS, EditLimits(max_ops_per_batch=2, max_brush_radius_vox=6.0,
+                                                                      max_coordinate_vox=50, max_brush_voxels_per_batch=900)))
+
+        def coordinate() -> float:
+            return rng.choice((rng.uniform(-20, 80), rng.randrange(-20, 80), rng.choice((-2 ** 31 - 1, 2 ** 31, 51, -51))))
+
+        edits = []
+        for _ in range(rng.choice((0, 1, 1, 2, 3))):
+            colour = rng.choice((rng.randrange(256), rng.randrange(256), 255, 256, -1, np.int64(7)))
+            if rng.random() < 0.5:
+                edits.append(SphereEdit(tuple(float(coordinate()) for _ in range(3)),
+                                        rng.choice((rng.uniform(0, 12), float(rng.randrange(0, 12)), -1.0, 300.0)), colour))
+            elif rng.random() < 0.9:
+                near = rng.random() < 0.4  # over much of the world: the batch's voxel limit
+                lo = [rng.randrange(-3, 3) if near else int(coordinate()) for _ in range(3)]
+                edits.append(BoxEdit(tuple(lo), tuple(v + rng.randrange(5 if near else -2, 30) for v in lo), colour))
+            else:
+                edits.append(VoxelsEdit(np.array([[1, 2, 3, 4]], dtype=np.int64)))
+        planned = plan_brushes(edits, dims, limits)
+        try:
+            validate_batch(edits, dims, limits)
+            general = [edit_bounds(e, dims, 8) for e in edits]
+        except SdfServerError:
+            general = None
+        if planned is None:
+            refused += general is None
+            continue
+        taken += 1
+        assert planned == general, (edits, dims, planned, general)
+    assert taken > 150 and refused > 500
+    # the batch's voxel limit, which random batches rarely reach: the world once is always allowed
+    small, whole = EditLimits(max_brush_voxels_per_batch=900), BoxEdit((0, 0, 0), (8, 8, 8), 1)
+    assert plan_brushes([whole], (8, 8, 8), small) == [[Box((0, 0, 0), (8, 8, 8))]]
+    assert plan_brushes([whole, whole], (8, 8, 8), small) is None
+    with pytest.raises(SdfServerError, match="1,024 voxels"):
+        validate_batch([whole, whole], (8, 8, 8), small)

@@ -6,15 +6,16 @@ A Box is half-open: ``lo <= p < hi`` on every axis.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Iterable
+
+import msgspec
 
 Vec3 = tuple[int, int, int]
 
 
-@dataclass(frozen=True, slots=True)
-class Box:
-    """Hot on the engine thread (several per edit): methods spell out the three axes."""
+class Box(msgspec.Struct, frozen=True):
+    """Hot on the engine thread (several per edit): methods spell out the three axes, and it is a
+    msgspec struct, made faster than a frozen dataclass."""
 
     lo: Vec3
     hi: Vec3

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Literal
 
+import msgspec
 import numpy as np
 
 from sdfserver.edits import Edit, EditLimits
@@ -75,8 +76,7 @@ class AdoptWorld:
     source: Path | None  # the data directory it comes from if its holder did not hand it over
 
 
-@dataclass(frozen=True)
-class ApplyEdits:
+class ApplyEdits(msgspec.Struct, frozen=True):  # one a batch: a struct is made faster than a dataclass
     world_id: str
     edits: list[Edit]
     # the batch as it arrived, for the journal; or its log record already encoded

@@ -250,10 +250,8 @@ def plan_brushes(edits: list[Edit], dims: Vec3, limits: EditLimits) -> list[list
     is wrong). Runs on the engine thread for every batch."""
     if not edits or len(edits) > limits.max_ops_per_batch:
         return None
-    sx, sy, sz = dims
     top = limits.max_coordinate_vox
     bottom, max_radius = -top - 1, limits.max_brush_radius_vox
-    ceil, floor = math.ceil, math.floor
     bounds, total = [], 0
     for e in edits:
         kind = type(e)
@@ -266,22 +264,18 @@ def plan_brushes(edits: list[Edit], dims: Vec3, limits: EditLimits) -> list[list
             (cx, cy, cz), r = e.center, e.radius
             if not (0 <= r <= max_radius and bottom <= cx <= top and bottom <= cy <= top and bottom <= cz <= top):
                 return None
-            x0, y0, z0 = ceil(cx - r), ceil(cy - r), ceil(cz - r)
-            x1, y1, z1 = floor(cx + r) + 1, floor(cy + r) + 1, floor(cz + r) + 1
         else:
             (x0, y0, z0), (x1, y1, z1) = e.min, e.max
             if (x0 > x1 or y0 > y1 or z0 > z1 or not (bottom <= x0 <= top and bottom <= y0 <= top
                                                       and bottom <= z0 <= top and bottom <= x1 <= top
                                                       and bottom <= y1 <= top and bottom <= z1 <= top)):
                 return None
-        lo = (max(x0, 0), max(y0, 0), max(z0, 0))
-        hi = (min(x1, sx), min(y1, sy), min(z1, sz))
-        if hi[0] <= lo[0] or hi[1] <= lo[1] or hi[2] <= lo[2]:
-            bounds.append([])
-        else:
-            bounds.append([Box(lo, hi)])
-            total += (hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2])
-    if total > max(limits.max_brush_voxels_per_batch, sx * sy * sz):
+        boxes = _brush_bounds(e, dims)
+        bounds.append(boxes)
+        if boxes:
+            (x0, y0, z0), (x1, y1, z1) = boxes[0].lo, boxes[0].hi
+            total += (x1 - x0) * (y1 - y0) * (z1 - z0)
+    if total > max(limits.max_brush_voxels_per_batch, dims[0] * dims[1] * dims[2]):
         return None
     return bounds
 
@@ -318,26 +312,32 @@ def _check_colour(value: Any, index: int) -> None:
         _colour(value, f"edits[{index}]")
 
 
+def _brush_bounds(edit: BoxEdit | SphereEdit, dims: Vec3) -> list[Box]:
+    """A box's or a sphere's world-clipped box, in plain ints (one Box made, not three); empty
+    where it misses the world."""
+    if type(edit) is SphereEdit:
+        (cx, cy, cz), r = edit.center, edit.radius
+        x0, y0, z0 = math.ceil(cx - r), math.ceil(cy - r), math.ceil(cz - r)
+        x1, y1, z1 = math.floor(cx + r) + 1, math.floor(cy + r) + 1, math.floor(cz + r) + 1
+    else:
+        (x0, y0, z0), (x1, y1, z1) = edit.min, edit.max
+    sx, sy, sz = dims
+    lo = (max(x0, 0), max(y0, 0), max(z0, 0))
+    hi = (min(x1, sx), min(y1, sy), min(z1, sz))
+    if hi[0] <= lo[0] or hi[1] <= lo[1] or hi[2] <= lo[2]:
+        return []
+    return [Box(lo, hi)]
+
+
 def edit_bounds(edit: Edit, dims: Vec3, chunk_size_vox: int) -> list[Box]:
     """World-clipped boxes covering what an edit may change (empty list: nothing).
 
     Explicit voxels give one tight box per touched chunk, so scattered voxels
     do not turn into one world-sized box.
     """
-    sx, sy, sz = dims
     kind = type(edit)
-    if kind is SphereEdit or kind is BoxEdit:  # clipped in plain ints: one Box made, not three
-        if kind is SphereEdit:
-            (cx, cy, cz), r = edit.center, edit.radius
-            x0, y0, z0 = math.ceil(cx - r), math.ceil(cy - r), math.ceil(cz - r)
-            x1, y1, z1 = math.floor(cx + r) + 1, math.floor(cy + r) + 1, math.floor(cz + r) + 1
-        else:
-            (x0, y0, z0), (x1, y1, z1) = edit.min, edit.max
-        lo = (max(x0, 0), max(y0, 0), max(z0, 0))
-        hi = (min(x1, sx), min(y1, sy), min(z1, sz))
-        if hi[0] <= lo[0] or hi[1] <= lo[1] or hi[2] <= lo[2]:
-            return []
-        return [Box(lo, hi)]
+    if kind is SphereEdit or kind is BoxEdit:
+        return _brush_bounds(edit, dims)
     xyz = edit.voxels[:, :3]
     _, group = np.unique(xyz // chunk_size_vox, axis=0, return_inverse=True)
     group = group.reshape(-1)

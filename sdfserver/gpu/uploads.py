@@ -4,7 +4,7 @@ A buffer made with its data (``read_only_copy``, ``GpuContext.upload``) costs li
 but NVIDIA's driver allocates and fills it inside the first kernel launch that uses it: that
 launch was the largest host cost of an engine step under load (12% of the server process's GIL
 samples), and a kept buffer filled by a non-blocking write cut the host time of applying a
-16-brush step by 18-55% (docs/benchmarks.md, session 8). A slot is
+16-brush step by 18-55% (docs/benchmarks.md). A slot is
 written again only once its last write has completed; the queue is in order, so the kernels
 that read the old contents have run by the time the new write does. When every slot is still
 in flight, or the array is too large, it falls back to a buffer of its own.

@@ -62,9 +62,9 @@ class TerrainSpec:
         base = 0.4 * size_y if self.base is None else self.base
         amplitude = 0.15 * size_y if self.amplitude is None else self.amplitude
         if self.kind != "terrain":
-            raise InvalidInput(f"generate kind must be 'terrain', got {self.kind!r}")
+            raise InvalidInput(f"generate kind must be 'terrain', got {short(self.kind)}")
         if not _is_int(self.seed) or not 0 <= self.seed < 1 << 32:
-            raise InvalidInput(f"terrain seed must be an integer 0..2^32-1, got {self.seed!r}")
+            raise InvalidInput(f"terrain seed must be an integer 0..2^32-1, got {short(self.seed)}")
         for name, v, lo, hi in (("base", base, 0, size_y), ("amplitude", amplitude, 0, size_y),
                                 ("overhang", self.overhang, 0, 64), ("cave_depth", self.cave_depth, 0, 256)):
             if not isinstance(v, (int, float, np.integer, np.floating)) or isinstance(v, bool) \
@@ -112,9 +112,9 @@ class WorldConfig:
         if not isinstance(size, (tuple, list)) or len(size) != 3 or not all(_is_int(v) for v in size):
             raise InvalidInput(f"size must be three integers [sx, sy, sz], got {short(size)}")
         if self.chunk_size not in CHUNK_SIZES:
-            raise InvalidInput(f"chunk_size must be one of {CHUNK_SIZES}, got {self.chunk_size!r}")
+            raise InvalidInput(f"chunk_size must be one of {CHUNK_SIZES}, got {short(self.chunk_size)}")
         if self.storage not in STORAGES:
-            raise InvalidInput(f"storage must be one of {list(STORAGES)}, got {self.storage!r}")
+            raise InvalidInput(f"storage must be one of {list(STORAGES)}, got {short(self.storage)}")
         for v in size:
             if v <= 0 or v % self.chunk_size:
                 raise InvalidInput(
@@ -138,10 +138,10 @@ class WorldConfig:
                 raise InvalidInput(f"generate must be a terrain, got {short(generate)}")
             generate = generate.validated(size[1])
         if not _is_int(self.max_distance) or not 1 <= self.max_distance <= 255:
-            raise InvalidInput(f"max_distance must be an integer 1..255, got {self.max_distance!r}")
+            raise InvalidInput(f"max_distance must be an integer 1..255, got {short(self.max_distance)}")
         algorithm, lod_algorithm = get_algorithm(self.algorithm), get_algorithm(self.lod_algorithm)
         if self.borders not in BORDERS:
-            raise InvalidInput(f"borders must be one of {list(BORDERS)}, got {self.borders!r}")
+            raise InvalidInput(f"borders must be one of {list(BORDERS)}, got {short(self.borders)}")
         if self.borders == "padded":
             used = [algorithm] + ([lod_algorithm] if self.focus is not None else [])
             for a in used:
@@ -162,9 +162,9 @@ class WorldConfig:
     def _validate_field_options(self, algorithm, lod_algorithm) -> None:
         """metric, signed, voxel_size and origin; which algorithms and options each allows."""
         if self.metric not in METRICS:
-            raise InvalidInput(f"metric must be one of {list(METRICS)}, got {self.metric!r}")
+            raise InvalidInput(f"metric must be one of {list(METRICS)}, got {short(self.metric)}")
         if not isinstance(self.signed, (bool, np.bool_)):
-            raise InvalidInput(f"signed must be true or false, got {self.signed!r}")
+            raise InvalidInput(f"signed must be true or false, got {short(self.signed)}")
         v = self.voxel_size
         if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v) \
                 or not 0 < v or v * max(self.size) > MAX_WORLD_UNITS:

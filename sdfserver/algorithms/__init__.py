@@ -10,6 +10,7 @@ from sdfserver.algorithms.fim import Fim
 from sdfserver.algorithms.jfa import Jfa
 from sdfserver.algorithms.jfa_fim import JfaFim
 from sdfserver.errors import InvalidInput
+from sdfserver.incoming import short
 
 ALGORITHMS: dict[str, Algorithm] = {a.name: a for a in (Exact(), Brute(), Fim(), Jfa(), Jfa(1), Jfa(2), JfaFim(),
                                                       Conservative())}
@@ -22,7 +23,7 @@ def get_algorithm(name: str) -> Algorithm:
         return ALGORITHMS[name]
     except (KeyError, TypeError):
         raise InvalidInput(
-            f"unknown algorithm {name!r}; choose one of {sorted(ALGORITHMS)}"
+            f"unknown algorithm {short(name)}; choose one of {sorted(ALGORITHMS)}"
         ) from None
 
 

@@ -23,6 +23,7 @@ from starlette.requests import ClientDisconnect, HTTPConnection
 
 from sdfserver import wire
 from sdfserver.errors import BodyTooLarge, InvalidInput
+from sdfserver.incoming import short
 
 MSGPACK = wire.CONTENT_TYPE
 JSON = "application/json"
@@ -95,7 +96,7 @@ async def decode_body(request: Request) -> Any:
             return json.loads(data, parse_constant=_no_constant)
         except (ValueError, RecursionError) as exc:
             raise InvalidInput(f"malformed JSON: {exc}") from None
-    raise InvalidInput(f"unsupported Content-Type {kind!r}; send application/json or application/msgpack")
+    raise InvalidInput(f"unsupported Content-Type {short(kind)}; send application/json or application/msgpack")
 
 
 def wants_msgpack(request: Request) -> bool:

@@ -290,7 +290,7 @@ def query_rows(body: Any, limit: int) -> tuple[str, np.ndarray]:
     kinds = [k for k in QUERY_COLUMNS if isinstance(body, dict) and k in body]
     if not isinstance(body, dict) or len(kinds) != 1 or len(body) != 1:
         extra = sorted(set(body) - set(QUERY_COLUMNS)) if isinstance(body, dict) else []
-        raise InvalidInput(f"unknown field {extra[0]!r} in a query body" if extra else
+        raise InvalidInput(f"unknown field {short(extra[0])} in a query body" if extra else
                            "a query body holds exactly one of 'points', 'spheres' or 'rays'")
     kind, raw = kinds[0], body[kinds[0]]
     if isinstance(raw, list) and len(raw) > limit:

@@ -29,6 +29,7 @@ from sdfserver.engine.mailbox import Mailbox, Subscription
 from sdfserver.engine.rebuild import config_from_dict
 from sdfserver.errors import Forbidden, InvalidInput, SdfServerError, TooManySubscriptions
 from sdfserver.geometry import Box
+from sdfserver.incoming import short
 from sdfserver.render import parse_view
 from sdfserver.storage.codec import batch_parts, decode_batch
 from sdfserver.storage.snapshot import encode_snapshot, sparse_upload
@@ -213,7 +214,7 @@ class EngineService:
     def _read(self, client: bytes, m: msg.Read) -> None:
         self.doorkeeper.admit(m.access, m.world_id)
         if m.kind not in ("packed", "distance", "voxels"):
-            raise InvalidInput(f"unknown read kind {m.kind!r}")
+            raise InvalidInput(f"unknown read kind {short(m.kind)}")
         box = None if m.lo is None or m.hi is None else Box(m.lo, m.hi)
         command = cmd.Read(m.world_id, m.kind, box, m.min_version, self._deadline())
         self._submit(client, m.id, command,
@@ -252,7 +253,7 @@ class EngineService:
     def _subscribe(self, client: bytes, m: msg.Subscribe) -> None:
         self.doorkeeper.admit(m.access, m.world_id)
         if m.format not in ("packed", "distance"):
-            raise InvalidInput(f"format must be 'distance' or 'packed', got {m.format!r}")
+            raise InvalidInput(f"format must be 'distance' or 'packed', got {short(m.format)}")
         key = (client, m.subscription)
         self._check_room(key, m.access)
         old = self.subscriptions.pop(key, None)

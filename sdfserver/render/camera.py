@@ -106,7 +106,7 @@ class RenderOptions:
     def validated(self) -> "RenderOptions":
         for name in ("ambient_occlusion", "shadows"):
             if not isinstance(getattr(self, name), bool):
-                raise InvalidInput(f"{name} must be true or false, got {getattr(self, name)!r}")
+                raise InvalidInput(f"{name} must be true or false, got {incoming.short(getattr(self, name))}")
         sky = _int(self.sky_rgb, "sky_rgb")
         if not 0 <= sky <= 0xFFFFFF:
             raise InvalidInput(f"sky_rgb must be 0..0xFFFFFF, got {sky}")
@@ -122,7 +122,7 @@ class RenderOptions:
         cursor = None
         if self.cursor is not None:
             if not isinstance(self.cursor, (list, tuple)) or len(self.cursor) != 2:
-                raise InvalidInput(f"cursor must be [x, y] pixel coordinates, got {self.cursor!r}")
+                raise InvalidInput(f"cursor must be [x, y] pixel coordinates, got {incoming.short(self.cursor)}")
             cursor = tuple(_real(v, "cursor", MAX_COORDINATE) for v in self.cursor)
         return RenderOptions(self.ambient_occlusion, self.shadows, sky, light, highlight, radius, cursor)
 

@@ -106,7 +106,7 @@ def parse_video_request(message: dict[str, Any], fmt: str) -> VideoRequest:
         request = replace(request, keyframe_s=float(seconds))
     if message.get("encoder") is not None:
         if message["encoder"] not in available_encoders(fmt):
-            raise InvalidInput(f"encoder for {fmt} must be one of {available_encoders(fmt)}, got {message['encoder']!r}")
+            raise InvalidInput(f"encoder for {fmt} must be one of {available_encoders(fmt)}, got {short(message['encoder'])}")
         request = replace(request, encoder=message["encoder"])
     if message.get("preset") is not None:
         if fmt != "h264" or message["preset"] not in X264_PRESETS:

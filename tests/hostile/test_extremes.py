@@ -184,6 +184,44 @@ def test_every_body_field_refuses_its_extremes(target):
     assert server.state(world) == before
 
 
+TEXT = "x" * 3000  # a string that a message echoing it whole would carry whole
+
+# (name, method, path, body or raw bytes, extra headers): every place a client's string is named back
+STRINGS: list[tuple[str, str, str, Any, dict[str, str]]] = [
+    ("create metric", "POST", "/v1/worlds", {"size": [16, 16, 16], "metric": TEXT}, {}),
+    ("create borders", "POST", "/v1/worlds", {"size": [16, 16, 16], "borders": TEXT}, {}),
+    ("create storage", "POST", "/v1/worlds", {"size": [16, 16, 16], "storage": TEXT}, {}),
+    ("create algorithm", "POST", "/v1/worlds", {"size": [16, 16, 16], "algorithm": TEXT}, {}),
+    ("create chunk_size", "POST", "/v1/worlds", {"size": [16, 16, 16], "chunk_size": TEXT}, {}),
+    ("create generate kind", "POST", "/v1/worlds",
+     {"size": [16, 16, 16], "storage": "sparse", "generate": {"kind": TEXT}}, {}),
+    ("patch algorithm", "PATCH", "/v1/worlds/{w}", {"algorithm": TEXT}, {}),
+    ("patch borders", "PATCH", "/v1/worlds/{w}", {"borders": TEXT}, {}),
+    ("edits op", "POST", "/v1/worlds/{w}/edits", {"edits": [{**BOX, "op": TEXT}]}, {}),
+    ("edits content type", "POST", "/v1/worlds/{w}/edits", b"{}", {"content-type": TEXT}),
+    ("query field name", "POST", "/v1/worlds/{w}/query", {"points": [[1, 1, 1]], TEXT: 1}, {}),
+    ("render shadows", "POST", "/v1/worlds/{w}/render", {**CAMERA, "shadows": TEXT}, {}),
+    ("field box", "GET", "/v1/worlds/{w}/field?min=" + TEXT + "&max=16,16,16", None, {}),
+]
+
+
+def test_long_strings_are_refused_without_being_echoed(target):
+    """Each answer is a 4xx with the one error body, whose message (error_of: under 2,000
+    characters) shows at most a prefix of the string; nothing changes."""
+    server, world = target
+    before = server.state(world)
+    wrong = []
+    for name, method, path, body, headers in STRINGS:
+        content = body if isinstance(body, bytes) or body is None else json.dumps(body).encode()
+        r = server.http.request(method, path.format(w=world), content=content,
+                                headers={"content-type": "application/json", **headers})
+        status, code = error_of(r)
+        if not 400 <= status < 500 or "not an error" in code or TEXT[:100] in r.text:
+            wrong.append((name, status, code))
+    assert not wrong, wrong
+    assert server.state(world) == before
+
+
 def test_every_query_parameter_refuses_its_extremes(target):
     server, world = target
     before = server.state(world)

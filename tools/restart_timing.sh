@@ -9,7 +9,8 @@
 set -uo pipefail
 export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
 port=8765; data=$(mktemp -d); R=$(mktemp -d); FINAL=${OUT:-/tmp/sdfserver-out}; mkdir -p "$FINAL"
-trap 'tar czf "$FINAL/restart-timing.tgz" -C "$R" . ; rm -rf "$R" "$data"' EXIT
+pid=
+trap '[ -n "$pid" ] && kill $pid 2> /dev/null; tar czf "$FINAL/restart-timing.tgz" -C "$R" . ; rm -rf "$R" "$data"' EXIT
 start() {  # start NAME: a server on $data, timed until /readyz answers; sets $pid
   local t0 t1
   t0=$(date +%s.%N)
@@ -26,9 +27,10 @@ start() {  # start NAME: a server on $data, timed until /readyz answers; sets $p
 rm -rf "$data"; start clean1 || exit 1; kill $pid; wait $pid
 rm -rf "$data"; start clean2 || exit 1
 timeout 60 python3 clients/loadtest --url http://127.0.0.1:$port --size 256 256 256 --quiet --keep-world \
-  --clients 64 --processes 8 --duration 8 --read-every 0 | head -1 | tee -a "$R/summary.txt"
+  --clients 64 --processes 8 --duration 8 --read-every 0 > "$R/load.txt" 2>&1
+head -1 "$R/load.txt" | tee -a "$R/summary.txt"
 kill -9 $pid; wait $pid 2> /dev/null; sleep 1  # its engine and API processes die with it (PDEATHSIG)
-start restart || exit 1; kill $pid; wait $pid
+start restart || exit 1; kill $pid; wait $pid; pid=
 python3 -c "
 import time; t = time.perf_counter(); import pyopencl as cl; t1 = time.perf_counter(); p = cl.get_platforms()
 t2 = time.perf_counter(); c = cl.Context([x for pl in p for x in pl.get_devices()][:1]); t3 = time.perf_counter()

@@ -1,5 +1,5 @@
 """One stored world rebuilt on the device: its snapshot's voxels loaded, its logged batches
-replayed in version order (each through ``parse_edits`` and the world's edit planning, as when
+replayed in version order (each through ``codec.decode_edits`` and the world's edit planning, as when
 they arrived, but under ``REPLAY_LIMITS``: a batch that was accepted once is applied whatever
 today's limits are), then its whole distance field recomputed: here when a world moves to this
 engine (``moves.py``); at start-up (``restore.py``) by the running engine, so that one heavy
@@ -16,11 +16,12 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-from sdfserver.edits import REPLAY_LIMITS, parse_edits
+from sdfserver.edits import REPLAY_LIMITS
 from sdfserver.engine.commands import EngineLimits
 from sdfserver.errors import CorruptData, SdfServerError
 from sdfserver.gpu import GpuContext
-from sdfserver.storage import Storage, batch_parts, decode_batch
+from sdfserver.storage import Storage
+from sdfserver.storage.codec import decode_edits
 from sdfserver.storage.store import WorldStore
 from sdfserver.world import Focus, World, WorldConfig
 from sdfserver.world_config import TerrainSpec
@@ -123,8 +124,8 @@ def _replay(world: World, records: list[tuple[int, bytes]], directory: Path) -> 
         for version, payload in records[start:start + REPLAY_GROUP]:
             where = f"{directory} record {version}"
             try:
-                edits_wire, batch_id = batch_parts(decode_batch(payload, where))
-                plans.append(world.plan_edits(parse_edits(edits_wire)))
+                edits, batch_id = decode_edits(payload, where)
+                plans.append(world.plan_edits(edits))
                 if batch_id is not None:
                     ids.append((batch_id, version))
             except SdfServerError as exc:

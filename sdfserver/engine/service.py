@@ -20,7 +20,6 @@ from typing import Any, Callable
 
 from prometheus_client import generate_latest
 
-from sdfserver.edits import decode_brushes, parse_edits
 from sdfserver.engine import commands as cmd
 from sdfserver.engine import messages as msg
 from sdfserver.engine.access import Doorkeeper, holder_of
@@ -31,7 +30,7 @@ from sdfserver.errors import Forbidden, InvalidInput, SdfServerError, TooManySub
 from sdfserver.geometry import Box
 from sdfserver.incoming import short
 from sdfserver.render import parse_view
-from sdfserver.storage.codec import batch_parts, decode_batch
+from sdfserver.storage.codec import decode_edits
 from sdfserver.storage.snapshot import encode_snapshot, sparse_upload
 from sdfserver.world import Focus
 
@@ -203,12 +202,7 @@ class EngineService:
 
     def _apply(self, client: bytes, m: msg.ApplyEdits) -> None:
         self.doorkeeper.admit(m.access, m.world_id)
-        brushes = decode_brushes(m.batch)  # the common batch, in one call
-        if brushes is None:
-            edits_wire, batch_id = batch_parts(decode_batch(m.batch, "edit batch"))
-            edits = parse_edits(edits_wire)
-        else:
-            edits, batch_id = brushes
+        edits, batch_id = decode_edits(m.batch, "edit batch")
         self._submit(client, m.id, cmd.ApplyEdits(m.world_id, edits, m.batch, batch_id))
 
     def _read(self, client: bytes, m: msg.Read) -> None:

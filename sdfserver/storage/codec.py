@@ -11,6 +11,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from sdfserver.edits import Edit, decode_brushes, parse_edits
 from sdfserver.errors import CorruptData
 
 NDARRAY_EXT = 1
@@ -62,3 +63,14 @@ def decode_batch(payload: bytes, where: str = "log record") -> Any:
         return msgpack.unpackb(payload, ext_hook=_ext_hook, raw=False, strict_map_key=False)
     except (ValueError, TypeError, msgpack.UnpackException) as exc:
         raise CorruptData(where, None, f"record payload is not a valid edit batch: {exc}") from None
+
+
+def decode_edits(payload: bytes, where: str = "log record") -> tuple[list[Edit], str | None]:
+    """A record payload's parsed edits and batch id: a batch of boxes and spheres in one msgspec
+    call (``edits.decode_brushes``), any other through ``decode_batch`` and ``parse_edits``,
+    which refuse what is wrong with their messages."""
+    brushes = decode_brushes(payload)
+    if brushes is not None:
+        return brushes
+    edits_wire, batch_id = batch_parts(decode_batch(payload, where))
+    return parse_edits(edits_wire), batch_id
